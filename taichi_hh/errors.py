@@ -1,0 +1,26 @@
+"""Exceptions raised by taichi_hh.  Every message names the problem."""
+from __future__ import annotations
+
+
+class TaichiHHError(Exception):
+    """Base class of this package's errors."""
+
+
+class InputError(TaichiHHError, ValueError):
+    """Bad input data: NaN/inf, wrong shape, empty, duplicates, outside the domain."""
+
+
+class NeighbourError(TaichiHHError, ValueError):
+    """A particle has too few neighbours for the requested operator
+    (e.g. a singular correction matrix)."""
+
+
+class SolverError(TaichiHHError, RuntimeError):
+    """An iterative solve failed: breakdown, stagnation, divergence, non-finite
+    values or the iteration cap.  Carries ``reason``, ``iteration``, ``residual``."""
+
+    def __init__(self, message: str, *, reason: str, iteration: int, residual: float):
+        super().__init__(message)
+        self.reason = reason
+        self.iteration = iteration
+        self.residual = residual
