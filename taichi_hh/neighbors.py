@@ -1,0 +1,266 @@
+"""Dense-grid neighbour search.
+
+Two steps, kept apart:
+
+1. :class:`CellGrid` bins points into square cells of side = kernel support
+   with a counting sort (count per cell, prefix sum, stable scatter) and gives
+   the permutation that sorts points by cell.  :func:`bin_particles` applies it
+   to a :class:`~taichi_hh.particles.Particles` set, so that afterwards the
+   particles of cell ``c`` occupy the contiguous slots
+   ``cell_start[c] : cell_start[c+1]``.
+2. :class:`PairList` stores, for every query point, the indices of the source
+   points closer than the support (compressed rows: ``offsets``, ``neighbours``),
+   found by scanning the 3x3 cells around it.  Operators then loop over these
+   rows and never search again.
+
+The scatter is serial and stable (particles keep their relative order inside
+a cell), so the ordering, and every sum over neighbours, is deterministic.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import taichi as ti
+
+from . import runtime
+from .errors import InputError
+
+# Cells are a hair larger than the support so that a pair closer than the
+# support can never land two cells apart through rounding of (x - lo) / size.
+_CELL_PAD = 1.0 + 1e-9
+
+
+@ti.func
+def cell_coords(p, lo_x, lo_y, inv_cell, nx, ny):
+    cx = ti.cast(ti.floor((p[0] - lo_x) * inv_cell), ti.i32)
+    cy = ti.cast(ti.floor((p[1] - lo_y) * inv_cell), ti.i32)
+    return ti.math.clamp(cx, 0, nx - 1), ti.math.clamp(cy, 0, ny - 1)
+
+
+@ti.kernel
+def _count_cells(pos: ti.types.ndarray(), n: ti.i32, lo_x: float, lo_y: float, inv_cell: float,
+                 nx: ti.i32, ny: ti.i32, cell_of: ti.types.ndarray(), count: ti.types.ndarray(),
+                 ncells: ti.i32):
+    for c in range(ncells + 1):
+        count[c] = 0
+    for i in range(n):
+        cx, cy = cell_coords(pos[i], lo_x, lo_y, inv_cell, nx, ny)
+        c = cy * nx + cx
+        cell_of[i] = c
+        ti.atomic_add(count[c], 1)
+
+
+@ti.kernel
+def exclusive_scan(count: ti.types.ndarray(), start: ti.types.ndarray(), m: ti.i32) -> ti.i64:
+    """start[k] = sum(count[:k]) for k <= m; returns the total (as i64 to detect overflow)."""
+    total = ti.i64(0)
+    ti.loop_config(serialize=True)
+    for k in range(m):
+        start[k] = ti.cast(total, ti.i32)
+        total += ti.cast(count[k], ti.i64)
+    start[m] = ti.cast(total, ti.i32)
+    return total
+
+
+@ti.kernel
+def _stable_scatter(cell_of: ti.types.ndarray(), n: ti.i32, start: ti.types.ndarray(),
+                    cursor: ti.types.ndarray(), order: ti.types.ndarray(), ncells: ti.i32):
+    for c in range(ncells):
+        cursor[c] = start[c]
+    ti.loop_config(serialize=True)
+    for i in range(n):
+        c = cell_of[i]
+        order[cursor[c]] = i
+        cursor[c] += 1
+
+
+@dataclass
+class GridSpec:
+    lo_x: float
+    lo_y: float
+    cell_size: float
+    nx: int
+    ny: int
+
+    @property
+    def ncells(self) -> int:
+        return self.nx * self.ny
+
+    @property
+    def inv_cell(self) -> float:
+        return 1.0 / self.cell_size
+
+    def args(self):
+        return self.lo_x, self.lo_y, self.inv_cell, self.nx, self.ny
+
+    @classmethod
+    def covering(cls, lo, hi, support: float) -> "GridSpec":
+        """A grid of cells of side ~support covering the box [lo, hi] (with a margin)."""
+        if not (support > 0 and math.isfinite(support)):
+            raise InputError(f"kernel support must be a positive finite number, got {support}")
+        size = support * _CELL_PAD
+        lo = np.asarray(lo, float) - 0.5 * size
+        hi = np.asarray(hi, float) + 0.5 * size
+        nx = max(1, int(math.ceil((hi[0] - lo[0]) / size)))
+        ny = max(1, int(math.ceil((hi[1] - lo[1]) / size)))
+        if nx * ny > 2**31 - 2:
+            raise InputError(
+                f"neighbour grid of {nx} x {ny} cells is too large: the kernel support "
+                f"({support:g}) is tiny compared with the extent of the points")
+        return cls(float(lo[0]), float(lo[1]), size, nx, ny)
+
+
+class CellGrid:
+    """Counting-sort binning of points into a dense grid of cells."""
+
+    def __init__(self, spec: GridSpec):
+        runtime.ensure_init()
+        self.spec = spec
+        self.cell_start = ti.ndarray(ti.i32, shape=(spec.ncells + 1,))
+        self._count = ti.ndarray(ti.i32, shape=(spec.ncells + 1,))
+        self._capacity = 0
+        self.cell_of = None
+        self.order = None
+
+    def _ensure(self, n: int) -> None:
+        if n > self._capacity:
+            cap = max(n, 1)
+            self.cell_of = ti.ndarray(ti.i32, shape=(cap,))
+            self.order = ti.ndarray(ti.i32, shape=(cap,))
+            self._capacity = cap
+
+    def sort(self, pos, n: int):
+        """Bin ``pos[:n]``; returns ``order`` (slot k holds point ``order[k]``).
+
+        ``cell_start`` then describes the cells of the *sorted* sequence.
+        """
+        self._ensure(n)
+        s = self.spec
+        _count_cells(pos, n, *s.args(), self.cell_of, self._count, s.ncells)
+        exclusive_scan(self._count, self.cell_start, s.ncells)
+        _stable_scatter(self.cell_of, n, self.cell_start, self._count, self.order, s.ncells)
+        return self.order
+
+
+def bin_particles(particles, spec: GridSpec) -> CellGrid:
+    """Sort ``particles`` physically by cell of ``spec``; returns the grid."""
+    grid = CellGrid(spec)
+    order = grid.sort(particles.position, particles.n)
+    particles.permute(order)
+    return grid
+
+
+# ---------------------------------------------------------------------------
+# Pair lists
+
+@ti.func
+def _scan_neighbours(i, p, spos: ti.template(), cell_start: ti.template(), lo_x, lo_y, inv_cell,
+                     nx, ny, support2, exclude_self, out: ti.template(), base, dup_tol2,
+                     dup: ti.template()):
+    """Visit the source points within the support of p; write their indices
+    at out[base + k] when out is given (base >= 0); return the count."""
+    cx, cy = cell_coords(p, lo_x, lo_y, inv_cell, nx, ny)
+    k = 0
+    for dy in range(-1, 2):
+        for dx in range(-1, 2):
+            gx = cx + dx
+            gy = cy + dy
+            if 0 <= gx < nx and 0 <= gy < ny:
+                c = gy * nx + gx
+                for j in range(cell_start[c], cell_start[c + 1]):
+                    if exclude_self == 0 or j != i:
+                        d = spos[j] - p
+                        r2 = d.dot(d)
+                        if r2 < support2:
+                            if base >= 0:
+                                out[base + k] = j
+                            if r2 <= dup_tol2:
+                                ti.atomic_max(dup[0], i)
+                            k += 1
+    return k
+
+
+@ti.kernel
+def _count_pairs(qpos: ti.types.ndarray(), nq: ti.i32, spos: ti.types.ndarray(),
+                 cell_start: ti.types.ndarray(), lo_x: float, lo_y: float, inv_cell: float,
+                 nx: ti.i32, ny: ti.i32, support2: float, exclude_self: ti.i32,
+                 count: ti.types.ndarray(), dup_tol2: float, dup: ti.types.ndarray()):
+    for i in range(nq):
+        count[i] = _scan_neighbours(i, qpos[i], spos, cell_start, lo_x, lo_y, inv_cell,
+                                    nx, ny, support2, exclude_self, count, -1, dup_tol2, dup)
+
+
+@ti.kernel
+def _fill_pairs(qpos: ti.types.ndarray(), nq: ti.i32, spos: ti.types.ndarray(),
+                cell_start: ti.types.ndarray(), lo_x: float, lo_y: float, inv_cell: float,
+                nx: ti.i32, ny: ti.i32, support2: float, exclude_self: ti.i32,
+                offsets: ti.types.ndarray(), neighbours: ti.types.ndarray(),
+                dup_tol2: float, dup: ti.types.ndarray()):
+    for i in range(nq):
+        _scan_neighbours(i, qpos[i], spos, cell_start, lo_x, lo_y, inv_cell, nx, ny,
+                         support2, exclude_self, neighbours, offsets[i], dup_tol2, dup)
+
+
+class PairList:
+    """Neighbour rows: for query i, sources ``neighbours[offsets[i]:offsets[i+1]]``.
+
+    Sources are the binned (cell-sorted) points of ``grid``; queries may be the
+    same points (``exclude_self=True`` drops the i == j pair) or other points.
+    Row order inside a neighbourhood follows the cells' order, deterministic.
+    """
+
+    def __init__(self):
+        runtime.ensure_init()
+        self.offsets = None
+        self.neighbours = None
+        self.n_queries = 0
+        self.n_pairs = 0
+        self._cap_q = 0
+        self._cap_p = 0
+        self._count = None
+        self._dup = ti.ndarray(ti.i32, shape=(1,))
+
+    def build(self, qpos, nq: int, spos, grid: CellGrid, support: float, *,
+              exclude_self: bool = True, duplicate_tolerance: float = 0.0) -> "PairList":
+        """Find all source points within ``support`` of each query point.
+
+        duplicate_tolerance: pairs closer than this raise :class:`InputError`
+        (coincident points make every SPH operator singular).
+        """
+        if nq + 1 > self._cap_q:
+            self._cap_q = nq + 1
+            self.offsets = ti.ndarray(ti.i32, shape=(self._cap_q,))
+            self._count = ti.ndarray(ti.i32, shape=(self._cap_q,))
+        s = grid.spec
+        args = (s.lo_x, s.lo_y, s.inv_cell, s.nx, s.ny, support * support, int(exclude_self))
+        self._dup.fill(-1)
+        tol2 = duplicate_tolerance ** 2 if duplicate_tolerance > 0 else -1.0
+        _count_pairs(qpos, nq, spos, grid.cell_start, *args, self._count, tol2, self._dup)
+        total = exclusive_scan(self._count, self.offsets, nq)
+        if total > 2**31 - 1:
+            raise InputError(f"{total} neighbour pairs exceed the 2^31 limit of one pair list: "
+                             "reduce the kernel support or split the points")
+        dup = int(self._dup.to_numpy()[0])
+        if dup >= 0:
+            self.duplicate_query = dup
+            raise InputError(f"duplicate points: query point {dup} has a neighbour closer than "
+                             f"{duplicate_tolerance:g}")
+        if total > self._cap_p or self.neighbours is None:
+            self._cap_p = max(int(total), int(self._cap_p * 1.25), 1)
+            self.neighbours = ti.ndarray(ti.i32, shape=(self._cap_p,))
+        _fill_pairs(qpos, nq, spos, grid.cell_start, *args, self.offsets, self.neighbours,
+                    -1.0, self._dup)
+        self.n_queries = nq
+        self.n_pairs = int(total)
+        return self
+
+    def to_numpy(self):
+        """(offsets, neighbours) as numpy arrays (for tests and inspection)."""
+        off = self.offsets.to_numpy()[: self.n_queries + 1].copy()
+        nb = self.neighbours.to_numpy()[: self.n_pairs].copy()
+        return off, nb
+
+    def counts(self) -> np.ndarray:
+        off = self.offsets.to_numpy()[: self.n_queries + 1]
+        return np.diff(off)

@@ -1,0 +1,419 @@
+"""SPH differential operators in 2D as precomputed pair coefficients.
+
+One mechanism serves every variant.  For a particle ``i`` with neighbours
+``j`` (from a :class:`~taichi_hh.neighbors.PairList`), every operator is
+
+    gradient   grad f_i = sum_j G_ij (f_j - f_i) + s_i f_i          (G_ij a 2-vector)
+    divergence div v_i  = sum_j G_ij . (v_j - v_i) + s_i . v_i
+    curl       curl v_i = div (J v)_i,  J(v1, v2) = (v2, -v1)       (Petronetto Eq. 4)
+    Laplacian  lap f_i  = sum_j C_ij (f_j - f_i) + c_i f_i          (C_ij a scalar)
+
+The variant only changes the coefficients, computed once per particle
+configuration (:meth:`Operators.gradient_coefficients`,
+:meth:`Operators.laplacian_coefficients`); applying an operator is then a
+gather over the pair list, like a sparse matrix-vector product.  Difference
+forms have ``s_i = 0`` and are therefore exactly zero on constants.
+
+Gradient variants (``V_j = m_j / rho_j``, ``grad W_ij = grad_i W(x_i - x_j)``):
+
+``basic``            Colin Eq. 8:  sum_j V_j f_j grad W_ij
+``difference``       Petronetto Eq. 8:  sum_j V_j (f_j - f_i) grad W_ij
+``colin_difference`` Colin Eq. 13 (DGAF):  1/rho_i sum_j m_j (f_j - f_i) grad W_ij
+``symmetric``        Colin Eq. 17 (SGAF):  rho_i sum_j m_j (f_i/rho_i^2 + f_j/rho_j^2) grad W_ij
+``corrected``        Bonet & Lok 1999:  L_i sum_j V_j (f_j - f_i) grad W_ij,
+                     L_i = (sum_j V_j grad W_ij (x) (x_j - x_i))^-1; exact on linear fields.
+
+Laplacian variants:
+
+``basic``            Colin Eq. 9:  sum_j V_j f_j lap W_ij (self term included)
+``colin_difference`` Colin Eq. 21:  1/rho_i sum_j m_j (f_j - f_i)
+                     (lap W_ij - 2/rho_i grad W_ij . grad rho_i), grad rho_i = sum_j m_j grad W_ij
+``brookshaw``        Petronetto Eq. 10:  sum_j 2 V_j (f_i - f_j) x_ij . grad W_ij / |x_ij|^2
+``corrected``        renormalised in the manner of Fatehi & Manzari 2011: with
+                     w_ij = -2 V_j W'(r)/r, e = x_ji/|x_ji| and the corrected gradient,
+                     lap f_i = B_i : sum_j w_ij [(f_j - f_i) - x_ji . grad~f_i] e (x) e,
+                     the symmetric tensor B_i chosen so that every quadratic is
+                     reproduced exactly (a 3x3 solve per particle).  Still a one-ring
+                     stencil: the gradient term folds into C_ij.
+
+Operators evaluate at every particle of the set, taking all particles
+(fluid, boundary, ghost) as neighbours; the caller decides which rows it uses.
+"""
+
+import numpy as np
+import taichi as ti
+
+from . import runtime
+from .errors import NeighbourError
+from .kernels import kernel_id, kernel_wfl
+
+GRADIENT_VARIANTS = ("basic", "difference", "colin_difference", "symmetric", "corrected")
+LAPLACIAN_VARIANTS = ("basic", "colin_difference", "brookshaw", "corrected")
+
+# A correction matrix whose smallest/largest eigenvalue ratio falls below this
+# is treated as singular: the neighbourhood is too small or degenerate
+# (collinear) for the corrected operators.
+SINGULAR_RATIO = 1e-6
+
+
+def _variant_id(name: str, table) -> int:
+    if name not in table:
+        raise ValueError(f"unknown operator variant {name!r}; choose one of {table}")
+    return table.index(name)
+
+
+# ---------------------------------------------------------------------------
+# Taichi kernels
+
+@ti.kernel
+def _density(kid: ti.template(), pos: ti.types.ndarray(), mass: ti.types.ndarray(),
+             n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
+             rho: ti.types.ndarray(), vol: ti.types.ndarray()):
+    """rho_i = sum_j m_j W_ij including j = i (Petronetto Sec. 5a); V_i = m_i / rho_i."""
+    for i in range(n):
+        W0, _F0, _L0 = kernel_wfl(kid, 0.0, H)
+        s = mass[i] * W0
+        for k in range(offsets[i], offsets[i + 1]):
+            j = nbrs[k]
+            W, _F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
+            s += mass[j] * W
+        rho[i] = s
+        vol[i] = mass[i] / s
+
+
+@ti.func
+def _sym2_eig_ratio(a, b, c):
+    """min/max |eigenvalue| of the symmetric matrix [[a, b], [b, c]]."""
+    m = 0.5 * (a + c)
+    d = ti.sqrt(0.25 * (a - c) * (a - c) + b * b)
+    l1 = ti.abs(m + d)
+    l2 = ti.abs(m - d)
+    hi = ti.max(l1, l2)
+    lo = ti.min(l1, l2)
+    ratio = 0.0
+    if hi > 0.0:
+        ratio = lo / hi
+    return ratio
+
+
+@ti.func
+def _correction_matrix(kid: ti.template(), i, pos: ti.template(), mass: ti.template(),
+                       rho: ti.template(), offsets: ti.template(), nbrs: ti.template(), H):
+    """M_i = sum_j V_j grad W_ij (x) (x_j - x_i); symmetric positive for these kernels."""
+    M = ti.Matrix.zero(float, 2, 2)
+    for k in range(offsets[i], offsets[i + 1]):
+        j = nbrs[k]
+        x = pos[j] - pos[i]
+        _W, F, _L = kernel_wfl(kid, x.norm(), H)
+        M += (mass[j] / rho[j]) * (-F) * x.outer_product(x)
+    return M
+
+
+@ti.kernel
+def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
+                     mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
+                     offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
+                     G: ti.types.ndarray(), s: ti.types.ndarray(), bad: ti.types.ndarray()):
+    for i in range(n):
+        L = ti.Matrix.identity(float, 2)
+        if ti.static(variant == 4):
+            M = _correction_matrix(kid, i, pos, mass, rho, offsets, nbrs, H)
+            if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
+                ti.atomic_max(bad[0], i)
+            else:
+                L = M.inverse()
+        gsum = ti.Vector.zero(float, 2)
+        for k in range(offsets[i], offsets[i + 1]):
+            j = nbrs[k]
+            xij = pos[i] - pos[j]
+            _W, F, _L = kernel_wfl(kid, xij.norm(), H)
+            gw = F * xij
+            coef = ti.Vector.zero(float, 2)
+            if ti.static(variant == 0 or variant == 1):
+                coef = (mass[j] / rho[j]) * gw
+            elif ti.static(variant == 2):
+                coef = (mass[j] / rho[i]) * gw
+            elif ti.static(variant == 3):
+                coef = rho[i] * mass[j] / (rho[j] * rho[j]) * gw
+                gsum += (mass[j] / rho[i]) * gw
+            else:
+                coef = (mass[j] / rho[j]) * (L @ gw)
+            G[k] = coef
+            if ti.static(variant == 0):
+                gsum += coef   # sum_j G f_j = sum_j G (f_j - f_i) + (sum_j G) f_i
+        s[i] = gsum
+
+
+@ti.kernel
+def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
+                      mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
+                      offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
+                      C: ti.types.ndarray(), s: ti.types.ndarray(), bad: ti.types.ndarray()):
+    for i in range(n):
+        selfc = 0.0
+        if ti.static(variant == 0):          # Colin Eq. 9
+            _W0, _F0, L0 = kernel_wfl(kid, 0.0, H)
+            csum = 0.0
+            for k in range(offsets[i], offsets[i + 1]):
+                j = nbrs[k]
+                _W, _F, Lw = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
+                c = (mass[j] / rho[j]) * Lw
+                C[k] = c
+                csum += c
+            selfc = csum + (mass[i] / rho[i]) * L0
+        elif ti.static(variant == 1):        # Colin Eq. 21
+            grho = ti.Vector.zero(float, 2)
+            for k in range(offsets[i], offsets[i + 1]):
+                j = nbrs[k]
+                xij = pos[i] - pos[j]
+                _W, F, _L = kernel_wfl(kid, xij.norm(), H)
+                grho += mass[j] * F * xij
+            for k in range(offsets[i], offsets[i + 1]):
+                j = nbrs[k]
+                xij = pos[i] - pos[j]
+                _W, F, Lw = kernel_wfl(kid, xij.norm(), H)
+                C[k] = (mass[j] / rho[i]) * (Lw - 2.0 / rho[i] * F * xij.dot(grho))
+        elif ti.static(variant == 2):        # Petronetto Eq. 10 (Brookshaw)
+            for k in range(offsets[i], offsets[i + 1]):
+                j = nbrs[k]
+                _W, F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
+                C[k] = -2.0 * (mass[j] / rho[j]) * F
+        else:                                # renormalised, exact on quadratics
+            M = ti.Matrix.zero(float, 2, 2)
+            u = ti.Matrix.zero(float, 3, 2)    # rows: sum V q_k grad W, q = (x^2, y^2, xy)
+            P = ti.Matrix.zero(float, 3, 3)    # rows k: sum w q_k (exx, eyy, exy)
+            Q = ti.Matrix.zero(float, 2, 3)    # rows a: sum w x_a (exx, eyy, exy)
+            for k in range(offsets[i], offsets[i + 1]):
+                j = nbrs[k]
+                x = pos[j] - pos[i]
+                r = x.norm()
+                _W, F, _L = kernel_wfl(kid, r, H)
+                V = mass[j] / rho[j]
+                gw = -F * x                     # grad_i W_ij = F x_ij = -F x_ji
+                M += V * gw.outer_product(x)
+                q = ti.Vector([x[0] * x[0], x[1] * x[1], x[0] * x[1]])
+                e = x / r
+                ee = ti.Vector([e[0] * e[0], e[1] * e[1], e[0] * e[1]])
+                w = -2.0 * V * F
+                for a in ti.static(range(3)):
+                    for b in ti.static(range(2)):
+                        u[a, b] += V * q[a] * gw[b]
+                    for b in ti.static(range(3)):
+                        P[a, b] += w * q[a] * ee[b]
+                for a in ti.static(range(2)):
+                    for b in ti.static(range(3)):
+                        Q[a, b] += w * x[a] * ee[b]
+            Linv = ti.Matrix.identity(float, 2)
+            Bxx = 1.0
+            Byy = 1.0
+            Bxy = 0.0
+            if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
+                ti.atomic_max(bad[0], i)
+            else:
+                Linv = M.inverse()
+                A = ti.Matrix.zero(float, 3, 3)
+                for a in ti.static(range(3)):
+                    g = Linv @ ti.Vector([u[a, 0], u[a, 1]])
+                    for b in ti.static(range(3)):
+                        t = P[a, b] - g[0] * Q[0, b] - g[1] * Q[1, b]
+                        A[a, b] = t * (2.0 if b == 2 else 1.0)
+                rhs = ti.Vector([2.0, 2.0, 0.0])   # traces of the Hessians of x^2, y^2, xy
+                scale = ti.abs(A).max()
+                det = A.determinant()
+                if scale == 0.0 or ti.abs(det) < 1e-9 * scale * scale * scale:
+                    ti.atomic_max(bad[0], i)
+                else:
+                    b = A.inverse() @ rhs
+                    Bxx = b[0]
+                    Byy = b[1]
+                    Bxy = b[2]
+            sigma = ti.Vector.zero(float, 2)
+            for k in range(offsets[i], offsets[i + 1]):
+                j = nbrs[k]
+                x = pos[j] - pos[i]
+                r = x.norm()
+                _W, F, _L = kernel_wfl(kid, r, H)
+                e = x / r
+                a_ij = -2.0 * (mass[j] / rho[j]) * F * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
+                                                         + 2.0 * Bxy * e[0] * e[1])
+                C[k] = a_ij
+                sigma += a_ij * x
+            beta = Linv.transpose() @ sigma
+            for k in range(offsets[i], offsets[i + 1]):
+                j = nbrs[k]
+                x = pos[j] - pos[i]
+                _W, F, _L = kernel_wfl(kid, x.norm(), H)
+                # C_ij = a_ij - V_j beta . grad W_ij,  grad W_ij = -F x_ji
+                C[k] += (mass[j] / rho[j]) * F * beta.dot(x)
+        s[i] = selfc
+
+
+@ti.kernel
+def _apply_gradient(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                    G: ti.types.ndarray(), s: ti.types.ndarray(), f: ti.types.ndarray(),
+                    out: ti.types.ndarray()):
+    for i in range(n):
+        fi = f[i]
+        acc = s[i] * fi
+        for k in range(offsets[i], offsets[i + 1]):
+            acc += G[k] * (f[nbrs[k]] - fi)
+        out[i] = acc
+
+
+@ti.kernel
+def _apply_divergence(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                      G: ti.types.ndarray(), s: ti.types.ndarray(), v: ti.types.ndarray(),
+                      rotate: ti.i32, out: ti.types.ndarray()):
+    # rotate = 1 evaluates div(J v) = curl v with J(v1, v2) = (v2, -v1)
+    for i in range(n):
+        vi = v[i]
+        if rotate:
+            vi = ti.Vector([vi[1], -vi[0]])
+        acc = s[i].dot(vi)
+        for k in range(offsets[i], offsets[i + 1]):
+            vj = v[nbrs[k]]
+            if rotate:
+                vj = ti.Vector([vj[1], -vj[0]])
+            acc += G[k].dot(vj - vi)
+        out[i] = acc
+
+
+@ti.kernel
+def _apply_laplacian(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                     C: ti.types.ndarray(), s: ti.types.ndarray(), f: ti.types.ndarray(),
+                     out: ti.types.ndarray()):
+    for i in range(n):
+        fi = f[i]
+        acc = s[i] * fi
+        for k in range(offsets[i], offsets[i + 1]):
+            acc += C[k] * (f[nbrs[k]] - fi)
+        out[i] = acc
+
+
+@ti.kernel
+def _laplacian_diagonal(n: ti.i32, offsets: ti.types.ndarray(), C: ti.types.ndarray(),
+                        s: ti.types.ndarray(), out: ti.types.ndarray()):
+    for i in range(n):
+        d = s[i]
+        for k in range(offsets[i], offsets[i + 1]):
+            d -= C[k]
+        out[i] = d
+
+
+@ti.kernel
+def _shepard(kid: ti.template(), pos: ti.types.ndarray(), vol: ti.types.ndarray(), n: ti.i32,
+             offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
+             f: ti.types.ndarray(), out: ti.types.ndarray()):
+    """Shepard-normalised interpolation (Petronetto Eq. 14), self term included."""
+    for i in range(n):
+        W0, _F0, _L0 = kernel_wfl(kid, 0.0, H)
+        num = vol[i] * W0 * f[i]
+        den = vol[i] * W0
+        for k in range(offsets[i], offsets[i + 1]):
+            j = nbrs[k]
+            W, _F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
+            num += vol[j] * W * f[j]
+            den += vol[j] * W
+        out[i] = num / den
+
+
+# ---------------------------------------------------------------------------
+
+class GradientStencil:
+    """Pair coefficients G_ij and self coefficients s_i of one gradient variant."""
+
+    def __init__(self, G, s, variant: str):
+        self.G, self.s, self.variant = G, s, variant
+
+
+class LaplacianStencil:
+    """Pair coefficients C_ij and self coefficients c_i of one Laplacian variant."""
+
+    def __init__(self, C, s, variant: str):
+        self.C, self.s, self.variant = C, s, variant
+
+
+class Operators:
+    """SPH operators on a binned particle set and its pair list.
+
+    ``particles`` must carry mass; call :meth:`compute_density` (summation)
+    or fill ``density``/``volume`` yourself before building coefficients.
+    """
+
+    def __init__(self, particles, pairs, support: float, kernel: str = "wendland"):
+        runtime.ensure_init()
+        self.particles = particles
+        self.pairs = pairs
+        self.support = float(support)
+        self.kernel = kernel
+        self._kid = kernel_id(kernel)
+        self._bad = ti.ndarray(ti.i32, shape=(1,))
+
+    @property
+    def n(self) -> int:
+        return self.particles.n
+
+    def _pair_args(self):
+        return self.pairs.offsets, self.pairs.neighbours
+
+    def compute_density(self) -> None:
+        p = self.particles
+        _density(self._kid, p.position, p.mass, p.n, *self._pair_args(), self.support,
+                 p.density, p.volume)
+
+    def _check_bad(self, what: str) -> None:
+        bad = int(self._bad.to_numpy()[0])
+        if bad >= 0:
+            p = self.particles
+            pos = p.position.to_numpy()[bad]
+            orig = int(p.original_index.to_numpy()[bad])
+            count = int(self.pairs.counts()[bad])
+            raise NeighbourError(
+                f"{what}: the correction matrix of particle {orig} at ({pos[0]:.6g}, {pos[1]:.6g}) "
+                f"is singular: it has {count} neighbours within the kernel support "
+                f"{self.support:.6g}, too few or all on one line. Increase the support "
+                "(support_ratio) or use an uncorrected variant.")
+
+    def gradient_coefficients(self, variant: str = "corrected") -> GradientStencil:
+        vid = _variant_id(variant, GRADIENT_VARIANTS)
+        p = self.particles
+        real = runtime.real_dtype()
+        G = ti.Vector.ndarray(2, real, shape=(max(self.pairs.n_pairs, 1),))
+        s = ti.Vector.ndarray(2, real, shape=(max(p.n, 1),))
+        self._bad.fill(-1)
+        _gradient_coeffs(self._kid, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
+                         self.support, G, s, self._bad)
+        self._check_bad(f"{variant} gradient")
+        return GradientStencil(G, s, variant)
+
+    def laplacian_coefficients(self, variant: str = "corrected") -> LaplacianStencil:
+        vid = _variant_id(variant, LAPLACIAN_VARIANTS)
+        p = self.particles
+        real = runtime.real_dtype()
+        C = ti.ndarray(real, shape=(max(self.pairs.n_pairs, 1),))
+        s = ti.ndarray(real, shape=(max(p.n, 1),))
+        self._bad.fill(-1)
+        _laplacian_coeffs(self._kid, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
+                          self.support, C, s, self._bad)
+        self._check_bad(f"{variant} Laplacian")
+        return LaplacianStencil(C, s, variant)
+
+    # ---- applies (Taichi arrays in, Taichi arrays out) --------------------------
+    def gradient(self, st: GradientStencil, f, out) -> None:
+        _apply_gradient(self.n, *self._pair_args(), st.G, st.s, f, out)
+
+    def divergence(self, st: GradientStencil, v, out) -> None:
+        _apply_divergence(self.n, *self._pair_args(), st.G, st.s, v, 0, out)
+
+    def curl(self, st: GradientStencil, v, out) -> None:
+        _apply_divergence(self.n, *self._pair_args(), st.G, st.s, v, 1, out)
+
+    def laplacian(self, st: LaplacianStencil, f, out) -> None:
+        _apply_laplacian(self.n, *self._pair_args(), st.C, st.s, f, out)
+
+    def laplacian_diagonal(self, st: LaplacianStencil, out) -> None:
+        _laplacian_diagonal(self.n, self.pairs.offsets, st.C, st.s, out)
+
+    def shepard(self, f, out) -> None:
+        p = self.particles
+        _shepard(self._kid, p.position, p.volume, p.n, *self._pair_args(), self.support, f, out)
