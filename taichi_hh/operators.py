@@ -135,7 +135,8 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
                 coef = (mass[j] / rho[i]) * gw
             elif ti.static(variant == 3):
                 coef = rho[i] * mass[j] / (rho[j] * rho[j]) * gw
-                gsum += (mass[j] / rho[i]) * gw
+                # f_i terms: rho_i m_j f_i / rho_i^2, plus sum_j G f_i from the difference form
+                gsum += (mass[j] / rho[i]) * gw + coef
             else:
                 coef = (mass[j] / rho[j]) * (L @ gw)
             G[k] = coef
