@@ -46,6 +46,13 @@ import taichi as ti
 from . import runtime
 from .errors import NeighbourError
 from .kernels import kernel_id, kernel_wfl
+from .particles import BOUNDARY, FLUID, GHOST
+
+ALL_KINDS = (FLUID, BOUNDARY, GHOST)
+
+
+def _kind_bits(kinds) -> int:
+    return sum(1 << int(k) for k in kinds)
 
 GRADIENT_VARIANTS = ("basic", "difference", "colin_difference", "symmetric", "corrected")
 LAPLACIAN_VARIANTS = ("basic", "colin_difference", "brookshaw", "corrected")
@@ -113,8 +120,14 @@ def _correction_matrix(kid: ti.template(), i, pos: ti.template(), mass: ti.templ
 def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
                      mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
                      offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
-                     G: ti.types.ndarray(), s: ti.types.ndarray(), bad: ti.types.ndarray()):
+                     G: ti.types.ndarray(), s: ti.types.ndarray(), bad: ti.types.ndarray(),
+                     kind: ti.types.ndarray(), row_kinds: ti.i32):
     for i in range(n):
+        if (row_kinds >> kind[i]) & 1 == 0:    # row not wanted: zero coefficients
+            for k in range(offsets[i], offsets[i + 1]):
+                G[k] = ti.Vector.zero(float, 2)
+            s[i] = ti.Vector.zero(float, 2)
+            continue
         L = ti.Matrix.identity(float, 2)
         if ti.static(variant == 4):
             M = _correction_matrix(kid, i, pos, mass, rho, offsets, nbrs, H)
@@ -149,8 +162,14 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
 def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
                       mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
                       offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
-                      C: ti.types.ndarray(), s: ti.types.ndarray(), bad: ti.types.ndarray()):
+                      C: ti.types.ndarray(), s: ti.types.ndarray(), bad: ti.types.ndarray(),
+                      kind: ti.types.ndarray(), row_kinds: ti.i32):
     for i in range(n):
+        if (row_kinds >> kind[i]) & 1 == 0:    # row not wanted: zero coefficients
+            for k in range(offsets[i], offsets[i + 1]):
+                C[k] = 0.0
+            s[i] = 0.0
+            continue
         selfc = 0.0
         if ti.static(variant == 0):          # Colin Eq. 9
             _W0, _F0, L0 = kernel_wfl(kid, 0.0, H)
@@ -375,7 +394,10 @@ class Operators:
                 f"{self.support:.6g}, too few or all on one line. Increase the support "
                 "(support_ratio) or use an uncorrected variant.")
 
-    def gradient_coefficients(self, variant: str = "corrected") -> GradientStencil:
+    def gradient_coefficients(self, variant: str = "corrected",
+                              row_kinds=ALL_KINDS) -> GradientStencil:
+        """Coefficients of a gradient variant for the rows whose particle kind is in
+        ``row_kinds`` (other rows get zeros: e.g. ghosts, which need no derivatives)."""
         vid = _variant_id(variant, GRADIENT_VARIANTS)
         p = self.particles
         real = runtime.real_dtype()
@@ -383,11 +405,13 @@ class Operators:
         s = ti.Vector.ndarray(2, real, shape=(max(p.n, 1),))
         self._bad.fill(-1)
         _gradient_coeffs(self._kid, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
-                         self.support, G, s, self._bad)
+                         self.support, G, s, self._bad, p.kind, _kind_bits(row_kinds))
         self._check_bad(f"{variant} gradient")
         return GradientStencil(G, s, variant)
 
-    def laplacian_coefficients(self, variant: str = "corrected") -> LaplacianStencil:
+    def laplacian_coefficients(self, variant: str = "corrected",
+                               row_kinds=ALL_KINDS) -> LaplacianStencil:
+        """Coefficients of a Laplacian variant for the rows of the given kinds."""
         vid = _variant_id(variant, LAPLACIAN_VARIANTS)
         p = self.particles
         real = runtime.real_dtype()
@@ -395,7 +419,7 @@ class Operators:
         s = ti.ndarray(real, shape=(max(p.n, 1),))
         self._bad.fill(-1)
         _laplacian_coeffs(self._kid, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
-                          self.support, C, s, self._bad)
+                          self.support, C, s, self._bad, p.kind, _kind_bits(row_kinds))
         self._check_bad(f"{variant} Laplacian")
         return LaplacianStencil(C, s, variant)
 
