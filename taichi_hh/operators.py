@@ -40,6 +40,8 @@ Operators evaluate at every particle of the set, taking all particles
 (fluid, boundary, ghost) as neighbours; the caller decides which rows it uses.
 """
 
+from dataclasses import dataclass
+
 import numpy as np
 import taichi as ti
 
@@ -104,15 +106,27 @@ def _sym2_eig_ratio(a, b, c):
 
 
 @ti.func
+def _src_mass(mass: ti.template(), kind: ti.template(), j, src_kinds):
+    """m_j if particle j's kind is a wanted source, else 0: every coefficient is
+    proportional to m_j, so masked neighbours simply drop out of every sum."""
+    m = 0.0
+    if (src_kinds >> kind[j]) & 1:
+        m = mass[j]
+    return m
+
+
+@ti.func
 def _correction_matrix(kid: ti.template(), i, pos: ti.template(), mass: ti.template(),
-                       rho: ti.template(), offsets: ti.template(), nbrs: ti.template(), H):
+                       rho: ti.template(), offsets: ti.template(), nbrs: ti.template(), H,
+                       kind: ti.template(), src_kinds):
     """M_i = sum_j V_j grad W_ij (x) (x_j - x_i); symmetric positive for these kernels."""
     M = ti.Matrix.zero(float, 2, 2)
     for k in range(offsets[i], offsets[i + 1]):
         j = nbrs[k]
+        mj = _src_mass(mass, kind, j, src_kinds)
         x = pos[j] - pos[i]
         _W, F, _L = kernel_wfl(kid, x.norm(), H)
-        M += (mass[j] / rho[j]) * (-F) * x.outer_product(x)
+        M += (mj / rho[j]) * (-F) * x.outer_product(x)
     return M
 
 
@@ -121,7 +135,7 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
                      mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
                      offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
                      G: ti.types.ndarray(), s: ti.types.ndarray(), bad: ti.types.ndarray(),
-                     kind: ti.types.ndarray(), row_kinds: ti.i32):
+                     kind: ti.types.ndarray(), row_kinds: ti.i32, src_kinds: ti.i32):
     for i in range(n):
         if (row_kinds >> kind[i]) & 1 == 0:    # row not wanted: zero coefficients
             for k in range(offsets[i], offsets[i + 1]):
@@ -130,7 +144,7 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
             continue
         L = ti.Matrix.identity(float, 2)
         if ti.static(variant == 4):
-            M = _correction_matrix(kid, i, pos, mass, rho, offsets, nbrs, H)
+            M = _correction_matrix(kid, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
             if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
                 ti.atomic_max(bad[0], i)
             else:
@@ -138,20 +152,21 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
         gsum = ti.Vector.zero(float, 2)
         for k in range(offsets[i], offsets[i + 1]):
             j = nbrs[k]
+            mj = _src_mass(mass, kind, j, src_kinds)
             xij = pos[i] - pos[j]
             _W, F, _L = kernel_wfl(kid, xij.norm(), H)
             gw = F * xij
             coef = ti.Vector.zero(float, 2)
             if ti.static(variant == 0 or variant == 1):
-                coef = (mass[j] / rho[j]) * gw
+                coef = (mj / rho[j]) * gw
             elif ti.static(variant == 2):
-                coef = (mass[j] / rho[i]) * gw
+                coef = (mj / rho[i]) * gw
             elif ti.static(variant == 3):
-                coef = rho[i] * mass[j] / (rho[j] * rho[j]) * gw
+                coef = rho[i] * mj / (rho[j] * rho[j]) * gw
                 # f_i terms: rho_i m_j f_i / rho_i^2, plus sum_j G f_i from the difference form
-                gsum += (mass[j] / rho[i]) * gw + coef
+                gsum += (mj / rho[i]) * gw + coef
             else:
-                coef = (mass[j] / rho[j]) * (L @ gw)
+                coef = (mj / rho[j]) * (L @ gw)
             G[k] = coef
             if ti.static(variant == 0):
                 gsum += coef   # sum_j G f_j = sum_j G (f_j - f_i) + (sum_j G) f_i
@@ -163,7 +178,7 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
                       mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
                       offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
                       C: ti.types.ndarray(), s: ti.types.ndarray(), bad: ti.types.ndarray(),
-                      kind: ti.types.ndarray(), row_kinds: ti.i32):
+                      kind: ti.types.ndarray(), row_kinds: ti.i32, src_kinds: ti.i32):
     for i in range(n):
         if (row_kinds >> kind[i]) & 1 == 0:    # row not wanted: zero coefficients
             for k in range(offsets[i], offsets[i + 1]):
@@ -176,8 +191,9 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
             csum = 0.0
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
+                mj = _src_mass(mass, kind, j, src_kinds)
                 _W, _F, Lw = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
-                c = (mass[j] / rho[j]) * Lw
+                c = (mj / rho[j]) * Lw
                 C[k] = c
                 csum += c
             selfc = csum + (mass[i] / rho[i]) * L0
@@ -185,19 +201,22 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
             grho = ti.Vector.zero(float, 2)
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
+                mj = _src_mass(mass, kind, j, src_kinds)
                 xij = pos[i] - pos[j]
                 _W, F, _L = kernel_wfl(kid, xij.norm(), H)
-                grho += mass[j] * F * xij
+                grho += mj * F * xij
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
+                mj = _src_mass(mass, kind, j, src_kinds)
                 xij = pos[i] - pos[j]
                 _W, F, Lw = kernel_wfl(kid, xij.norm(), H)
-                C[k] = (mass[j] / rho[i]) * (Lw - 2.0 / rho[i] * F * xij.dot(grho))
+                C[k] = (mj / rho[i]) * (Lw - 2.0 / rho[i] * F * xij.dot(grho))
         elif ti.static(variant == 2):        # Petronetto Eq. 10 (Brookshaw)
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
+                mj = _src_mass(mass, kind, j, src_kinds)
                 _W, F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
-                C[k] = -2.0 * (mass[j] / rho[j]) * F
+                C[k] = -2.0 * (mj / rho[j]) * F
         else:                                # renormalised, exact on quadratics
             M = ti.Matrix.zero(float, 2, 2)
             u = ti.Matrix.zero(float, 3, 2)    # rows: sum V q_k grad W, q = (x^2, y^2, xy)
@@ -205,10 +224,11 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
             Q = ti.Matrix.zero(float, 2, 3)    # rows a: sum w x_a (exx, eyy, exy)
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
+                mj = _src_mass(mass, kind, j, src_kinds)
                 x = pos[j] - pos[i]
                 r = x.norm()
                 _W, F, _L = kernel_wfl(kid, r, H)
-                V = mass[j] / rho[j]
+                V = mj / rho[j]
                 gw = -F * x                     # grad_i W_ij = F x_ij = -F x_ji
                 M += V * gw.outer_product(x)
                 q = ti.Vector([x[0] * x[0], x[1] * x[1], x[0] * x[1]])
@@ -250,21 +270,23 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
             sigma = ti.Vector.zero(float, 2)
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
+                mj = _src_mass(mass, kind, j, src_kinds)
                 x = pos[j] - pos[i]
                 r = x.norm()
                 _W, F, _L = kernel_wfl(kid, r, H)
                 e = x / r
-                a_ij = -2.0 * (mass[j] / rho[j]) * F * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
-                                                         + 2.0 * Bxy * e[0] * e[1])
+                a_ij = -2.0 * (mj / rho[j]) * F * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
+                                                   + 2.0 * Bxy * e[0] * e[1])
                 C[k] = a_ij
                 sigma += a_ij * x
             beta = Linv.transpose() @ sigma
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
+                mj = _src_mass(mass, kind, j, src_kinds)
                 x = pos[j] - pos[i]
                 _W, F, _L = kernel_wfl(kid, x.norm(), H)
                 # C_ij = a_ij - V_j beta . grad W_ij,  grad W_ij = -F x_ji
-                C[k] += (mass[j] / rho[j]) * F * beta.dot(x)
+                C[k] += (mj / rho[j]) * F * beta.dot(x)
         s[i] = selfc
 
 
@@ -339,18 +361,24 @@ def _shepard(kid: ti.template(), pos: ti.types.ndarray(), vol: ti.types.ndarray(
 
 # ---------------------------------------------------------------------------
 
+@dataclass
 class GradientStencil:
     """Pair coefficients G_ij and self coefficients s_i of one gradient variant."""
+    G: object
+    s: object
+    variant: str
+    row_kinds: tuple = ALL_KINDS
+    source_kinds: tuple = ALL_KINDS
 
-    def __init__(self, G, s, variant: str):
-        self.G, self.s, self.variant = G, s, variant
 
-
+@dataclass
 class LaplacianStencil:
     """Pair coefficients C_ij and self coefficients c_i of one Laplacian variant."""
-
-    def __init__(self, C, s, variant: str):
-        self.C, self.s, self.variant = C, s, variant
+    C: object
+    s: object
+    variant: str
+    row_kinds: tuple = ALL_KINDS
+    source_kinds: tuple = ALL_KINDS
 
 
 class Operators:
@@ -395,9 +423,10 @@ class Operators:
                 "(support_ratio) or use an uncorrected variant.")
 
     def gradient_coefficients(self, variant: str = "corrected",
-                              row_kinds=ALL_KINDS) -> GradientStencil:
+                              row_kinds=ALL_KINDS, source_kinds=ALL_KINDS) -> GradientStencil:
         """Coefficients of a gradient variant for the rows whose particle kind is in
-        ``row_kinds`` (other rows get zeros: e.g. ghosts, which need no derivatives)."""
+        ``row_kinds`` (other rows get zeros: e.g. ghosts, which need no derivatives),
+        summing over the neighbours whose kind is in ``source_kinds``."""
         vid = _variant_id(variant, GRADIENT_VARIANTS)
         p = self.particles
         real = runtime.real_dtype()
@@ -405,13 +434,15 @@ class Operators:
         s = ti.Vector.ndarray(2, real, shape=(max(p.n, 1),))
         self._bad.fill(-1)
         _gradient_coeffs(self._kid, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
-                         self.support, G, s, self._bad, p.kind, _kind_bits(row_kinds))
+                         self.support, G, s, self._bad, p.kind, _kind_bits(row_kinds),
+                         _kind_bits(source_kinds))
         self._check_bad(f"{variant} gradient")
-        return GradientStencil(G, s, variant)
+        return GradientStencil(G, s, variant, tuple(row_kinds), tuple(source_kinds))
 
     def laplacian_coefficients(self, variant: str = "corrected",
-                               row_kinds=ALL_KINDS) -> LaplacianStencil:
-        """Coefficients of a Laplacian variant for the rows of the given kinds."""
+                               row_kinds=ALL_KINDS, source_kinds=ALL_KINDS) -> LaplacianStencil:
+        """Coefficients of a Laplacian variant for the rows of the given kinds,
+        summing over neighbours of the given kinds."""
         vid = _variant_id(variant, LAPLACIAN_VARIANTS)
         p = self.particles
         real = runtime.real_dtype()
@@ -419,9 +450,10 @@ class Operators:
         s = ti.ndarray(real, shape=(max(p.n, 1),))
         self._bad.fill(-1)
         _laplacian_coeffs(self._kid, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
-                          self.support, C, s, self._bad, p.kind, _kind_bits(row_kinds))
+                          self.support, C, s, self._bad, p.kind, _kind_bits(row_kinds),
+                         _kind_bits(source_kinds))
         self._check_bad(f"{variant} Laplacian")
-        return LaplacianStencil(C, s, variant)
+        return LaplacianStencil(C, s, variant, tuple(row_kinds), tuple(source_kinds))
 
     # ---- applies (Taichi arrays in, Taichi arrays out) --------------------------
     def gradient(self, st: GradientStencil, f, out) -> None:
