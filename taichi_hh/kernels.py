@@ -15,6 +15,9 @@ name          formula (q = r / h)                        reference        H/h
               1/4 (2 - q)^3}
 ============  =========================================  ===============  =====
 
+The quartic is kept exactly as published: it is slightly negative (down to
+-0.3% of W(0)) for 0.848 H < r < H, where its gradient also changes sign.
+
 Colin et al. call the support radius itself ``h``; Petronetto et al. use the
 quartic's ``h`` (support ``2h``).
 

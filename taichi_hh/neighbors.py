@@ -33,9 +33,10 @@ _CELL_PAD = 1.0 + 1e-9
 
 @ti.func
 def cell_coords(p, lo_x, lo_y, inv_cell, nx, ny):
-    cx = ti.cast(ti.floor((p[0] - lo_x) * inv_cell), ti.i32)
-    cy = ti.cast(ti.floor((p[1] - lo_y) * inv_cell), ti.i32)
-    return ti.math.clamp(cx, 0, nx - 1), ti.math.clamp(cy, 0, ny - 1)
+    # clamp in floating point before the cast: far-away points would overflow i32
+    fx = ti.math.clamp(ti.floor((p[0] - lo_x) * inv_cell), 0.0, ti.cast(nx - 1, float))
+    fy = ti.math.clamp(ti.floor((p[1] - lo_y) * inv_cell), 0.0, ti.cast(ny - 1, float))
+    return ti.cast(fx, ti.i32), ti.cast(fy, ti.i32)
 
 
 @ti.kernel

@@ -20,8 +20,9 @@ from .operators import Operators
 from .particles import FLUID, Particles
 
 #: default kernel support radius in units of the mean particle spacing
-#: sqrt(area / N): about pi * 3^2 = 28 neighbours, enough for the corrected
-#: operators to stay well conditioned on strongly disordered points.
+#: sqrt(area / N): 24 neighbours on a regular lattice, about 26 on disordered
+#: points (pi * 3^2 - 1 on average), enough for the corrected operators to stay
+#: well conditioned on strongly disordered points.
 DEFAULT_SUPPORT_RATIO = 3.0
 DEFAULT_KERNEL = "wendland"
 #: points closer than this fraction of the mean spacing count as duplicates
