@@ -1,6 +1,7 @@
 """Particle state: one Taichi array per quantity, with a capacity.
 
-Quantities are Taichi ndarrays (``position``/``velocity``: 2-vectors; ``mass``,
+Quantities are Taichi ndarrays (``position``/``velocity``/``normal``: 2-vectors,
+the normal being the outward unit normal of boundary particles; ``mass``,
 ``density``, ``volume``: reals; ``phase``, ``kind``: int32), allocated at a
 capacity and used on their first ``n`` entries.  ``original_index`` records,
 for every slot, which input point lives there, because the neighbour grid
@@ -21,7 +22,7 @@ from . import runtime
 FLUID, BOUNDARY, GHOST = 0, 1, 2
 KIND_NAMES = {FLUID: "fluid", BOUNDARY: "boundary", GHOST: "ghost"}
 
-VECTOR_QUANTITIES = ("position", "velocity")
+VECTOR_QUANTITIES = ("position", "velocity", "normal")
 REAL_QUANTITIES = ("mass", "density", "volume")
 INT_QUANTITIES = ("phase", "kind", "original_index")
 QUANTITIES = VECTOR_QUANTITIES + REAL_QUANTITIES + INT_QUANTITIES
@@ -29,10 +30,12 @@ QUANTITIES = VECTOR_QUANTITIES + REAL_QUANTITIES + INT_QUANTITIES
 
 @ti.kernel
 def _gather_all(order: ti.types.ndarray(), n: ti.i32,
-                pos: ti.types.ndarray(), vel: ti.types.ndarray(), mass: ti.types.ndarray(),
+                pos: ti.types.ndarray(), vel: ti.types.ndarray(), nrm: ti.types.ndarray(),
+                mass: ti.types.ndarray(),
                 rho: ti.types.ndarray(), vol: ti.types.ndarray(), phase: ti.types.ndarray(),
                 kind: ti.types.ndarray(), orig: ti.types.ndarray(),
-                pos2: ti.types.ndarray(), vel2: ti.types.ndarray(), mass2: ti.types.ndarray(),
+                pos2: ti.types.ndarray(), vel2: ti.types.ndarray(), nrm2: ti.types.ndarray(),
+                mass2: ti.types.ndarray(),
                 rho2: ti.types.ndarray(), vol2: ti.types.ndarray(), phase2: ti.types.ndarray(),
                 kind2: ti.types.ndarray(), orig2: ti.types.ndarray()):
     # one fused gather for every standard quantity: new[k] = old[order[k]]
@@ -40,6 +43,7 @@ def _gather_all(order: ti.types.ndarray(), n: ti.i32,
         j = order[k]
         pos2[k] = pos[j]
         vel2[k] = vel[j]
+        nrm2[k] = nrm[j]
         mass2[k] = mass[j]
         rho2[k] = rho[j]
         vol2[k] = vol[j]
@@ -111,7 +115,8 @@ class Particles:
         self.capacity = new_cap
         self._scratch = None
 
-    def append(self, points, *, velocity=None, mass=None, kind=FLUID, phase=0) -> slice:
+    def append(self, points, *, velocity=None, mass=None, kind=FLUID, phase=0,
+               normal=None) -> slice:
         """Append particles; returns the slice of slots they occupy."""
         runtime.check_generation(self._generation, "particle set")
         points = np.asarray(points, dtype=np.float64)
@@ -121,6 +126,7 @@ class Particles:
         values = {
             "position": points,
             "velocity": np.zeros((m, 2)) if velocity is None else np.asarray(velocity, float),
+            "normal": np.zeros((m, 2)) if normal is None else np.asarray(normal, float),
             "mass": np.broadcast_to(np.asarray(0.0 if mass is None else mass, float), (m,)),
             "density": np.zeros(m),
             "volume": np.zeros(m),
