@@ -345,18 +345,27 @@ def _laplacian_diagonal(n: ti.i32, offsets: ti.types.ndarray(), C: ti.types.ndar
 @ti.kernel
 def _shepard(kid: ti.template(), pos: ti.types.ndarray(), vol: ti.types.ndarray(), n: ti.i32,
              offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
-             f: ti.types.ndarray(), out: ti.types.ndarray()):
-    """Shepard-normalised interpolation (Petronetto Eq. 14), self term included."""
+             f: ti.types.ndarray(), out: ti.types.ndarray(), kind: ti.types.ndarray(),
+             src_kinds: ti.i32):
+    """Shepard-normalised interpolation (Petronetto Eq. 14) from the neighbours of
+    the given kinds, the particle itself included when its kind is one of them."""
     for i in range(n):
         W0, _F0, _L0 = kernel_wfl(kid, 0.0, H)
-        num = vol[i] * W0 * f[i]
-        den = vol[i] * W0
+        num = out[i] * 0.0
+        den = 0.0
+        if (src_kinds >> kind[i]) & 1:
+            num += vol[i] * W0 * f[i]
+            den += vol[i] * W0
         for k in range(offsets[i], offsets[i + 1]):
             j = nbrs[k]
-            W, _F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
-            num += vol[j] * W * f[j]
-            den += vol[j] * W
-        out[i] = num / den
+            if (src_kinds >> kind[j]) & 1:
+                W, _F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
+                num += vol[j] * W * f[j]
+                den += vol[j] * W
+        if den > 0.0:
+            out[i] = num / den
+        else:
+            out[i] = num * 0.0
 
 
 # ---------------------------------------------------------------------------
@@ -471,6 +480,9 @@ class Operators:
     def laplacian_diagonal(self, st: LaplacianStencil, out) -> None:
         _laplacian_diagonal(self.n, self.pairs.offsets, st.C, st.s, out)
 
-    def shepard(self, f, out) -> None:
+    def shepard(self, f, out, source_kinds=ALL_KINDS) -> None:
+        """Shepard interpolation of f (scalar or vector) at every particle from the
+        neighbours of the given kinds; 0 where there are none."""
         p = self.particles
-        _shepard(self._kid, p.position, p.volume, p.n, *self._pair_args(), self.support, f, out)
+        _shepard(self._kid, p.position, p.volume, p.n, *self._pair_args(), self.support, f, out,
+                 p.kind, _kind_bits(source_kinds))

@@ -17,7 +17,7 @@ from .errors import InputError, NeighbourError
 from .kernels import KERNELS
 from .neighbors import GridSpec, PairList, bin_particles
 from .operators import Operators
-from .particles import FLUID, Particles
+from .particles import BOUNDARY, FLUID, GHOST, Particles
 
 #: default kernel support radius in units of the mean particle spacing
 #: sqrt(area / N): 24 neighbours on a regular lattice, about 26 on disordered
@@ -69,17 +69,24 @@ class PointSet:
 
     Parameters
     ----------
-    points: (N, 2) array.
+    points: (N, 2) array: the data points (fluid particles).
     kernel: one of ``quartic``, ``poly6``, ``wendland``, ``cubic``.
     support_ratio: kernel support radius / mean spacing ``sqrt(area / N)``.
     support: the support radius itself (overrides ``support_ratio``).
     area: the domain's area (default: the points' bounding box).
-    mass: particle mass (default ``area / N``).
+    mass: particle mass (default ``area / N``, Petronetto Sec. 5a).
+    boundary: optional ``(points, outward normals)`` of boundary particles.
+    ghosts: optional (G, 2) fake particles outside the domain.
+
+    Boundary and ghost particles get the data points' mass, join the neighbour
+    search and the density summation, and are what the Poisson rows of
+    :mod:`taichi_hh.poisson` use; the numpy operator methods below take values
+    at the data points only and sum over data-point neighbours only.
     """
 
     def __init__(self, points, *, kernel: str = DEFAULT_KERNEL,
                  support_ratio: float = DEFAULT_SUPPORT_RATIO, support: float | None = None,
-                 area: float | None = None, mass=None):
+                 area: float | None = None, mass=None, boundary=None, ghosts=None):
         pts = check_points(points)
         if kernel not in KERNELS:
             raise ValueError(f"unknown kernel {kernel!r}; choose one of {KERNELS}")
@@ -97,32 +104,42 @@ class PointSet:
         self.support = float(support) if support is not None else support_ratio * self.spacing
         self.kernel = kernel
         mass = self.area / n if mass is None else mass
-        self.particles = Particles.from_numpy(pts, mass=mass, kind=FLUID)
-        self.grid = bin_particles(self.particles, GridSpec.covering(lo, hi, self.support))
-        p = self.particles
+        p = self.particles = Particles.from_numpy(pts, mass=mass, kind=FLUID)
+        if boundary is not None:
+            bpts = check_points(boundary[0], "boundary points")
+            bnrm = check_values(boundary[1], len(bpts), 2, "boundary normals")
+            p.append(bpts, normal=bnrm, mass=mass, kind=BOUNDARY)
+        if ghosts is not None and len(ghosts):
+            p.append(check_points(ghosts, "ghost points"), mass=mass, kind=GHOST)
+        allpts = p.get("position")
+        self.n_total = p.n
+        self.grid = bin_particles(p, GridSpec.covering(allpts.min(axis=0), allpts.max(axis=0),
+                                                       self.support))
         self.pairs = PairList()
         try:
-            self.pairs.build(p.position, n, p.position, self.grid, self.support,
+            self.pairs.build(p.position, p.n, p.position, self.grid, self.support,
                              duplicate_tolerance=DUPLICATE_FRACTION * self.spacing)
         except InputError as exc:
             if getattr(self.pairs, "duplicate_query", None) is None:
                 raise
             raise self._duplicate_error() from exc
-        self.slot_of = np.empty(n, dtype=np.int64)      # input index -> slot
-        self.order = p.get("original_index").astype(np.int64)   # slot -> input index
-        self.slot_of[self.order] = np.arange(n)
+        # slot -> input index over all particles (data points first, then boundary, ghosts)
+        self.order = p.get("original_index").astype(np.int64)
+        self.slot_of_all = np.empty(p.n, dtype=np.int64)
+        self.slot_of_all[self.order] = np.arange(p.n)
+        self.slot_of = self.slot_of_all[:n]                    # data point -> slot
         counts = self.pairs.counts()
-        if (counts == 0).any():
-            slot = int(np.flatnonzero(counts == 0)[0])
+        lonely = np.flatnonzero(counts[self.slot_of] == 0)
+        if lonely.size:
+            i = int(lonely[0])
             raise NeighbourError(
-                f"point {self.order[slot]} at {pts[self.order[slot]].tolist()} has no neighbour "
-                f"within the kernel support {self.support:.6g}; "
-                f"{int((counts == 0).sum())} point(s) are isolated. Increase support_ratio.")
+                f"point {i} at {pts[i].tolist()} has no neighbour within the kernel support "
+                f"{self.support:.6g}; {lonely.size} point(s) are isolated. "
+                "Increase support_ratio.")
         self.neighbour_counts = counts[self.slot_of]
         self.ops = Operators(p, self.pairs, self.support, kernel)
         self.ops.compute_density()
-        self._gradients: dict = {}
-        self._laplacians: dict = {}
+        self._stencils: dict = {}
 
     def _duplicate_error(self) -> InputError:
         pts = self.particles.get("position")
@@ -135,37 +152,45 @@ class PointSet:
                           f"{d[j]:.3g} apart (at {pts[q].tolist()}); remove duplicates")
 
     # ---- slot <-> caller order ---------------------------------------------------
-    def _upload(self, values, ncomp: int):
-        arr = values[self.order]
+    def new_array(self, ncomp: int = 1):
+        """A zeroed Taichi array with one entry per particle slot."""
         real = runtime.real_dtype()
+        size = max(self.n_total, 1)
         if ncomp == 1:
-            nd = ti.ndarray(real, shape=(self.n,))
+            nd = ti.ndarray(real, shape=(size,))
         else:
-            nd = ti.Vector.ndarray(ncomp, real, shape=(self.n,))
-        nd.from_numpy(arr.astype(runtime.np_real()))
+            nd = ti.Vector.ndarray(ncomp, real, shape=(size,))
+        nd.fill(0)
         return nd
 
-    def _new(self, ncomp: int):
-        real = runtime.real_dtype()
-        if ncomp == 1:
-            return ti.ndarray(real, shape=(self.n,))
-        return ti.Vector.ndarray(ncomp, real, shape=(self.n,))
+    def upload(self, values):
+        """Data-point values (caller order) -> Taichi array in slot order
+        (zero at boundary and ghost slots)."""
+        values = np.asarray(values, dtype=np.float64)
+        ncomp = 1 if values.ndim == 1 else values.shape[1]
+        full = np.zeros((self.n_total,) + values.shape[1:])
+        full[self.slot_of] = values
+        nd = self.new_array(ncomp)
+        nd.from_numpy(full.astype(runtime.np_real()))
+        return nd
 
-    def _download(self, nd) -> np.ndarray:
-        arr = nd.to_numpy()[: self.n]
-        out = np.empty_like(arr, dtype=np.float64)
-        out[self.order] = arr
-        return out
+    def download(self, nd) -> np.ndarray:
+        """Taichi array in slot order -> data-point values in caller order (float64)."""
+        return nd.to_numpy()[: self.n_total][self.slot_of].astype(np.float64)
 
-    def gradient_stencil(self, variant: str):
-        if variant not in self._gradients:
-            self._gradients[variant] = self.ops.gradient_coefficients(variant)
-        return self._gradients[variant]
+    def gradient_stencil(self, variant: str, source_kinds=(FLUID,)):
+        key = ("gradient", variant, tuple(source_kinds))
+        if key not in self._stencils:
+            self._stencils[key] = self.ops.gradient_coefficients(
+                variant, row_kinds=(FLUID,), source_kinds=source_kinds)
+        return self._stencils[key]
 
-    def laplacian_stencil(self, variant: str):
-        if variant not in self._laplacians:
-            self._laplacians[variant] = self.ops.laplacian_coefficients(variant)
-        return self._laplacians[variant]
+    def laplacian_stencil(self, variant: str, source_kinds=(FLUID,)):
+        key = ("laplacian", variant, tuple(source_kinds))
+        if key not in self._stencils:
+            self._stencils[key] = self.ops.laplacian_coefficients(
+                variant, row_kinds=(FLUID,), source_kinds=source_kinds)
+        return self._stencils[key]
 
     # ---- operators on numpy arrays -------------------------------------------------
     def density(self) -> np.ndarray:
@@ -177,36 +202,32 @@ class PointSet:
     def gradient(self, f, variant: str = "corrected") -> np.ndarray:
         """(N, 2) gradient of the scalar samples ``f``."""
         f = check_values(f, self.n, 1, "f")
-        st = self.gradient_stencil(variant)
-        out = self._new(2)
-        self.ops.gradient(st, self._upload(f, 1), out)
-        return self._download(out)
+        out = self.new_array(2)
+        self.ops.gradient(self.gradient_stencil(variant), self.upload(f), out)
+        return self.download(out)
 
     def divergence(self, v, variant: str = "corrected") -> np.ndarray:
         v = check_values(v, self.n, 2, "v")
-        st = self.gradient_stencil(variant)
-        out = self._new(1)
-        self.ops.divergence(st, self._upload(v, 2), out)
-        return self._download(out)
+        out = self.new_array(1)
+        self.ops.divergence(self.gradient_stencil(variant), self.upload(v), out)
+        return self.download(out)
 
     def curl(self, v, variant: str = "corrected") -> np.ndarray:
         """Scalar 2D curl dv_y/dx - dv_x/dy, as div(J v) (Petronetto Eq. 4)."""
         v = check_values(v, self.n, 2, "v")
-        st = self.gradient_stencil(variant)
-        out = self._new(1)
-        self.ops.curl(st, self._upload(v, 2), out)
-        return self._download(out)
+        out = self.new_array(1)
+        self.ops.curl(self.gradient_stencil(variant), self.upload(v), out)
+        return self.download(out)
 
     def laplacian(self, f, variant: str = "corrected") -> np.ndarray:
         f = check_values(f, self.n, 1, "f")
-        st = self.laplacian_stencil(variant)
-        out = self._new(1)
-        self.ops.laplacian(st, self._upload(f, 1), out)
-        return self._download(out)
+        out = self.new_array(1)
+        self.ops.laplacian(self.laplacian_stencil(variant), self.upload(f), out)
+        return self.download(out)
 
     def interpolate(self, f) -> np.ndarray:
         """Shepard-normalised SPH smoothing of ``f`` at the points (Petronetto Eq. 14)."""
         f = check_values(f, self.n, 1, "f")
-        out = self._new(1)
-        self.ops.shepard(self._upload(f, 1), out)
-        return self._download(out)
+        out = self.new_array(1)
+        self.ops.shepard(self.upload(f), out, source_kinds=(FLUID,))
+        return self.download(out)
