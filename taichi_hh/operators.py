@@ -22,6 +22,12 @@ Gradient variants (``V_j = m_j / rho_j``, ``grad W_ij = grad_i W(x_i - x_j)``):
 ``symmetric``        Colin Eq. 17 (SGAF):  rho_i sum_j m_j (f_i/rho_i^2 + f_j/rho_j^2) grad W_ij
 ``corrected``        Bonet & Lok 1999:  L_i sum_j V_j (f_j - f_i) grad W_ij,
                      L_i = (sum_j V_j grad W_ij (x) (x_j - x_i))^-1; exact on linear fields.
+``quadratic``        weighted least-squares fit of a quadratic around i (weights V_j W_ij,
+                     a 5x5 moment matrix per particle; moving least squares of order 2):
+                     exact on quadratics, so second-order accurate even on one-sided
+                     neighbourhoods.  Used for Neumann rows on the boundary, where the
+                     first-order error of ``corrected`` (support x curvature) would
+                     dominate the whole solution.
 
 Laplacian variants:
 
@@ -56,7 +62,8 @@ ALL_KINDS = (FLUID, BOUNDARY, GHOST)
 def _kind_bits(kinds) -> int:
     return sum(1 << int(k) for k in kinds)
 
-GRADIENT_VARIANTS = ("basic", "difference", "colin_difference", "symmetric", "corrected")
+GRADIENT_VARIANTS = ("basic", "difference", "colin_difference", "symmetric", "corrected",
+                     "quadratic")
 LAPLACIAN_VARIANTS = ("basic", "colin_difference", "brookshaw", "corrected")
 
 # A correction matrix whose smallest/largest eigenvalue ratio falls below this
@@ -130,6 +137,59 @@ def _correction_matrix(kid: ti.template(), i, pos: ti.template(), mass: ti.templ
     return M
 
 
+@ti.func
+def _quadratic_fit_rows(kid: ti.template(), i, pos: ti.template(), mass: ti.template(),
+                        rho: ti.template(), offsets: ti.template(), nbrs: ti.template(), H,
+                        kind: ti.template(), src_kinds):
+    """Cholesky factor of M = sum_j V_j W_ij p_j p_j^T, p = (x, y, x^2, xy, y^2)(x_ji / H);
+    returns (factor, ok).  ok is False when a pivot falls below SINGULAR_RATIO of the
+    diagonal scale (fewer than five neighbours, or all on one conic)."""
+    M = ti.Matrix.zero(float, 5, 5)
+    for k in range(offsets[i], offsets[i + 1]):
+        j = nbrs[k]
+        mj = _src_mass(mass, kind, j, src_kinds)
+        x = pos[j] - pos[i]
+        W, _F, _L = kernel_wfl(kid, x.norm(), H)
+        u = x / H
+        p = ti.Vector([u[0], u[1], u[0] * u[0], u[0] * u[1], u[1] * u[1]])
+        M += (mj / rho[j]) * W * p.outer_product(p)
+    scale = 0.0
+    for a in ti.static(range(5)):
+        scale = ti.max(scale, M[a, a])
+    Lf = ti.Matrix.zero(float, 5, 5)
+    ok = scale > 0.0
+    for a in ti.static(range(5)):
+        for b in ti.static(range(a + 1)):
+            acc = M[a, b]
+            for c in ti.static(range(b)):
+                acc -= Lf[a, c] * Lf[b, c]
+            if ti.static(a == b):
+                if acc <= SINGULAR_RATIO * scale:
+                    ok = False
+                    acc = scale
+                Lf[a, a] = ti.sqrt(acc)
+            else:
+                Lf[a, b] = acc / Lf[b, b]
+    return Lf, ok
+
+
+@ti.func
+def _cholesky_solve5(Lf, rhs):
+    y = ti.Vector.zero(float, 5)
+    for a in ti.static(range(5)):
+        acc = rhs[a]
+        for c in ti.static(range(a)):
+            acc -= Lf[a, c] * y[c]
+        y[a] = acc / Lf[a, a]
+    z = ti.Vector.zero(float, 5)
+    for a in ti.static(range(4, -1, -1)):
+        acc = y[a]
+        for c in ti.static(range(a + 1, 5)):
+            acc -= Lf[c, a] * z[c]
+        z[a] = acc / Lf[a, a]
+    return z
+
+
 @ti.kernel
 def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
                      mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
@@ -143,6 +203,11 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
             s[i] = ti.Vector.zero(float, 2)
             continue
         L = ti.Matrix.identity(float, 2)
+        Lf = ti.Matrix.identity(float, 5)
+        if ti.static(variant == 5):
+            Lf, ok = _quadratic_fit_rows(kid, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
+            if not ok:
+                ti.atomic_max(bad[0], i)
         if ti.static(variant == 4):
             M = _correction_matrix(kid, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
             if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
@@ -165,8 +230,15 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
                 coef = rho[i] * mj / (rho[j] * rho[j]) * gw
                 # f_i terms: rho_i m_j f_i / rho_i^2, plus sum_j G f_i from the difference form
                 gsum += (mj / rho[i]) * gw + coef
-            else:
+            elif ti.static(variant == 4):
                 coef = (mj / rho[j]) * (L @ gw)
+            else:
+                # rows 0-1 of M^-1 (V_j W_ij p_j) / H: the fitted gradient's weights
+                W, _F2, _L2 = kernel_wfl(kid, xij.norm(), H)
+                u = -xij / H
+                p = ti.Vector([u[0], u[1], u[0] * u[0], u[0] * u[1], u[1] * u[1]])
+                z = _cholesky_solve5(Lf, (mj / rho[j]) * W * p)
+                coef = ti.Vector([z[0], z[1]]) / H
             G[k] = coef
             if ti.static(variant == 0):
                 gsum += coef   # sum_j G f_j = sum_j G (f_j - f_i) + (sum_j G) f_i

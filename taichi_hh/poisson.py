@@ -1,0 +1,314 @@
+"""The SPH Poisson problem ``L phi = b`` with Neumann boundaries, as one
+assembled, matrix-free row system.
+
+Every particle owns one row, chosen by its kind (``particles.kind``):
+
+``FLUID``     Laplacian row (any variant of :mod:`taichi_hh.operators`) plus the
+              ridge term ``kappa`` (Petronetto Sec. 6a: ``(L + kappa I) phi = b``),
+              plus, for Petronetto's boundary treatment, ``-n . grad phi`` on the
+              particles within ``sqrt(m/rho)/pi`` of the boundary (Sec. 4: the
+              Neumann term moved to the left-hand side, ``near_weight = -1``).
+``BOUNDARY``  Neumann row ``n_i . grad phi_i = g_i`` with the particle's normal
+              (Colin Eqs. 35-37; ``g = 0`` for the homogeneous condition).
+``GHOST``     Shepard row ``phi_g - sum_k S_gk phi_k = 0`` over the fluid
+              neighbours ``k`` of a fake particle, ``S_gk = V_k W_gk / sum V W``
+              (Petronetto Sec. 5b: the fake particle's potential replaced by the
+              Shepard sum of real unknowns, Eq. 14).  Keeping it as a row instead
+              of substituting it leaves the same solution and a one-ring stencil.
+
+The rows are assembled once into pair coefficients ``K`` and a diagonal ``D``:
+``(A x)_i = D_i x_i + sum_k K_k x_{j(k)}``, so each apply is an SpMV-like
+gather.  The transpose (for CG on the normal equations, Colin Sec. 3.5) is a
+gather too: the neighbour relation is symmetric, and ``reverse[k]`` indexes
+pair (j, i) for pair k = (i, j).
+"""
+import numpy as np
+import taichi as ti
+
+from . import runtime, solvers
+from .kernels import kernel_wfl
+from .errors import InputError, NeighbourError
+from .particles import BOUNDARY, FLUID, GHOST
+
+
+@ti.kernel
+def _assemble(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
+              nbrs: ti.types.ndarray(), pos: ti.types.ndarray(), vol: ti.types.ndarray(),
+              kind: ti.types.ndarray(), normal: ti.types.ndarray(), near: ti.types.ndarray(),
+              C: ti.types.ndarray(), sC: ti.types.ndarray(), G: ti.types.ndarray(),
+              sG: ti.types.ndarray(), kappa: float, H: float,
+              K: ti.types.ndarray(), D: ti.types.ndarray(), orphan: ti.types.ndarray()):
+    for i in range(n):
+        ki = kind[i]
+        if ki == FLUID:
+            nb = near[i] * normal[i]
+            d = sC[i] + nb.dot(sG[i]) + kappa
+            for k in range(offsets[i], offsets[i + 1]):
+                c = C[k] + nb.dot(G[k])
+                K[k] = c
+                d -= c
+            D[i] = d
+        elif ki == BOUNDARY:
+            nrm = normal[i]
+            d = nrm.dot(sG[i])
+            for k in range(offsets[i], offsets[i + 1]):
+                c = nrm.dot(G[k])
+                K[k] = c
+                d -= c
+            D[i] = d
+        else:
+            den = 0.0
+            for k in range(offsets[i], offsets[i + 1]):
+                j = nbrs[k]
+                if kind[j] == FLUID:
+                    W, _F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
+                    den += vol[j] * W
+            if den <= 0.0:
+                ti.atomic_max(orphan[0], i)
+                den = 1.0
+            for k in range(offsets[i], offsets[i + 1]):
+                j = nbrs[k]
+                c = 0.0
+                if kind[j] == FLUID:
+                    W, _F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
+                    c = -vol[j] * W / den
+                K[k] = c
+            D[i] = 1.0
+
+
+@ti.kernel
+def _apply_rows(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                K: ti.types.ndarray(), D: ti.types.ndarray(), x: ti.types.ndarray(),
+                y: ti.types.ndarray(), bordered: ti.i32, e: ti.types.ndarray(),
+                w: ti.types.ndarray(), c: float):
+    """y = A x; bordered: y[:n] += e x[n], y[n] = w . x[:n] + c x[n]."""
+    lam = 0.0
+    if bordered:
+        lam = x[n]
+    border = 0.0
+    for i in range(n):
+        xi = x[i]
+        acc = D[i] * xi
+        for k in range(offsets[i], offsets[i + 1]):
+            acc += K[k] * x[nbrs[k]]
+        if bordered:
+            acc += e[i] * lam
+            border += w[i] * xi      # a thread-local reduction in Taichi
+        y[i] = acc
+    if bordered:
+        y[n] = border + c * lam
+
+
+@ti.kernel
+def _apply_rows_transpose(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                          reverse: ti.types.ndarray(), K: ti.types.ndarray(),
+                          D: ti.types.ndarray(), x: ti.types.ndarray(), y: ti.types.ndarray(),
+                          bordered: ti.i32, e: ti.types.ndarray(), w: ti.types.ndarray(),
+                          c: float):
+    lam = 0.0
+    if bordered:
+        lam = x[n]
+    border = 0.0
+    for i in range(n):
+        xi = x[i]
+        acc = D[i] * xi
+        for k in range(offsets[i], offsets[i + 1]):
+            acc += K[reverse[k]] * x[nbrs[k]]
+        if bordered:
+            acc += w[i] * lam
+            border += e[i] * xi
+        y[i] = acc
+    if bordered:
+        y[n] = border + c * lam
+
+
+@ti.kernel
+def _column_sq_norms(n: ti.i32, offsets: ti.types.ndarray(), reverse: ti.types.ndarray(),
+                     K: ti.types.ndarray(), D: ti.types.ndarray(), out: ti.types.ndarray(),
+                     bordered: ti.i32, e: ti.types.ndarray(), w: ti.types.ndarray(), c: float):
+    border = 0.0
+    for i in range(n):
+        acc = D[i] * D[i]
+        for k in range(offsets[i], offsets[i + 1]):
+            v = K[reverse[k]]
+            acc += v * v
+        if bordered:
+            acc += w[i] * w[i]
+            border += e[i] * e[i]
+        out[i] = acc
+    if bordered:
+        out[n] = border + c * c
+
+
+@ti.kernel
+def _copy_diagonal(n: ti.i32, D: ti.types.ndarray(), out: ti.types.ndarray(), bordered: ti.i32,
+                   c: float):
+    for i in range(n):
+        out[i] = D[i]
+    if bordered:
+        out[n] = c
+
+
+@ti.kernel
+def _reverse_pairs(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                   reverse: ti.types.ndarray(), missing: ti.types.ndarray()):
+    # rows are sorted by neighbour index (cells are scanned in increasing order
+    # and slots are sorted by cell), so the reverse pair is found by bisection
+    for i in range(n):
+        for k in range(offsets[i], offsets[i + 1]):
+            j = nbrs[k]
+            lo = offsets[j]
+            hi = offsets[j + 1]
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if nbrs[mid] < i:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            if lo < offsets[j + 1] and nbrs[lo] == i:
+                reverse[k] = lo
+            else:
+                reverse[k] = -1
+                ti.atomic_max(missing[0], k)
+
+
+class PoissonMatrix:
+    """Assembled SPH Poisson rows over every particle; a solver linear operator.
+
+    ops: :class:`~taichi_hh.operators.Operators` on the particle set (with
+    densities computed); boundary rows use ``particles.normal``.
+    laplacian, gradient: operator variants of the fluid rows and of the Neumann
+    (boundary) rows.  ``gradient="quadratic"`` makes the Neumann rows exact on
+    quadratics; the first-order ``corrected`` gradient errs by about support x
+    curvature on a one-sided boundary neighbourhood, which then pollutes the
+    whole solution.
+    kappa: ridge term added to the fluid rows (Petronetto Sec. 6a).
+    near: per-slot weights of the ``n . grad`` term on fluid rows (Petronetto's
+    boundary treatment: -1 within sqrt(m/rho)/pi of the boundary), or None.
+    bordered: for pure-Neumann problems, append one unknown ``lambda`` and one
+    row: ``A phi + lambda e = b`` on the fluid rows and ``sum_i V_i phi_i + c
+    lambda = 0``.  The bordered matrix is non-singular, ``lambda`` absorbs the
+    discrete incompatibility of ``b`` (``e`` is 1 on fluid rows), and ``phi``
+    is fixed up to nothing: gradients are unaffected, since the only freedom
+    removed is the additive constant.  ``c = sum V`` keeps the row's scale.
+    """
+
+    def __init__(self, ops, *, laplacian: str = "corrected", gradient: str = "quadratic",
+                 kappa: float = 0.0, near=None, bordered: bool = False):
+        runtime.ensure_init()
+        p = ops.particles
+        self.ops = ops
+        self.n_particles = p.n
+        self.bordered = bool(bordered)
+        self.n = p.n + (1 if self.bordered else 0)
+        self.kappa = float(kappa)
+        real = runtime.real_dtype()
+        self.lap = ops.laplacian_coefficients(laplacian, row_kinds=(FLUID,))
+        self.grad = ops.gradient_coefficients(gradient, row_kinds=(FLUID, BOUNDARY))
+        npairs = max(ops.pairs.n_pairs, 1)
+        size = max(self.n_particles, 1)
+        self.K = ti.ndarray(real, shape=(npairs,))
+        self.D = ti.ndarray(real, shape=(size,))
+        if near is None:
+            near = ti.ndarray(real, shape=(size,))
+            near.fill(0.0)
+        self.near = near
+        orphan = ti.ndarray(ti.i32, shape=(1,))
+        orphan.fill(-1)
+        pr = ops.pairs
+        _assemble(ops._kid, p.n, pr.offsets, pr.neighbours, p.position, p.volume, p.kind,
+                  p.normal, near, self.lap.C, self.lap.s, self.grad.G, self.grad.s, self.kappa,
+                  ops.support, self.K, self.D, orphan)
+        bad = int(orphan.to_numpy()[0])
+        if bad >= 0:
+            raise NeighbourError(
+                f"ghost particle at {p.position.to_numpy()[bad].tolist()} has no fluid "
+                "neighbour within the kernel support: its Shepard row is undefined")
+        # border vectors (unused unless bordered)
+        kind = p.kind.to_numpy()[: p.n]
+        vol = p.volume.to_numpy()[: p.n]
+        fluid = (kind == FLUID).astype(runtime.np_real())
+        self.border_e = ti.ndarray(real, shape=(size,))
+        self.border_e.from_numpy(np.resize(fluid, size))
+        self.border_w = ti.ndarray(real, shape=(size,))
+        self.border_w.from_numpy(np.resize(fluid * vol, size))
+        self.border_c = float((fluid * vol).sum())
+        self._reverse = None
+
+    def _border(self):
+        return int(self.bordered), self.border_e, self.border_w, self.border_c
+
+    # ---- linear operator protocol (see taichi_hh.solvers) ------------------------
+    def apply(self, x, y) -> None:
+        pr = self.ops.pairs
+        _apply_rows(self.n_particles, pr.offsets, pr.neighbours, self.K, self.D, x, y,
+                    *self._border())
+
+    def diagonal(self, d) -> None:
+        _copy_diagonal(self.n_particles, self.D, d, int(self.bordered), self.border_c)
+
+    def _reverse_index(self):
+        if self._reverse is None:
+            pr = self.ops.pairs
+            self._reverse = ti.ndarray(ti.i32, shape=(max(pr.n_pairs, 1),))
+            missing = ti.ndarray(ti.i32, shape=(1,))
+            missing.fill(-1)
+            _reverse_pairs(self.n_particles, pr.offsets, pr.neighbours, self._reverse, missing)
+            if int(missing.to_numpy()[0]) >= 0:
+                raise RuntimeError("neighbour relation is not symmetric: cannot transpose")
+        return self._reverse
+
+    def apply_transpose(self, x, y) -> None:
+        pr = self.ops.pairs
+        _apply_rows_transpose(self.n_particles, pr.offsets, pr.neighbours, self._reverse_index(),
+                              self.K, self.D, x, y, *self._border())
+
+    def normal_diagonal(self, d) -> None:
+        pr = self.ops.pairs
+        _column_sq_norms(self.n_particles, pr.offsets, self._reverse_index(), self.K, self.D, d,
+                         *self._border())
+
+    def to_scipy(self):
+        """The assembled matrix as scipy.sparse CSR (for tests and reference solves)."""
+        import scipy.sparse as sp
+        off, nb = self.ops.pairs.to_numpy()
+        n = self.n_particles
+        K = self.K.to_numpy()[: len(nb)]
+        rows = np.repeat(np.arange(n), np.diff(off))
+        A = sp.csr_matrix((K, (rows, nb)), shape=(self.n, self.n))
+        diag = np.zeros(self.n)
+        diag[:n] = self.D.to_numpy()[:n]
+        A = A + sp.diags(diag)
+        if self.bordered:
+            e = self.border_e.to_numpy()[:n]
+            w = self.border_w.to_numpy()[:n]
+            B = sp.lil_matrix((self.n, self.n))
+            B[:n, n] = e[:, None]
+            B[n, :n] = w[None, :]
+            B[n, n] = self.border_c
+            A = A + B.tocsr()
+        return A.tocsr()
+
+    # ---- solve ---------------------------------------------------------------------
+    def solve(self, b, x0=None, *, method: str = "bicgstab", tol: float = 1e-8,
+              border0: float = 0.0, **kwargs):
+        """Solve for particle-slot values ``b`` (length n_particles); returns a
+        :class:`solvers.SolveResult` whose ``x`` has the particle values (and, when
+        bordered, ``result.border`` = lambda, the right-hand side's incompatibility).
+        x0, border0: warm start (e.g. the previous step's ``x`` and ``border``)."""
+        solve = {"bicgstab": solvers.bicgstab, "cg": solvers.cg, "cgnr": solvers.cgnr}
+        if method not in solve:
+            raise ValueError(f"unknown solver {method!r}; choose one of {tuple(solve)}")
+        b = np.asarray(b, dtype=np.float64)
+        if b.shape != (self.n_particles,):
+            raise InputError(f"right-hand side must have shape ({self.n_particles},), "
+                             f"got {b.shape}")
+        if self.bordered:
+            b = np.append(b, 0.0)
+            if x0 is not None:
+                x0 = np.append(np.asarray(x0, dtype=np.float64), border0)
+        res = solve[method](self, b, x0, tol=tol, **kwargs)
+        res.border = float(res.x[-1]) if self.bordered else 0.0
+        if self.bordered:
+            res.x = res.x[: self.n_particles]
+        return res
