@@ -83,6 +83,14 @@ def test_corrected_laplacian_reproduces_quadratics(jittered):
     assert err.max() < 1e-7
 
 
+def test_quadratic_gradient_reproduces_quadratics_to_roundoff(jittered):
+    pts, _, ps = jittered
+    x, y = pts.T
+    f = 1.5 * x * x - 0.75 * x * y + 2.5 * y * y + 3 * x - y + 2
+    exact = np.c_[3 * x - 0.75 * y + 3, -0.75 * x + 5 * y - 1]
+    assert np.abs(ps.gradient(f, "quadratic") - exact).max() < 1e-10   # boundary rows too
+
+
 def test_plain_gradient_not_exact_on_linear_fields(jittered):
     pts, _, ps = jittered
     x, y = pts.T
@@ -131,6 +139,21 @@ def test_corrected_operators_converge(refinement, key):
     # measured about 1.0-1.1 (first-order consistent operators on 30% disorder)
     assert order > 0.8, (order, errs)
     assert errs[-1] < 0.01
+
+
+def test_quadratic_gradient_converges_at_second_order_up_to_the_boundary():
+    errs = []
+    for m, seed in ((24, 21), (48, 22), (96, 23)):
+        pts, dx = lattice(m, jitter=0.3, seed=seed)
+        ps = thh.PointSet(pts, area=1.0)
+        f, grad, _ = _trig(pts)
+        e = np.linalg.norm(ps.gradient(f, "quadratic") - grad, axis=1)
+        edge = ~interior(pts, 2 * dx)
+        errs.append((e[~edge].mean(), e[edge].mean()))
+    errs = np.array(errs)
+    for col in range(2):                     # interior, boundary band
+        order = np.polyfit(np.log([1 / 24, 1 / 48, 1 / 96]), np.log(errs[:, col]), 1)[0]
+        assert order > 1.7, errs
 
 
 def test_plain_operators_do_not_converge_on_disordered_points(refinement):
@@ -253,5 +276,6 @@ def test_results_come_back_in_caller_order():
 
 
 def test_all_variants_are_listed():
-    assert set(GRADIENT_VARIANTS) == {"basic", "difference", "colin_difference", "symmetric", "corrected"}
+    assert set(GRADIENT_VARIANTS) == {"basic", "difference", "colin_difference", "symmetric",
+                                      "corrected", "quadratic"}
     assert set(LAPLACIAN_VARIANTS) == {"basic", "colin_difference", "brookshaw", "corrected"}
