@@ -4,6 +4,7 @@ Importing this package does not initialise Taichi; the first call that needs
 it does (CPU, f64), unless :func:`init` chose otherwise.
 """
 from .errors import InputError, NeighbourError, SolverError, TaichiHHError
+from .domain import Box, Polygon, as_domain
 from .runtime import init
 
 __version__ = "0.1.0"
@@ -14,7 +15,10 @@ def __getattr__(name):
     if name == "PointSet":
         from .pointset import PointSet
         return PointSet
+    if name in ("decompose", "HHDResult", "METHODS"):
+        from . import hhd
+        return getattr(hhd, name)
     raise AttributeError(f"module 'taichi_hh' has no attribute {name!r}")
 
 
-__all__ = ["init", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError"]
+__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError"]

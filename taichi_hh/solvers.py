@@ -44,8 +44,8 @@ stopping tests:
   BiCGSTAB's ``rho = <r_hat, r>``, ``<r_hat, v>`` and ``omega``'s ``<t, s>``;
   CG's ``<p, A p>`` and ``<r, M^-1 r>``; CGNR's ``||A p|| = 0``.
 * ``"stagnation"``: the smallest monitored residual of the last
-  ``stagnation_window`` (default ``STAGNATION_WINDOW`` = 200) iterations is not
-  below ``(1 - 1e-3)``
+  ``max(stagnation_window, iterations / 3)`` iterations (``stagnation_window``
+  defaults to ``STAGNATION_WINDOW`` = 200) is not below ``(1 - 1e-3)``
   times the smallest of the window before (so it is tested from iteration
   ``2 * stagnation_window`` on).  Windows are compared rather than the best
   value ever, because CG and BiCGSTAB residuals are not monotone.
@@ -640,7 +640,9 @@ class _Monitor:
         if value > s.divergence_factor * self._scale:
             return ("divergence", f"residual grew above {s.divergence_factor:.0e} times "
                     f"its initial scale {self._scale:.3e}")
-        w = s.stagnation_window
+        # the window grows with the run (a third of it): slow solves (thousands of
+        # iterations at large N) plateau for longer than fast ones
+        w = max(s.stagnation_window, self.iterations // 3)
         if self.iterations >= 2 * w:
             # Window against window, not against the best ever: CG and BiCGSTAB
             # residuals are not monotone and may exceed the initial one for
