@@ -1,0 +1,310 @@
+"""Helmholtz-Hodge decomposition of a 2D vector field sampled at scattered
+points with SPH operators (SPH-HH, Petronetto et al. 2010, Sec. 5 (a)-(e)).
+
+    v = d + r + h,  d = grad phi (curl-free),  r = J grad psi (divergence-free),
+    h harmonic,  lap phi = div v,  lap psi = -curl v  (Eq. 5),
+    d phi/dn = d psi/dn = 0 on the boundary  (Eq. 6).
+
+Every numerical choice is an option; :data:`METHODS` bundles them:
+
+``default``         Wendland C2, support 3 spacings; div v and curl v by the
+                    quadratic (MLS) gradient over the data points; corrected
+                    Laplacian (exact on quadratics) on the data points and
+                    Neumann rows on boundary particles sampled along the
+                    boundary, with the quadratic gradient (second order up to
+                    the boundary); bordered system for the pure-Neumann
+                    compatibility; Jacobi-BiCGSTAB to 1e-8; d, r by the
+                    quadratic gradient.
+``petronetto2010``  as published: quartic kernel, difference gradient and
+                    divergence (Eqs. 8, 9), Brookshaw Laplacian (Eq. 10), fake
+                    particles outside the boundary by Poisson-disk sampling with
+                    the field extended by the Shepard sum (Eq. 14) and their
+                    potentials by Shepard rows, the Neumann term on particles
+                    within sqrt(m/rho)/pi of the boundary, ridge kappa = 1e-3,
+                    residual 1e-6.
+``colin2006``       Colin et al.'s operators: poly6 kernel, DGAF (Eq. 13),
+                    Laplacian Eq. 21, a layer of boundary particles with normals
+                    whose rows enforce dq/dn = 0 (Eq. 37), CG on the normal
+                    equations (Sec. 3.5).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from . import runtime
+from .errors import InputError
+from .particles import BOUNDARY, FLUID, GHOST
+from .pointset import DUPLICATE_FRACTION, PointSet, check_points, check_values
+from .poisson import PoissonMatrix
+
+
+@dataclass(frozen=True)
+class HHDOptions:
+    """Numerical choices of :func:`decompose` (see the module doc for the bundles)."""
+    kernel: str = "wendland"
+    support_ratio: float = 3.0          # kernel support / mean spacing sqrt(area / N)
+    divergence: str = "quadratic"       # gradient variant for div v and curl v
+    gradient: str = "quadratic"         # gradient variant for d = grad phi, r = J grad psi
+    laplacian: str = "corrected"        # Laplacian variant of the Poisson rows
+    neumann_gradient: str = "quadratic"  # gradient variant of the Neumann rows
+    boundary: str = "collocation"       # collocation | petronetto | colin | none
+    kappa: float = 0.0                  # ridge term (Petronetto Sec. 6a)
+    bordered: bool = True               # compatibility unknown for pure Neumann
+    solver: str = "bicgstab"            # bicgstab | cgnr
+    tol: float = 1e-8
+    max_iterations: int | None = None
+    seed: int = 0                       # for sampled fake/boundary particles
+
+    def __post_init__(self):
+        if self.boundary not in BOUNDARY_METHODS:
+            raise ValueError(f"boundary must be one of {BOUNDARY_METHODS}, got {self.boundary!r}")
+        if not (self.support_ratio > 0):
+            raise ValueError(f"support_ratio must be positive, got {self.support_ratio}")
+        if not (self.tol > 0):
+            raise ValueError(f"tol must be positive, got {self.tol}")
+
+
+BOUNDARY_METHODS = ("collocation", "petronetto", "colin", "none")
+
+METHODS = {
+    "default": HHDOptions(),
+    "petronetto2010": HHDOptions(kernel="quartic", support_ratio=2.0, divergence="difference",
+                                 gradient="difference", laplacian="brookshaw",
+                                 neumann_gradient="difference", boundary="petronetto",
+                                 kappa=1e-3, bordered=False, tol=1e-6),
+    "colin2006": HHDOptions(kernel="poly6", support_ratio=2.0, divergence="colin_difference",
+                            gradient="colin_difference", laplacian="colin_difference",
+                            neumann_gradient="colin_difference", boundary="colin",
+                            bordered=True, solver="cgnr", tol=1e-8),
+}
+
+
+def options_for(method: str = "default", **overrides) -> HHDOptions:
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {tuple(METHODS)}")
+    return replace(METHODS[method], **overrides)
+
+
+def J(v: np.ndarray) -> np.ndarray:
+    """J(a, b) = (b, -a): rotation by 90 degrees clockwise (Petronetto Eq. 2)."""
+    return np.stack([v[..., 1], -v[..., 0]], axis=-1)
+
+
+@dataclass
+class HHDResult:
+    points: np.ndarray
+    vectors: np.ndarray
+    curl_free: np.ndarray      # d = grad phi
+    div_free: np.ndarray       # r = J grad psi
+    harmonic: np.ndarray       # h = v - d - r
+    phi: np.ndarray
+    psi: np.ndarray
+    divergence: np.ndarray     # SPH div v at the points (the right-hand side of Eq. 5)
+    curl: np.ndarray
+    stats: dict
+    options: HHDOptions
+    pointset: PointSet = field(repr=False, default=None)
+
+    def critical_points(self, threshold: float = 0.1, radius: float | None = None):
+        """Sources, sinks and vortices: ``[(x, y, kind)]`` (Petronetto Sec. 6c).
+
+        See :func:`taichi_hh.critical.find_critical_points`."""
+        from .critical import find_critical_points
+        return find_critical_points(self, threshold=threshold, radius=radius)
+
+
+# ---------------------------------------------------------------------------
+
+def _validate(points, vectors, domain):
+    pts = check_points(points)
+    vec = check_values(vectors, len(pts), 2, "vectors")
+    if domain is None:
+        from .domain import Box
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        if not np.all(hi > lo):
+            raise InputError("the points span no area (all on one line or one point)")
+        domain = Box(lo, hi)
+    scale = float(np.max(np.abs(np.asarray(domain.bounds)))) or 1.0
+    inside = domain.contains(pts, tol=1e-9 * scale)
+    if not inside.all():
+        bad = np.flatnonzero(~inside)
+        raise InputError(f"{bad.size} point(s) lie outside the domain {domain!r}, first index "
+                         f"{bad[0]} at {pts[bad[0]].tolist()}")
+    return pts, vec, domain
+
+
+def _far_from(candidates, points, radius, domain):
+    """Mask of candidates (boundary samples) farther than ``radius`` from every point.
+    Only points within ``radius`` of the boundary can be that close."""
+    keep = np.ones(len(candidates), dtype=bool)
+    dist = domain.closest_boundary(points)[0]
+    near = points[dist < radius]
+    for start in range(0, len(near), 2048):
+        block = near[start:start + 2048]
+        d2 = ((candidates[:, None, :] - block[None, :, :]) ** 2).sum(axis=2)
+        keep &= (d2 >= radius * radius).all(axis=1)
+    return keep
+
+
+def _extra_particles(domain, pts, opts: HHDOptions, spacing: float, support: float):
+    """Boundary particles (points, normals) and ghosts for the boundary method."""
+    if opts.boundary == "none":
+        return None, None
+    if opts.boundary == "collocation":
+        bpts, bnrm, _ = domain.sample_boundary(spacing)
+        keep = _far_from(bpts, pts, 0.25 * spacing, domain)   # data points on the boundary take over
+        return (bpts[keep], bnrm[keep]), None
+    band = domain.sample_ghosts(spacing, support, seed=opts.seed, avoid=pts)
+    if opts.boundary == "colin":
+        _, _, nrm, _ = domain.closest_boundary(band)
+        return (band, nrm), None
+    return None, band                                   # petronetto: fake particles
+
+
+def decompose(points, vectors, domain=None, *, method: str = "default", progress=None,
+              **options) -> HHDResult:
+    """Helmholtz-Hodge decomposition of ``vectors`` sampled at ``points``.
+
+    points, vectors: (N, 2) arrays.  domain: :class:`~taichi_hh.domain.Box` or
+    :class:`~taichi_hh.domain.Polygon` (holes allowed); default the points'
+    bounding box.  method: a bundle of :data:`METHODS`; keyword ``options``
+    override single fields of :class:`HHDOptions`.  progress: optional
+    ``callable(stage: str)`` told as each stage starts.
+    """
+    t_start = time.perf_counter()
+    opts = options_for(method, **options)
+    runtime.ensure_init()
+    pts, vec, domain = _validate(points, vectors, domain)
+    say = progress or (lambda stage: None)
+    seconds = {}
+    n = len(pts)
+    spacing = math.sqrt(domain.area / n)
+    support = opts.support_ratio * spacing
+
+    say("setup")
+    t = time.perf_counter()
+    boundary, ghosts = _extra_particles(domain, pts, opts, spacing, support)
+    ps = PointSet(pts, kernel=opts.kernel, support=support, area=domain.area,
+                  boundary=boundary, ghosts=ghosts)
+    ops = ps.ops
+    p = ps.particles
+    kind = p.get("kind")
+    near = None
+    if opts.boundary == "petronetto":
+        ghosts_ok = _ghosts_with_data(ps)
+        if not ghosts_ok.all():   # rebuild without fake particles that see no data
+            ghosts = p.get("position")[kind == GHOST][ghosts_ok[kind == GHOST]]
+            ps = PointSet(pts, kernel=opts.kernel, support=support, area=domain.area,
+                          ghosts=ghosts)
+            ops, p = ps.ops, ps.particles
+            kind = p.get("kind")
+        near = _petronetto_band(ps, domain)
+    seconds["setup"] = time.perf_counter() - t
+
+    say("divergence and curl")
+    t = time.perf_counter()
+    v_nd = ps.upload(vec)
+    if opts.boundary == "petronetto":      # Eq. 14: extend v to the fake particles
+        ext = ps.new_array(2)
+        ops.shepard(v_nd, ext, source_kinds=(FLUID,))
+        full = ext.to_numpy()
+        full[kind == FLUID] = v_nd.to_numpy()[: ps.n_total][kind == FLUID]
+        v_nd.from_numpy(full)
+        div_sources = (FLUID, GHOST)
+    else:
+        div_sources = (FLUID,)
+    st_div = ops.gradient_coefficients(opts.divergence, row_kinds=(FLUID,),
+                                       source_kinds=div_sources)
+    div_nd, curl_nd = ps.new_array(1), ps.new_array(1)
+    ops.divergence(st_div, v_nd, div_nd)
+    ops.curl(st_div, v_nd, curl_nd)
+    div_slots = div_nd.to_numpy()[: ps.n_total].astype(np.float64)
+    curl_slots = curl_nd.to_numpy()[: ps.n_total].astype(np.float64)
+    fluid = kind == FLUID
+    div_slots[~fluid] = 0.0
+    curl_slots[~fluid] = 0.0
+    seconds["divergence"] = time.perf_counter() - t
+
+    say("assemble")
+    t = time.perf_counter()
+    A = PoissonMatrix(ops, laplacian=opts.laplacian, gradient=opts.neumann_gradient,
+                      kappa=opts.kappa, near=near, bordered=opts.bordered)
+    seconds["assemble"] = time.perf_counter() - t
+
+    stats = {"n_points": n, "n_boundary": int((kind == BOUNDARY).sum()),
+             "n_ghosts": int((kind == GHOST).sum()), "support": support, "spacing": spacing,
+             "mean_neighbours": float(ps.neighbour_counts.mean())}
+    potentials = {}
+    for name, rhs in (("phi", div_slots), ("psi", -curl_slots)):
+        say(f"solve {name}")
+        t = time.perf_counter()
+        res = A.solve(rhs, method=opts.solver, tol=opts.tol,
+                      max_iterations=opts.max_iterations)
+        seconds[f"solve_{name}"] = time.perf_counter() - t
+        potentials[name] = res.x
+        stats[f"iterations_{name}"] = res.iterations
+        stats[f"residual_{name}"] = res.relative_residual
+        stats[f"compatibility_{name}"] = res.border
+
+    say("components")
+    t = time.perf_counter()
+    st_grad = ops.gradient_coefficients(opts.gradient, row_kinds=(FLUID,))
+    grads = {}
+    for name, x in potentials.items():
+        x_nd = ps.new_array(1)
+        x_nd.from_numpy(x.astype(runtime.np_real()))
+        g_nd = ps.new_array(2)
+        ops.gradient(st_grad, x_nd, g_nd)
+        grads[name] = ps.download(g_nd)
+    d = grads["phi"]
+    r = J(grads["psi"])
+    h = vec - d - r
+    seconds["components"] = time.perf_counter() - t
+    seconds["total"] = time.perf_counter() - t_start
+    stats["seconds"] = seconds
+
+    def at_points(slots):
+        return np.asarray(slots)[ps.slot_of]
+
+    return HHDResult(points=pts, vectors=vec, curl_free=d, div_free=r, harmonic=h,
+                     phi=at_points(potentials["phi"]), psi=at_points(potentials["psi"]),
+                     divergence=at_points(div_slots), curl=at_points(curl_slots),
+                     stats=stats, options=opts, pointset=ps)
+
+
+def _ghosts_with_data(ps, reach: float = 0.8) -> np.ndarray:
+    """Per slot: False for fake particles without a data point within ``reach`` x
+    support.  0.8: the published quartic is negative beyond 0.848 of its support, so
+    a Shepard sum over only such far neighbours would have no positive weight."""
+    off, nb = ps.pairs.to_numpy()
+    kind = ps.particles.get("kind")
+    pos = ps.particles.get("position")
+    rows = np.repeat(np.arange(ps.n_total), np.diff(off))
+    close = np.linalg.norm(pos[nb] - pos[rows], axis=1) < reach * ps.support
+    has = np.zeros(ps.n_total, dtype=bool)
+    np.logical_or.at(has, rows, (kind[nb] == FLUID) & close)
+    return has | (kind != GHOST)
+
+
+def _petronetto_band(ps, domain):
+    """Petronetto Sec. 4: fluid particles within sqrt(m/rho)/pi of the boundary get
+    the Neumann term, with the outward normal of the closest boundary point; their
+    weights (-1) go to the Poisson rows, the normals to the particles."""
+    import taichi as ti
+    p = ps.particles
+    kind = p.get("kind")
+    pos = p.get("position")
+    vol = p.get("volume")
+    dist, _, nrm, _ = domain.closest_boundary(pos)
+    band = (kind == FLUID) & (dist < np.sqrt(vol) / math.pi)
+    normals = p.get("normal")
+    normals[band] = nrm[band]
+    p.set("normal", normals)
+    w = np.where(band, -1.0, 0.0).astype(runtime.np_real())
+    near = ti.ndarray(runtime.real_dtype(), shape=(max(ps.n_total, 1),))
+    near.from_numpy(np.resize(w, max(ps.n_total, 1)))
+    return near
