@@ -363,6 +363,17 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
 
 
 @ti.kernel
+def _weight_by_mean_density(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                            rho: ti.types.ndarray(), C: ti.types.ndarray()):
+    """C_ij *= 2 / (rho_i + rho_j): the Laplacian becomes div(grad f / rho) with the
+    inter-particle coefficient 1/rho taken as the inverse mean density of the pair
+    (Cummins & Rudman 1999); continuous across a density jump."""
+    for i in range(n):
+        for k in range(offsets[i], offsets[i + 1]):
+            C[k] *= 2.0 / (rho[i] + rho[nbrs[k]])
+
+
+@ti.kernel
 def _apply_gradient(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
                     G: ti.types.ndarray(), s: ti.types.ndarray(), f: ti.types.ndarray(),
                     out: ti.types.ndarray()):
@@ -521,9 +532,12 @@ class Operators:
         return GradientStencil(G, s, variant, tuple(row_kinds), tuple(source_kinds))
 
     def laplacian_coefficients(self, variant: str = "corrected",
-                               row_kinds=ALL_KINDS, source_kinds=ALL_KINDS) -> LaplacianStencil:
+                               row_kinds=ALL_KINDS, source_kinds=ALL_KINDS,
+                               density_weighted: bool = False) -> LaplacianStencil:
         """Coefficients of a Laplacian variant for the rows of the given kinds,
-        summing over neighbours of the given kinds."""
+        summing over neighbours of the given kinds.  ``density_weighted`` turns it
+        into div(grad f / rho) (pair coefficient times 2 / (rho_i + rho_j)); only
+        for the difference forms, whose self coefficient is zero."""
         vid = _variant_id(variant, LAPLACIAN_VARIANTS)
         p = self.particles
         real = runtime.real_dtype()
@@ -534,6 +548,10 @@ class Operators:
                           self.support, C, s, self._bad, p.kind, _kind_bits(row_kinds),
                          _kind_bits(source_kinds))
         self._check_bad(f"{variant} Laplacian")
+        if density_weighted:
+            if variant == "basic":
+                raise ValueError("density weighting needs a difference-form Laplacian")
+            _weight_by_mean_density(p.n, *self._pair_args(), p.density, C)
         return LaplacianStencil(C, s, variant, tuple(row_kinds), tuple(source_kinds))
 
     # ---- applies (Taichi arrays in, Taichi arrays out) --------------------------

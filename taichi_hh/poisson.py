@@ -183,6 +183,8 @@ class PoissonMatrix:
     curvature on a one-sided boundary neighbourhood, which then pollutes the
     whole solution.
     kappa: ridge term added to the fluid rows (Petronetto Sec. 6a).
+    density_weighted: fluid rows discretise div(grad phi / rho) instead (the
+    two-phase pressure equation), pair coefficients times 2 / (rho_i + rho_j).
     near: per-slot weights of the ``n . grad`` term on fluid rows (Petronetto's
     boundary treatment: -1 within sqrt(m/rho)/pi of the boundary), or None.
     bordered: for pure-Neumann problems, append one unknown ``lambda`` and one
@@ -194,7 +196,8 @@ class PoissonMatrix:
     """
 
     def __init__(self, ops, *, laplacian: str = "corrected", gradient: str = "quadratic",
-                 kappa: float = 0.0, near=None, bordered: bool = False):
+                 kappa: float = 0.0, near=None, bordered: bool = False,
+                 density_weighted: bool = False):
         runtime.ensure_init()
         p = ops.particles
         self.ops = ops
@@ -203,7 +206,8 @@ class PoissonMatrix:
         self.n = p.n + (1 if self.bordered else 0)
         self.kappa = float(kappa)
         real = runtime.real_dtype()
-        self.lap = ops.laplacian_coefficients(laplacian, row_kinds=(FLUID,))
+        self.lap = ops.laplacian_coefficients(laplacian, row_kinds=(FLUID,),
+                                              density_weighted=density_weighted)
         self.grad = ops.gradient_coefficients(gradient, row_kinds=(FLUID, BOUNDARY))
         npairs = max(ops.pairs.n_pairs, 1)
         size = max(self.n_particles, 1)
