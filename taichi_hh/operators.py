@@ -374,6 +374,17 @@ def _weight_by_mean_density(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.typ
 
 
 @ti.kernel
+def _weight_gradient_by_mean_density(n: ti.i32, offsets: ti.types.ndarray(),
+                                     nbrs: ti.types.ndarray(), rho: ti.types.ndarray(),
+                                     G: ti.types.ndarray()):
+    """G_ij *= 2 rho_i / (rho_i + rho_j): then (grad f)_i / rho_i pairs each difference
+    with the pair's mean density, as the density-weighted Laplacian does."""
+    for i in range(n):
+        for k in range(offsets[i], offsets[i + 1]):
+            G[k] *= 2.0 * rho[i] / (rho[i] + rho[nbrs[k]])
+
+
+@ti.kernel
 def _apply_gradient(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
                     G: ti.types.ndarray(), s: ti.types.ndarray(), f: ti.types.ndarray(),
                     out: ti.types.ndarray()):
@@ -515,7 +526,8 @@ class Operators:
                 "(support_ratio) or use an uncorrected variant.")
 
     def gradient_coefficients(self, variant: str = "corrected",
-                              row_kinds=ALL_KINDS, source_kinds=ALL_KINDS) -> GradientStencil:
+                              row_kinds=ALL_KINDS, source_kinds=ALL_KINDS,
+                              density_weighted: bool = False) -> GradientStencil:
         """Coefficients of a gradient variant for the rows whose particle kind is in
         ``row_kinds`` (other rows get zeros: e.g. ghosts, which need no derivatives),
         summing over the neighbours whose kind is in ``source_kinds``."""
@@ -529,6 +541,10 @@ class Operators:
                          self.support, G, s, self._bad, p.kind, _kind_bits(row_kinds),
                          _kind_bits(source_kinds))
         self._check_bad(f"{variant} gradient")
+        if density_weighted:
+            if variant in ("basic", "symmetric"):
+                raise ValueError("density weighting needs a difference-form gradient")
+            _weight_gradient_by_mean_density(p.n, *self._pair_args(), p.density, G)
         return GradientStencil(G, s, variant, tuple(row_kinds), tuple(source_kinds))
 
     def laplacian_coefficients(self, variant: str = "corrected",

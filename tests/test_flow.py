@@ -1,0 +1,76 @@
+"""Two-phase projection SPH: rest states stay at rest, the droplet rises symmetrically."""
+import numpy as np
+import pytest
+
+from taichi_hh.flow import BlowUpError, FlowParams, TwoPhaseFlow
+
+
+def tank(nx, ny, W=1.0, H=2.0):
+    dx = W / nx
+    g = np.stack(np.meshgrid((np.arange(nx) + 0.5) * dx, (np.arange(ny) + 0.5) * dx), -1)
+    return g.reshape(-1, 2), dx
+
+
+def test_fluid_at_rest_stays_at_rest_with_hydrostatic_pressure():
+    pts, dx = tank(16, 32)
+    params = FlowParams(box=(0, 0, 1, 2), densities=(1.0, 1.0), nu=0.01, solver_tol=1e-10)
+    flow = TwoPhaseFlow(pts, np.zeros(len(pts), int), dx, params)
+    g = 1.0
+    speeds = []
+    for _ in range(20):
+        info = flow.step()
+        speeds.append(info["max_speed"])
+    # dt g = 0.02 would be the speed after one step without pressure
+    assert max(speeds) < 1e-7, speeds
+    # pressure impulse q = dt p: hydrostatic p = rho g (H - y) up to a constant
+    pos, vel, ph, ids = flow.fluid_state()
+    q = flow.q_by_id[ids]
+    p = q / info["dt"]
+    slope = np.polyfit(pos[:, 1], p, 1)[0]
+    assert abs(slope + 1.0 * g) < 1e-3 * g
+    resid = p - np.polyval(np.polyfit(pos[:, 1], p, 1), pos[:, 1])
+    assert np.abs(resid).max() < 1e-4 * g * 2.0
+
+
+def test_stable_stratification_stays_nearly_at_rest():
+    """Light over heavy (density ratio 2) should stay at rest.  The discrete
+    hydrostatic balance across the density jump is not exact (the kinked
+    hydrostatic pressure is differentiated over the kernel support), which leaves
+    a bounded spurious current at the interface: measured 1.0e-2 after 60 steps,
+    saturating, about 0.7% of sqrt(g H); without the pair-mean-density gradient it
+    was 2.2e-2.  Asserted: bounded below 1.5e-2 and no longer growing."""
+    pts, dx = tank(16, 32)
+    phases = np.where(pts[:, 1] > 1.0, 0, 1)          # light phase 0 on top of heavy phase 1
+    params = FlowParams(box=(0, 0, 1, 2), densities=(1.0, 2.0), nu=0.01, solver_tol=1e-10)
+    flow = TwoPhaseFlow(pts, phases, dx, params)
+    speeds = [flow.step()["max_speed"] for _ in range(60)]
+    assert max(speeds) < 1.5e-2, speeds
+    assert speeds[-1] < 1.15 * speeds[30], speeds
+    pos, vel, ph, _ = flow.fluid_state()
+    assert np.all((pos[ph == 0, 1] > 0.9))              # no mixing: the light fluid stays on top
+
+
+def test_droplet_rises_and_stays_symmetric():
+    pts, dx = tank(20, 40)
+    phases = np.where(np.linalg.norm(pts - [0.5, 0.5], axis=1) < 0.25, 0, 1)
+    params = FlowParams(box=(0, 0, 1, 2), densities=(1.0, 2.0), nu=5e-3)
+    flow = TwoPhaseFlow(pts, phases, dx, params)
+    y0 = pts[phases == 0, 1].mean()
+    while flow.time < 0.5:
+        flow.step()
+    pos, vel, ph, _ = flow.fluid_state()
+    drop = pos[ph == 0]
+    assert drop[:, 1].mean() > y0 + 0.01                     # rose
+    assert abs(drop[:, 0].mean() - 0.5) < 1e-6               # mirror symmetry kept
+    # the mirror image of every particle is (nearly) another particle
+    mirrored = np.c_[1.0 - pos[:, 0], pos[:, 1]]
+    d = np.min(np.linalg.norm(mirrored[:, None, :] - pos[None, :, :], axis=2), axis=1)
+    assert d.max() < 1e-6 * dx * 1e3
+
+
+def test_bad_setup_is_refused():
+    pts, dx = tank(8, 16)
+    with pytest.raises(ValueError, match="inside the box"):
+        TwoPhaseFlow(pts + [0.5, 0], np.zeros(len(pts), int), dx, FlowParams())
+    with pytest.raises(ValueError, match="phase"):
+        TwoPhaseFlow(pts, np.full(len(pts), 5), dx, FlowParams())
