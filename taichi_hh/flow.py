@@ -41,9 +41,10 @@ from .neighbors import GridSpec, PairList, bin_particles
 from .operators import Operators
 from .particles import FLUID, GHOST, Particles
 from .poisson import PoissonMatrix
+from .runloop import BlowUp
 
 
-class BlowUpError(RuntimeError):
+class BlowUpError(BlowUp):
     """The simulation left the regime it can represent (non-finite values,
     particles leaving the box, a failed pressure solve)."""
 
@@ -290,14 +291,16 @@ class TwoPhaseFlow:
         pos[fluid] += dt * w[fluid] + shift[fluid]
         w[~fluid] = 0.0
         if not (np.isfinite(pos).all() and np.isfinite(w).all()):
-            raise BlowUpError(f"non-finite positions or velocities at t={self.time:.4g}")
+            raise BlowUpError(f"non-finite positions or velocities at t={self.time:.4g}",
+                              cause="non-finite")
         x0, y0, x1, y1 = pr.box
         out = fluid & ~((pos[:, 0] > x0) & (pos[:, 0] < x1) & (pos[:, 1] > y0) & (pos[:, 1] < y1))
         if out.any():
             # a particle pushed through a wall: put it back just inside (walls are
             # impermeable); many at once means the step is unstable
             if out.sum() > max(3, 0.001 * self.n_fluid):
-                raise BlowUpError(f"{int(out.sum())} particles left the box at t={self.time:.4g}")
+                raise BlowUpError(f"{int(out.sum())} particles left the box at t={self.time:.4g}",
+                                  cause="left-box")
             eps = 0.01 * self.dx
             pos[out] = np.clip(pos[out], [x0 + eps, y0 + eps], [x1 - eps, y1 - eps])
         p.set("position", pos)

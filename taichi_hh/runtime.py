@@ -67,11 +67,19 @@ def init(arch: str = "cpu", precision: str = "f64", *, offline_cache_dir: str | 
         kwargs["offline_cache_file_path"] = cache
     if threads:
         kwargs["cpu_max_num_threads"] = int(threads)
-    if arch == "cpu":
+    actual = "cpu"
+    if arch != "cpu":
+        # Try the GPU backends one by one rather than ti.gpu: its OpenGL probe
+        # segfaults on machines without a display (seen on the CPU-only CI boxes),
+        # while CUDA and Vulkan fall back to the CPU cleanly when absent.
+        for backend in _gpu_backends(ti):
+            ti.init(arch=backend, **kwargs)
+            if ti.lang.impl.current_cfg().arch != ti.cpu:
+                actual = "gpu"
+                break
+            ti.reset()
+    if actual == "cpu":
         ti.init(arch=ti.cpu, **kwargs)
-    else:
-        ti.init(arch=ti.gpu, **kwargs)   # Taichi falls back to CPU itself when no GPU
-    actual = "gpu" if ti.lang.impl.current_cfg().arch != ti.cpu else "cpu"
     if arch == "gpu" and actual == "cpu" and verbose:
         print("taichi_hh: no usable GPU found; running on the CPU instead.", file=sys.stderr)
     _state.initialized = True
@@ -80,6 +88,13 @@ def init(arch: str = "cpu", precision: str = "f64", *, offline_cache_dir: str | 
     _state.precision = precision
     _state.generation += 1
     return _state
+
+
+def _gpu_backends(ti):
+    backends = [ti.cuda, ti.vulkan]
+    if sys.platform == "darwin":
+        backends.insert(0, ti.metal)
+    return backends
 
 
 def ensure_init() -> RuntimeState:

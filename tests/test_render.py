@@ -1,0 +1,209 @@
+"""Headless frames: disc placement and colours (y up), aspect ratio, colormap,
+PNG round trip, movies, and no half-written files after a failed write."""
+import io as _io
+import os
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from taichi_hh import render
+from taichi_hh.particles import BOUNDARY, FLUID, GHOST
+
+
+def test_discs_land_on_the_right_pixels_with_the_right_colours():
+    r = render.FrameRenderer(200, None, (0.0, 0.0), (2.0, 1.0), radius_px=5)
+    assert (r.width, r.height) == (200, 100)
+    pos = np.array([[0.5, 0.25], [1.5, 0.75], [1.0, 0.5]])
+    img = r.draw(pos, phase=[0, 1, 0], kind=[FLUID, FLUID, BOUNDARY])
+    assert img.shape == (100, 200, 3) and img.dtype == np.uint8
+    blue, orange = r.colour_of_phase(0), r.colour_of_phase(1)
+    grey = tuple(render.WALL_COLOUR)
+    assert blue == render.PHASE_PALETTE[0] and orange == render.PHASE_PALETTE[1]
+    # y up: (0.5, 0.25) is in the lower half of the image, i.e. at a large row
+    assert r.world_to_pixel(0.5, 0.25) == (50, 74)
+    assert tuple(img[74, 50]) == blue
+    assert tuple(img[24, 150]) == orange           # (1.5, 0.75): upper right
+    assert tuple(img[49, 100]) == grey             # the wall particle at the centre
+    assert tuple(img[25, 50]) == (255, 255, 255)   # where a y-down image would put it
+    # disc extent: pixel centres within 5 px are covered, farther ones are not
+    assert tuple(img[74, 50 + 4]) == blue and tuple(img[74 - 4, 50]) == blue
+    assert tuple(img[74, 50 + 6]) == (255, 255, 255) and tuple(img[74 + 6, 50]) == (255, 255, 255)
+    covered = (img != 255).any(axis=2)
+    # three discs of radius 5 px: about 3 * pi * 25 pixels, background elsewhere
+    assert abs(covered.sum() - 3 * np.pi * 25) < 20
+    assert not covered[:, :30].any() and not covered[:, 170:].any()
+
+
+def test_background_walls_hidden_and_ghosts_are_walls():
+    r = render.FrameRenderer(100, None, (0, 0), (1, 1), radius_px=4, background=(10, 20, 30))
+    pos = np.array([[0.25, 0.25], [0.75, 0.75], [0.25, 0.75]])
+    img = r.draw(pos, phase=[0, -1, 1], kind=[FLUID, GHOST, FLUID])
+    assert tuple(img[0, 0]) == (10, 20, 30)
+    assert tuple(img[r.world_to_pixel(0.75, 0.75)[::-1]]) == tuple(render.WALL_COLOUR)
+    img = r.draw(pos, phase=[0, -1, 1], kind=[FLUID, GHOST, FLUID], show_walls=False)
+    assert tuple(img[r.world_to_pixel(0.75, 0.75)[::-1]]) == (10, 20, 30)
+    assert tuple(img[r.world_to_pixel(0.25, 0.75)[::-1]]) == r.colour_of_phase(1)
+
+
+def test_aspect_ratio_is_kept():
+    assert render.FrameRenderer(300, None, (0, 0), (3, 1)).height == 100
+    assert render.FrameRenderer(100, None, (-1, 0), (1, 4)).height == 200
+    # both sizes given, box 2:1 in a square image: letterboxed, discs stay round
+    r = render.FrameRenderer(200, 200, (0, 0), (2, 1), radius_px=10)
+    assert r.scale == 100
+    img = r.draw(np.array([[1.0, 0.5]]))
+    rows, cols = np.nonzero((img != 255).any(axis=2))
+    assert rows.max() - rows.min() == cols.max() - cols.min()
+    assert abs(rows.mean() - 99.5) < 0.6 and abs(cols.mean() - 99.5) < 0.6
+    # the box (0..1 in y) covers rows 50..149 only
+    img = r.draw(np.array([[0.0, 0.0], [2.0, 1.0]]), radius_px=1)
+    rows, _ = np.nonzero((img != 255).any(axis=2))
+    assert rows.min() >= 49 and rows.max() <= 150
+
+
+def _cmap_index(r, colour):
+    d = np.abs(r.table_np[:256].astype(int) - np.asarray(colour, int)).sum(axis=1)
+    return int(np.argmin(d))
+
+
+def test_speed_colouring_is_monotone():
+    r = render.FrameRenderer(400, None, (0, 0), (1, 0.1), radius_px=3)
+    x = np.linspace(0.05, 0.95, 10)
+    pos = np.c_[x, np.full(10, 0.05)]
+    speed = np.linspace(0.0, 2.0, 10)
+    img = r.draw(pos, scalar=speed)
+    idx = [_cmap_index(r, img[r.world_to_pixel(*p)[::-1]]) for p in pos]
+    assert idx[0] == 0 and idx[-1] == 255
+    assert all(b > a for a, b in zip(idx, idx[1:]))
+    # an explicit range clamps; a non-finite value is drawn at the top of the range
+    speed2 = speed.copy()
+    speed2[3] = np.nan
+    img = r.draw(pos, scalar=speed2, vmin=0.0, vmax=1.0)
+    idx = [_cmap_index(r, img[r.world_to_pixel(*p)[::-1]]) for p in pos]
+    assert idx[3] == 255 and idx[-1] == 255 and idx[0] == 0
+
+
+def test_overlaps_go_to_the_nearest_centre_whatever_the_order():
+    r = render.FrameRenderer(100, None, (0, 0), (1, 1), radius_px=12)
+    pos = np.array([[0.45, 0.5], [0.55, 0.5]])
+    a = r.draw(pos, phase=[0, 1])
+    b = r.draw(pos[::-1], phase=[1, 0])
+    assert np.array_equal(a, b)
+    assert tuple(a[49, 47]) == r.colour_of_phase(0) and tuple(a[49, 52]) == r.colour_of_phase(1)
+
+
+def test_non_finite_and_far_positions_are_skipped():
+    r = render.FrameRenderer(50, None, (0, 0), (1, 1), radius_px=2)
+    pos = np.array([[np.nan, 0.5], [np.inf, -np.inf], [1e300, 0.5], [0.5, 0.5]])
+    img = r.draw(pos)
+    covered = (img != 255).any(axis=2)
+    assert covered.sum() > 0 and covered.sum() < 20   # only the last disc
+
+
+def test_render_particles_from_a_particle_set():
+    from taichi_hh.particles import Particles
+    p = Particles.from_numpy(np.array([[0.25, 0.5], [0.75, 0.5]]), velocity=[[0, 0], [3, 4]],
+                             phase=[0, 1])
+    r = render.FrameRenderer(100, None, (0, 0), (1, 1), radius_px=4)
+    img = r.render_particles(p)
+    assert tuple(img[r.world_to_pixel(0.75, 0.5)[::-1]]) == r.colour_of_phase(1)
+    img = r.render_particles(p, color="speed")
+    assert _cmap_index(r, img[r.world_to_pixel(0.75, 0.5)[::-1]]) == 255
+    assert _cmap_index(r, img[r.world_to_pixel(0.25, 0.5)[::-1]]) == 0
+
+
+@pytest.mark.parametrize("shape", [(37, 53, 3), (20, 30), (16, 9, 4)])
+def test_png_round_trip(tmp_path, shape):
+    img = np.random.default_rng(1).integers(0, 256, shape, dtype=np.uint8)
+    path = str(tmp_path / "a.png")
+    assert render.write_png(path, img) == path
+    assert np.array_equal(iio.imread(path), img)
+    assert os.listdir(tmp_path) == ["a.png"]
+
+
+def test_frame_path():
+    assert render.frame_path("out", 7) == os.path.join("out", "frame_00007.png")
+
+
+def _frames(n=3, shape=(24, 32, 3)):
+    rng = np.random.default_rng(2)
+    return [np.full(shape, rng.integers(0, 256, 3), dtype=np.uint8) for _ in range(n)]
+
+
+def test_gif_from_frame_files(tmp_path):
+    for i, f in enumerate(_frames(4)):
+        render.write_png(render.frame_path(str(tmp_path), i), f)
+    out = render.write_movie(str(tmp_path / "frame_*.png"), str(tmp_path / "movie.gif"), fps=10)
+    assert out == str(tmp_path / "movie.gif")
+    movie = iio.imread(out, index=None)
+    assert movie.shape[0] == 4 and movie.shape[1:3] == (24, 32)
+    assert not [f for f in os.listdir(tmp_path) if f.startswith(".tmp")]
+
+
+def test_mp4_without_ffmpeg_falls_back_to_gif(tmp_path, monkeypatch):
+    monkeypatch.setattr(render, "have_mp4", lambda: False)
+    msg = _io.StringIO()
+    out = render.write_movie(_frames(3), str(tmp_path / "movie.mp4"), fps=5, stream=msg)
+    assert out == str(tmp_path / "movie.gif")
+    assert "imageio-ffmpeg" in msg.getvalue() and msg.getvalue().count("\n") == 1
+    assert iio.imread(out, index=None).shape[0] == 3
+
+
+def test_bad_movie_arguments(tmp_path):
+    with pytest.raises(ValueError, match="gif or .mp4"):
+        render.write_movie(_frames(1), str(tmp_path / "m.avi"))
+    with pytest.raises(FileNotFoundError):
+        render.write_movie(str(tmp_path / "none_*.png"), str(tmp_path / "m.gif"))
+
+
+def test_failed_writes_leave_nothing_half_written(tmp_path, monkeypatch):
+    good = np.zeros((8, 8, 3), np.uint8)
+    path = str(tmp_path / "frame_00000.png")
+    render.write_png(path, good)
+    before = open(path, "rb").read()
+
+    def broken_png(target, image):
+        with open(target, "wb") as fh:
+            fh.write(b"\x89PNG partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(render, "_save_png", broken_png)
+    with pytest.raises(OSError, match="disk full"):
+        render.write_png(path, np.full((8, 8, 3), 9, np.uint8))
+    with pytest.raises(OSError, match="disk full"):
+        render.write_png(str(tmp_path / "frame_00001.png"), good)
+    assert sorted(os.listdir(tmp_path)) == ["frame_00000.png"]
+    assert open(path, "rb").read() == before
+
+    def broken_gif(frames, tmp, fps):
+        with open(tmp, "wb") as fh:
+            fh.write(b"GIF89a partial")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(render, "_write_gif", broken_gif)
+    with pytest.raises(KeyboardInterrupt):
+        render.write_movie([good, good], str(tmp_path / "movie.gif"))
+    assert sorted(os.listdir(tmp_path)) == ["frame_00000.png"]
+
+
+def test_bad_renderer_arguments():
+    with pytest.raises(ValueError, match="box"):
+        render.FrameRenderer(100, None, (0, 0), (0, 1))
+    with pytest.raises(ValueError, match="background"):
+        render.FrameRenderer(100, None, (0, 0), (1, 1), background=(0, 0, 300))
+    r = render.FrameRenderer(10, None, (0, 0), (1, 1))
+    with pytest.raises(ValueError, match="shape"):
+        r.draw(np.zeros((3, 3)))
+
+
+def test_mp4_when_imageio_ffmpeg_is_installed(tmp_path):
+    pytest.importorskip("imageio_ffmpeg")
+    import imageio.v2 as iio2
+    frames = _frames(5, shape=(25, 31, 3))              # odd sizes: padded to even
+    out = render.write_movie(frames, str(tmp_path / "movie.mp4"), fps=10)
+    assert out == str(tmp_path / "movie.mp4")
+    reader = iio2.get_reader(out)
+    assert sum(1 for _ in reader) == 5
+    reader.close()
+    assert os.listdir(tmp_path) == ["movie.mp4"]
