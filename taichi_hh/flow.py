@@ -203,6 +203,38 @@ class TwoPhaseFlow:
             limits.append(pr.force_cfl * math.sqrt(self.dx / g))
         return min(limits)
 
+    def suggested_dt(self) -> float:
+        """The stable time step for the current velocities (see the module doc)."""
+        p = self.particles
+        fluid = p.get("kind") == FLUID
+        vel = p.get("velocity")[fluid]
+        return self.time_step(float(np.sqrt((vel ** 2).sum(axis=1).max())))
+
+    def volume_error(self) -> tuple:
+        """(mean, max) of |C_i / C_0 - 1| over the fluid, C_i = sum_j V_j W_ij the
+        particle number density (volume fraction) and C_0 its value on the initial
+        lattice: how far the particles are from filling space uniformly."""
+        p = self.particles
+        if not hasattr(self, "ops"):
+            self._neighbours()
+        real = runtime.real_dtype()
+        c = ti.ndarray(real, shape=(max(p.capacity, 1),))
+        scratch = ti.ndarray(real, shape=(max(p.capacity, 1),))
+        from .operators import _density
+        _density(self.ops._kid, p.position, p.volume, p.n, self.pairs.offsets,
+                 self.pairs.neighbours, self.support, c, scratch)
+        C = c.to_numpy()[: p.n]
+        if not hasattr(self, "_c0"):
+            self._c0 = _lattice_number_density(self.params.kernel, self.dx, self.support)
+        err = np.abs(C[p.get("kind") == FLUID] / self._c0 - 1.0)
+        return float(err.mean()), float(err.max())
+
+    def kinetic_energy(self) -> float:
+        p = self.particles
+        fluid = p.get("kind") == FLUID
+        v = p.get("velocity")[fluid]
+        return float(0.5 * (p.get("mass")[fluid] * (v ** 2).sum(axis=1)).sum())
+
     def step(self, dt: float | None = None) -> dict:
         pr = self.params
         p = self.particles
@@ -357,6 +389,16 @@ class TwoPhaseFlow:
             flow.q_by_id = np.asarray(state["q_by_id"], dtype=np.float64)
         flow.border = float(state["border"])
         return flow
+
+
+def _lattice_number_density(kernel: str, dx: float, support: float) -> float:
+    """sum_j dx^2 W(|x_j|) over a full square lattice (self included)."""
+    from .kernels import kernel_numpy
+    k = int(math.ceil(support / dx)) + 1
+    g = np.arange(-k, k + 1) * dx
+    X, Y = np.meshgrid(g, g)
+    W, _, _ = kernel_numpy(kernel, np.hypot(X, Y).ravel(), support)
+    return float(dx * dx * W.sum())
 
 
 def _ndarray_like(p, ncomp: int):

@@ -1,0 +1,115 @@
+"""The command-line driver shared by the scene scripts in ``scenes/``.
+
+A scene supplies its initial particles, its parameters and its own measures;
+this module parses the common options, runs the time loop with progress,
+frames, diagnostics and checkpoints (:mod:`taichi_hh.runloop`), and resumes.
+"""
+import argparse
+import math
+import os
+import sys
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from . import runtime
+from .flow import BlowUpError, FlowParams, TwoPhaseFlow
+from .render import FrameRenderer, frame_path, write_movie, write_png
+from .runloop import Checkpoint, DiagnosticsWriter, add_common_arguments, run
+
+BASE_COLUMNS = ["time", "step", "dt", "solver_iterations", "max_div", "max_div_before",
+                "volume_error_mean", "volume_error_max", "kinetic_energy"]
+
+
+@dataclass
+class Scene:
+    name: str
+    description: str
+    defaults: dict                       # overrides of the common options
+    add_arguments: callable              # (parser) -> None: scene options
+    build: callable                      # (args) -> (points, phases, spacing, FlowParams)
+    measures: callable                   # (flow) -> dict of scene measures
+    measure_columns: list = field(default_factory=list)
+    terms: str = ""                      # which physical terms the scene uses
+
+
+def lattice_in_box(n_target: int, box):
+    """A square lattice of about n_target points filling box = (x0, y0, x1, y1)."""
+    x0, y0, x1, y1 = box
+    area = (x1 - x0) * (y1 - y0)
+    nx = max(2, int(round((x1 - x0) / math.sqrt(area / n_target))))
+    dx = (x1 - x0) / nx
+    ny = max(2, int(round((y1 - y0) / dx)))
+    dy = (y1 - y0) / ny
+    if abs(dy - dx) > 1e-9 * dx:
+        raise ValueError(f"box {box} is not a whole number of square cells at {n_target} "
+                         "particles; choose another particle count")
+    gx = x0 + (np.arange(nx) + 0.5) * dx
+    gy = y0 + (np.arange(ny) + 0.5) * dx
+    return np.stack(np.meshgrid(gx, gy), -1).reshape(-1, 2), dx
+
+
+def main(scene: Scene, argv=None) -> int:
+    ap = argparse.ArgumentParser(prog=f"{scene.name}.py", description=scene.description,
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    common = {k: v for k, v in scene.defaults.items() if k != "output_interval"}
+    add_common_arguments(ap, common)
+    ap.add_argument("--output-interval", type=float, default=scene.defaults.get("output_interval", 0.1),
+                    help="simulated time between frames and diagnostics rows")
+    scene.add_arguments(ap)
+    args = ap.parse_args(argv)
+    runtime.init(arch=args.arch, precision=args.precision)
+    os.makedirs(args.out, exist_ok=True)
+    ckpt_path = os.path.join(args.out, "checkpoint.npz")
+    points, phases, spacing, params = scene.build(args)
+    if args.resume:
+        if not os.path.exists(ckpt_path):
+            print(f"--resume: no checkpoint in {args.out}", file=sys.stderr)
+            return 2
+        state = Checkpoint.load(ckpt_path)
+        flow = TwoPhaseFlow.from_state(state, params)
+    else:
+        flow = TwoPhaseFlow(points, phases, spacing, params)
+    x0, y0, x1, y1 = params.box
+    renderer = FrameRenderer(args.frame_width, None, (x0, y0), (x1, y1))
+    columns = BASE_COLUMNS + list(scene.measure_columns)
+    writer = DiagnosticsWriter(os.path.join(args.out, "diagnostics.csv"), columns,
+                               resume_time=flow.time if args.resume else None)
+    if not args.quiet:
+        print(f"{scene.name}: {flow.n_fluid} fluid particles, spacing {flow.dx:.4g}, "
+              f"support {flow.support:.4g}, until t={args.end_time}; terms: {scene.terms}; "
+              f"writing to {args.out}", file=sys.stderr)
+
+    def step_fn(t_stop):
+        dt = min(flow.suggested_dt(), t_stop - flow.time)
+        info = flow.step(dt)
+        return flow.time, dt, info
+
+    def on_output(t, step, info):
+        pos, vel, ph, _ = flow.fluid_state()
+        scalar = np.linalg.norm(vel, axis=1) if args.color == "speed" else None
+        image = renderer.draw(pos, phase=ph, scalar=scalar)
+        write_png(frame_path(args.out, int(round(t / args.output_interval))), image)
+        vmean, vmax = flow.volume_error()
+        row = {"time": t, "step": step, "dt": info.get("dt", ""),
+               "solver_iterations": info.get("iterations", ""), "max_div": info.get("max_div", ""),
+               "max_div_before": info.get("max_div_before", ""), "volume_error_mean": vmean,
+               "volume_error_max": vmax, "kinetic_energy": flow.kinetic_energy()}
+        row.update(scene.measures(flow))
+        writer.write(row)
+
+    def checkpoint_fn():
+        return Checkpoint.save(ckpt_path, flow.state_dict())
+
+    try:
+        run(step_fn, t0=flow.time, t_end=args.end_time, output_interval=args.output_interval,
+            on_output=on_output, checkpoint_fn=checkpoint_fn, progress=not args.quiet,
+            step0=flow.step_count, output_at_start=not args.resume,
+            blowup_types=(BlowUpError,))
+    finally:
+        writer.close()
+    if args.movie != "none":
+        path = write_movie(os.path.join(args.out, "frame_*.png"),
+                           os.path.join(args.out, f"{scene.name}.{args.movie}"), fps=args.fps)
+        print(f"movie: {path}", file=sys.stderr)
+    return 0
