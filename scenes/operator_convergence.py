@@ -5,7 +5,7 @@ the plain (Petronetto Eq. 8 / Eq. 10) and corrected (Bonet-Lok / renormalised)
 gradient and Laplacian, and plots the interior mean relative error against the
 particle spacing.  Writes OUT/operator_convergence.png and .csv.
 
-    python scenes/operator_convergence.py [--sizes 24,48,96,192] [--out outputs/operator_convergence]
+    python scenes/operator_convergence.py [--sizes 24,48,96,192] [--out outputs/operator_convergence] [--docs]
 """
 import argparse
 import os
@@ -22,6 +22,8 @@ def main(argv=None):
     ap.add_argument("--jitter", type=float, default=0.3, help="jitter, in spacings")
     ap.add_argument("--out", default="outputs/operator_convergence", help="output directory")
     ap.add_argument("--arch", default="cpu", choices=("cpu", "gpu", "auto"))
+    ap.add_argument("--docs", action="store_true",
+                    help="also refresh docs/figures/operator_convergence.png (the README's figure)")
     args = ap.parse_args(argv)
 
     import matplotlib
@@ -74,6 +76,11 @@ def main(argv=None):
     path = os.path.join(args.out, "operator_convergence.png")
     atomic_savefig(fig, path, dpi=110)
     print("wrote", path)
+    if args.docs:
+        docs = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "docs", "figures",
+                            "operator_convergence.png")
+        atomic_savefig(fig, docs, dpi=110)
+        print("wrote", docs)
 
 
 if __name__ == "__main__":
