@@ -33,8 +33,11 @@ def add_arguments(ap):
     ap.add_argument("--viscosity", type=float, default=2e-3, help="kinematic viscosity")
     ap.add_argument("--width", type=float, default=1.0, help="box width")
     ap.add_argument("--height", type=float, default=2.0, help="box height")
-    ap.add_argument("--shifting", type=float, default=0.0,
-                    help="particle-shifting coefficient (0 = off)")
+    ap.add_argument("--shifting", type=float, default=2.0,
+                    help="particle-shifting coefficient (0 = off).  Without it the particles "
+                         "line up in streaks behind the interface (measured at 2.6k particles, "
+                         "t = 1.5: volume error mean 2.0%% / max 39%% off, 0.38%% / 2.5%% at 2.0, "
+                         "kinetic energy within 0.3%%)")
 
 
 def build(args):
@@ -62,7 +65,8 @@ SCENE = Scene(
               "output_interval": 0.1},
     add_arguments=add_arguments, build=build, measures=measures,
     measure_columns=["centroid_x", "centroid_y", "rise_speed"],
-    terms="gravity, viscosity, density-weighted pressure projection, no-slip walls")
+    terms="gravity, viscosity, density-weighted pressure projection, no-slip walls, "
+          "particle shifting (--shifting 0 turns it off)")
 
 if __name__ == "__main__":
     sys.exit(main(SCENE))
