@@ -2,36 +2,409 @@
 
 Subcommands are added as features land; each lives in its own function and
 only parses arguments, calls the library and writes files.
+
+``decompose FIELD``  Helmholtz-Hodge decomposition -> DIR/components.npz + figures
+``project FIELD``    null-divergence projection    -> DIR/projected.npz, measures.csv + figures
+``info``             version and Taichi arch
+
+Errors in the input or in the numerics (:class:`~taichi_hh.errors.InputError`,
+:class:`~taichi_hh.errors.SolverError`, :class:`~taichi_hh.errors.NeighbourError`,
+bad option values) print one line ``taichi-hh CMD: error: ...`` on stderr and
+exit with status 2 (as argparse does for bad usage); set ``TAICHI_HH_DEBUG=1``
+to get the traceback instead.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
+import os
 import sys
+import textwrap
+import time
+
+#: HHDOptions fields exposed as --options: field -> (metavar/choices source, help)
+_OPTION_HELP = {
+    "kernel": "SPH smoothing kernel",
+    "support_ratio": "kernel support radius divided by the mean point spacing "
+                     "sqrt(area / N); larger = more neighbours, smoother and slower",
+    "divergence": "gradient variant used to compute div v and curl v (the right-hand "
+                  "sides of the two Poisson equations)",
+    "gradient": "gradient variant used for the components d = grad phi and r = J grad psi",
+    "laplacian": "Laplacian variant of the Poisson rows",
+    "neumann_gradient": "gradient variant of the boundary (Neumann) rows dq/dn = 0",
+    "boundary": "boundary treatment: collocation = Neumann rows on particles sampled along "
+                "the boundary; petronetto = fake particles outside with the field extended "
+                "by Shepard sums (Petronetto 2010); colin = a layer of wall particles with "
+                "normals (Colin 2006); none = no boundary condition",
+    "kappa": "ridge term added to the Poisson rows (Petronetto Sec. 6a); 0 = none",
+    "bordered": "add one unknown for the pure-Neumann compatibility condition (bordered "
+                "system); --no-bordered solves the singular system as is",
+    "tol": "relative residual at which the linear solver stops",
+    "solver": "iterative linear solver: bicgstab (Jacobi-preconditioned BiCGSTAB) or "
+              "cgnr (CG on the normal equations)",
+    "max_iterations": "iteration cap of each linear solve (none = max(1000, unknowns))",
+    "seed": "random seed of sampled boundary/fake particles",
+}
+_SOLVERS = ("bicgstab", "cgnr")
 
 
+# --------------------------------------------------------------------------- argument types
+def _positive_float(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return v
+
+
+def _nonnegative_float(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"must be a non-negative number, got {text!r}")
+    return v
+
+
+def _positive_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
+    return v
+
+
+def _nonnegative_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}")
+    return v
+
+
+def _fmt_default(value):
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def _method_defaults(name, methods):
+    """'default: X (petronetto2010: Y, colin2006: Z)' from the bundles."""
+    vals = {m: getattr(o, name) for m, o in methods.items()}
+    first = next(iter(vals))
+    others = ", ".join(f"{m}: {_fmt_default(v)}" for m, v in vals.items() if m != first)
+    return f"default from --method; {first}: {_fmt_default(vals[first])}" + \
+        (f", {others}" if others else "")
+
+
+# --------------------------------------------------------------------------- parser
+def _add_common(p, command):
+    from .hhd import BOUNDARY_METHODS, METHODS, HHDOptions
+    from .kernels import KERNELS
+    from .operators import GRADIENT_VARIANTS, LAPLACIAN_VARIANTS
+    io = p.add_argument_group("input and output")
+    io.add_argument("field", metavar="FIELD",
+                    help="the vector field: a .npz file with arrays 'points' (N,2) and "
+                         "'vectors' (N,2), or a .csv file with columns x,y,u,v (header "
+                         "naming them in any order, extra columns ignored; or no header "
+                         "and exactly 4 columns)")
+    io.add_argument("--domain", metavar="x0,y0,x1,y1|FILE.json",
+                    help="the domain: a box x0,y0,x1,y1 (write --domain=-1,-1,1,1 when it "
+                         "starts with a minus sign) or a JSON polygon {\"outer\": [[x,y],...], "
+                         "\"holes\": [[[x,y],...],...]}; every point must lie inside "
+                         "(default: the points' bounding box)")
+    io.add_argument("-o", "--out", metavar="DIR",
+                    help=f"output directory, created if needed (default: "
+                         f"outputs/<FIELD stem>_{command})")
+    io.add_argument("--no-figures", action="store_true",
+                    help="write the .npz results only, no PNG figures")
+    io.add_argument("-q", "--quiet", action="store_true",
+                    help="no progress messages on stderr (the summary is still printed)")
+
+    num = p.add_argument_group(
+        "numerical options",
+        "Each defaults to the value in the bundle chosen by --method; only the options "
+        "given here override it. Kernels: wendland (Wendland C2), quartic (Petronetto's), "
+        "poly6 (Mueller's, Colin's), cubic (cubic spline). Gradient variants: basic (Colin "
+        "Eq. 8), difference (Petronetto Eq. 8), colin_difference (DGAF, Colin Eq. 13), "
+        "symmetric (SGAF, Colin Eq. 17), corrected (Bonet-Lok, exact on linear fields), "
+        "quadratic (moving least squares of order 2, exact on quadratics). Laplacian "
+        "variants: basic (Colin Eq. 9), colin_difference (Colin Eq. 21), brookshaw "
+        "(Petronetto Eq. 10), corrected (renormalised, exact on quadratics).")
+    num.add_argument("--method", default="default", choices=tuple(METHODS),
+                     help="bundle of numerical options: default = most accurate (Wendland "
+                          "C2, quadratic MLS gradients, corrected Laplacian, collocated "
+                          "Neumann rows); petronetto2010 = Petronetto et al. 2010 as "
+                          "published; colin2006 = Colin et al. 2006's operators "
+                          "(default: default)")
+    choices = {"kernel": KERNELS, "divergence": GRADIENT_VARIANTS,
+               "gradient": GRADIENT_VARIANTS, "laplacian": LAPLACIAN_VARIANTS,
+               "neumann_gradient": GRADIENT_VARIANTS, "boundary": BOUNDARY_METHODS,
+               "solver": _SOLVERS}
+    types = {"support_ratio": (_positive_float, "R"), "kappa": (_nonnegative_float, "K"),
+             "tol": (_positive_float, "TOL"), "max_iterations": (_positive_int, "N"),
+             "seed": (_nonnegative_int, "SEED")}
+    for f in dataclasses.fields(HHDOptions):
+        name = f.name
+        flag = "--" + name.replace("_", "-")
+        text = f"{_OPTION_HELP.get(name, name)} ({_method_defaults(name, METHODS)})"
+        if name in choices:
+            num.add_argument(flag, dest=name, default=None, choices=tuple(choices[name]),
+                             help=text)
+        elif name == "bordered":
+            num.add_argument(flag, dest=name, default=None,
+                             action=argparse.BooleanOptionalAction, help=text)
+        elif name in types:
+            typ, metavar = types[name]
+            num.add_argument(flag, dest=name, default=None, type=typ, metavar=metavar,
+                             help=text)
+        else:                                     # a field added later: still exposed
+            num.add_argument(flag, dest=name, default=None, help=text)
+
+    rt = p.add_argument_group("runtime")
+    rt.add_argument("--arch", default="cpu", choices=("cpu", "gpu", "auto"),
+                    help="Taichi arch: cpu, gpu (falls back to the CPU with a message) or "
+                         "auto (GPU when present) (default: cpu)")
+    rt.add_argument("--precision", default="f64", choices=("f32", "f64"),
+                    help="floating-point precision of every Taichi kernel; with f32 use a "
+                         "looser --tol such as 1e-5 (default: f64)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="taichi-hh", description=(
+        "Meshless Helmholtz-Hodge decomposition and null-divergence SPH on Taichi."),
+        epilog="Run 'taichi-hh COMMAND --help' for the options of a command. "
+               "Errors exit with status 2.")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    dec = sub.add_parser(
+        "decompose", help="Helmholtz-Hodge decomposition v = d + r + h of a sampled field",
+        description=(
+            "Decompose a 2D vector field v sampled at scattered points into v = d + r + h: "
+            "d = grad phi (curl-free), r = J grad psi (divergence-free), h harmonic "
+            "(SPH-HH, Petronetto et al. 2010). Writes DIR/components.npz (points, v, d, r, "
+            "h, phi, psi, divergence, curl and the critical points xs, ys, kinds) and the "
+            "figures DIR/arrows.png and DIR/magnitude.png."),
+        epilog="Exit status: 0 on success, 2 on bad input, bad options or a failed solve.")
+    _add_common(dec, "decompose")
+    dec.add_argument_group("analysis").add_argument("--critical-threshold", type=_nonnegative_float, default=0.1,
+                     metavar="T",
+                     help="critical points (sources, sinks, vortices: extrema of phi and "
+                          "psi) are kept when their |div v| or |curl v| is at least T times "
+                          "the largest in the field (default: 0.1)")
+    dec.set_defaults(func=_cmd_decompose)
+
+    pro = sub.add_parser(
+        "project", help="null-divergence projection of a sampled field (Colin et al. 2006)",
+        description=(
+            "Project a 2D vector field sampled at scattered points onto null divergence: "
+            "solve lap q = div w with dq/dn = 0, set w <- w - grad q, K times (--iterations) "
+            "(Colin, Egli & Lin 2006). Writes DIR/projected.npz (points, vectors = the "
+            "projected field, initial, divergence, per-pass max_divergence, "
+            "sum_sq_divergence, iterations), DIR/measures.csv and the figures "
+            "DIR/projection_arrows.png and DIR/projection_measures.png. Only the "
+            "collocation, colin and none boundary treatments apply."),
+        epilog="Exit status: 0 on success, 2 on bad input, bad options or a failed solve.")
+    _add_common(pro, "project")
+    pro.add_argument_group("projection").add_argument("--iterations", type=_positive_int, default=1, metavar="K",
+                     help="number of projection passes (default: 1)")
+    pro.set_defaults(func=_cmd_project)
+
+    info = sub.add_parser("info", help="show the version and the Taichi arch in use")
+    info.add_argument("--arch", default="auto", choices=("cpu", "gpu", "auto"),
+                      help="Taichi arch: cpu, gpu (falls back to cpu) or auto (default)")
+    info.add_argument("--precision", default="f64", choices=("f32", "f64"),
+                      help="floating-point precision (default: f64)")
+    info.set_defaults(func=_cmd_info)
+    return ap
+
+
+# --------------------------------------------------------------------------- helpers
+class _Progress:
+    """Stage messages on stderr with the elapsed time."""
+
+    def __init__(self, command, quiet=False):
+        self.command = command
+        self.quiet = quiet
+        self.t0 = time.perf_counter()
+
+    def __call__(self, stage: str) -> None:
+        if not self.quiet:
+            print(f"taichi-hh {self.command}: [{time.perf_counter() - self.t0:6.1f} s] {stage}",
+                  file=sys.stderr, flush=True)
+
+    @property
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.t0
+
+
+def _numeric_overrides(args) -> dict:
+    from .hhd import HHDOptions
+    return {f.name: getattr(args, f.name) for f in dataclasses.fields(HHDOptions)
+            if getattr(args, f.name, None) is not None}
+
+
+def _out_dir(args) -> str:
+    if args.out:
+        return args.out
+    stem = os.path.splitext(os.path.basename(os.path.normpath(args.field)))[0] or "field"
+    return os.path.join("outputs", f"{stem}_{args.command}")
+
+
+def _read_inputs(args, say):
+    from . import io
+    say(f"reading {args.field}")
+    points, vectors = io.read_field(args.field)
+    domain = io.read_domain(args.domain)
+    return points, vectors, domain
+
+
+def _init(args, say):
+    import contextlib
+    from . import runtime
+    say(f"starting Taichi ({args.arch}, {args.precision})")
+    # ti.init prints "[Taichi] Starting on arch=..." on stdout: keep stdout for the summary
+    with contextlib.redirect_stdout(sys.stderr if not args.quiet else open(os.devnull, "w")) \
+            as sink:
+        try:
+            return runtime.init(arch=args.arch, precision=args.precision)
+        finally:
+            if sink is not sys.stderr:
+                sink.close()
+
+
+def _paragraph(text: str) -> str:
+    return textwrap.fill(" ".join(text.split()), width=88)
+
+
+def _plural(n, word, plural=None):
+    return f"{n} {word if n == 1 else (plural or word + 's')}"
+
+
+# --------------------------------------------------------------------------- commands
 def _cmd_info(args) -> int:
+    import contextlib
     import taichi_hh as thh
-    st = thh.init(arch=args.arch, precision=args.precision)
+    with contextlib.redirect_stdout(sys.stderr):        # Taichi's own start-up messages
+        st = thh.init(arch=args.arch, precision=args.precision)
     print(f"taichi_hh {thh.__version__}: Taichi arch={st.arch} (requested {st.requested_arch}), "
           f"precision={st.precision}")
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="taichi-hh", description=(
-        "Meshless Helmholtz-Hodge decomposition and null-divergence SPH on Taichi."))
-    sub = ap.add_subparsers(dest="command", required=True)
-    info = sub.add_parser("info", help="show the version and the Taichi arch in use")
-    info.add_argument("--arch", default="auto", choices=("cpu", "gpu", "auto"),
-                      help="Taichi arch: cpu, gpu (falls back to cpu) or auto (default)")
-    info.add_argument("--precision", default="f64", choices=("f32", "f64"))
-    info.set_defaults(func=_cmd_info)
-    return ap
+def _cmd_decompose(args) -> int:
+    import numpy as np
+    from . import io
+    from .hhd import decompose, options_for
+    say = _Progress("decompose", args.quiet)
+    overrides = _numeric_overrides(args)
+    options_for(args.method, **overrides)           # bad combinations fail before any work
+    points, vectors, domain = _read_inputs(args, say)
+    st = _init(args, say)
+    res = decompose(points, vectors, domain, method=args.method, progress=say, **overrides)
+    say("critical points")
+    critical = res.critical_points(threshold=args.critical_threshold)
+    out = _out_dir(args)
+    written = [os.path.join(out, "components.npz")]
+    say(f"writing {written[0]}")
+    io.write_components(written[0], res, critical_points=critical)
+    if not args.no_figures:
+        from .figures import decomposition_figures
+        say("drawing figures")
+        written += decomposition_figures(res, domain, out, critical=critical)
+    s = res.stats
+    mean = {k: float(np.linalg.norm(a, axis=1).mean()) for k, a in
+            (("v", res.vectors), ("d", res.curl_free), ("r", res.div_free),
+             ("h", res.harmonic))}
+    counts = {}
+    for _, _, kind in critical:
+        counts[kind] = counts.get(kind, 0) + 1
+    names = {"source": ("source", "sources"), "sink": ("sink", "sinks"),
+             "cw_vortex": ("clockwise vortex", "clockwise vortices"),
+             "ccw_vortex": ("counter-clockwise vortex", "counter-clockwise vortices")}
+    found = ", ".join(_plural(counts[k], *names[k]) for k in names if k in counts)
+    print(_paragraph(
+        f"Decomposed {len(res.points)} points of {args.field} (method {args.method}"
+        f"{', ' + ', '.join(f'{k}={v}' for k, v in overrides.items()) if overrides else ''}; "
+        f"{st.arch}/{st.precision}): the phi and psi solves took {s['iterations_phi']} and "
+        f"{s['iterations_psi']} iterations (relative residuals {s['residual_phi']:.1e}, "
+        f"{s['residual_psi']:.1e}); decomposition {s['seconds']['total']:.2f} s, "
+        f"{say.elapsed:.2f} s in all. Mean |v| = {mean['v']:.4g}, |d| = {mean['d']:.4g}, "
+        f"|r| = {mean['r']:.4g}, |h| = {mean['h']:.4g}. "
+        f"Critical points: {len(critical)}{' (' + found + ')' if found else ''}. "
+        f"Wrote {', '.join(written)}."))
+    return 0
 
 
+def _cmd_project(args) -> int:
+    from . import io
+    from .hhd import options_for
+    from .projection import project
+    say = _Progress("project", args.quiet)
+    overrides = _numeric_overrides(args)
+    options_for(args.method, **overrides)
+    points, vectors, domain = _read_inputs(args, say)
+    st = _init(args, say)
+    say("setup")
+    res = project(points, vectors, domain, iterations=args.iterations, method=args.method,
+                  progress=say, **overrides)
+    out = _out_dir(args)
+    written = [os.path.join(out, "projected.npz"), os.path.join(out, "measures.csv")]
+    say(f"writing {written[0]}")
+    io.write_projection(written[0], res)
+    iters = list(res.stats.get("iterations", []))
+    io.atomic_write_csv(written[1], [
+        {"pass": k, "max_abs_divergence": float(m), "sum_sq_divergence": float(q),
+         "solver_iterations": iters[k - 1] if k >= 1 else ""}
+        for k, (m, q) in enumerate(zip(res.max_divergence, res.sum_sq_divergence))])
+    if not args.no_figures:
+        from .figures import projection_figures
+        say("drawing figures")
+        written += projection_figures(res, domain, out)
+    print(_paragraph(
+        f"Projected {len(res.points)} points of {args.field} (method {args.method}"
+        f"{', ' + ', '.join(f'{k}={v}' for k, v in overrides.items()) if overrides else ''}; "
+        f"{st.arch}/{st.precision}) with {_plural(args.iterations, 'pass', 'passes')}: solver iterations {', '.join(map(str, iters))}; "
+        f"max |div| {res.max_divergence[0]:.3g} -> {res.max_divergence[-1]:.3g}, sum of "
+        f"div^2 {res.sum_sq_divergence[0]:.3g} -> {res.sum_sq_divergence[-1]:.3g}; "
+        f"projection {res.stats.get('seconds', float('nan')):.2f} s, {say.elapsed:.2f} s in "
+        f"all. Wrote {', '.join(written)}."))
+    return 0
+
+
+# --------------------------------------------------------------------------- entry point
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    return args.func(args)
+    # importing taichi (for the option choices) prints a banner on stdout; keep
+    # stdout for results unless the user asked for the banner
+    os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    from .errors import SolverError, TaichiHHError
+    try:
+        return args.func(args)
+    except (TaichiHHError, ValueError, OSError) as exc:
+        if os.environ.get("TAICHI_HH_DEBUG"):
+            raise
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        if isinstance(exc, SolverError):
+            msg += " (try a larger --tol, a larger --max-iterations or another --method)"
+        elif isinstance(exc, OSError) and not isinstance(exc, TaichiHHError):
+            msg = f"{type(exc).__name__}: {msg}"
+        print(f"taichi-hh {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"taichi-hh {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

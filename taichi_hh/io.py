@@ -8,6 +8,23 @@ import tempfile
 from contextlib import contextmanager
 
 
+_UMASK = None
+
+
+def _umask() -> int:
+    """The process umask (read once; os.umask can only be read by setting it)."""
+    global _UMASK
+    if _UMASK is None:
+        try:
+            with open("/proc/self/status") as fh:
+                _UMASK = next(int(line.split()[1], 8) for line in fh
+                              if line.startswith("Umask:"))
+        except (OSError, StopIteration, ValueError, IndexError):
+            _UMASK = os.umask(0o022)
+            os.umask(_UMASK)
+    return _UMASK
+
+
 @contextmanager
 def atomic_path(path: str, suffix: str = ""):
     """Yield a temporary path next to ``path``; rename it to ``path`` on success."""
@@ -18,6 +35,9 @@ def atomic_path(path: str, suffix: str = ""):
     os.close(fd)
     try:
         yield tmp
+        # mkstemp makes the file private (0600); give it the mode a plain open() would
+        if os.path.exists(tmp):
+            os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -41,3 +61,257 @@ def atomic_savefig(fig, path: str, **kwargs) -> None:
     """Save a matplotlib figure atomically."""
     with atomic_path(path) as tmp:
         fig.savefig(tmp, **kwargs)
+
+
+# --------------------------------------------------------------------------- readers
+# (numpy and the standard library only: reading a field needs no Taichi)
+
+FIELD_FORMATS = (".npz", ".csv")
+CSV_COLUMNS = ("x", "y", "u", "v")
+
+
+def read_field(path):
+    """Read a sampled 2D vector field: ``(points, vectors)``, two (N, 2) float64 arrays.
+
+    ``.npz``: arrays ``points`` (N, 2) and ``vectors`` (N, 2).
+    ``.csv``: a header naming the columns ``x, y, u, v`` (any order, any case,
+    extra columns ignored), or no header and exactly four numeric columns in
+    that order.  Blank lines and lines starting with ``#`` are skipped.
+
+    Raises :class:`~taichi_hh.errors.InputError` naming the problem (and the
+    line of a CSV file) for a missing or unreadable file, an unknown format,
+    missing arrays or columns, wrong shapes, and non-numeric or non-finite
+    values.
+    """
+    from .errors import InputError
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise InputError(f"{path}: no such file")
+    if os.path.isdir(path):
+        raise InputError(f"{path}: is a directory, not a field file")
+    ext = os.path.splitext(path)[1].lower()
+    if ext == ".npz":
+        return _read_field_npz(path)
+    if ext == ".csv":
+        return _read_field_csv(path)
+    raise InputError(f"{path}: unknown field format {ext or '(no extension)'!r}; "
+                     f"give a .npz (arrays points, vectors) or .csv (columns x,y,u,v) file")
+
+
+def _read_field_npz(path):
+    import numpy as np
+    from .errors import InputError
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except Exception as exc:          # OSError, ValueError, zipfile.BadZipFile, EOFError
+        raise InputError(f"{path}: not a readable .npz file ({type(exc).__name__}: {exc})") \
+            from None
+    missing = [k for k in ("points", "vectors") if k not in arrays]
+    if missing:
+        raise InputError(f"{path}: missing array(s) {', '.join(missing)}; a field .npz needs "
+                         f"'points' (N, 2) and 'vectors' (N, 2) (found: "
+                         f"{', '.join(sorted(arrays)) or 'nothing'})")
+    out = []
+    for name in ("points", "vectors"):
+        a = arrays[name]
+        if a.dtype.kind not in "biuf":
+            raise InputError(f"{path}: array '{name}' must be numeric, got dtype {a.dtype}")
+        if a.ndim != 2 or a.shape[1] != 2:
+            raise InputError(f"{path}: array '{name}' must have shape (N, 2), got {a.shape}")
+        a = a.astype(np.float64)
+        bad = ~np.isfinite(a).all(axis=1)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise InputError(f"{path}: array '{name}' has {int(bad.sum())} row(s) with NaN or "
+                             f"inf, first at index {i}: {a[i].tolist()}")
+        out.append(a)
+    points, vectors = out
+    if len(points) != len(vectors):
+        raise InputError(f"{path}: 'points' has {len(points)} rows but 'vectors' has "
+                         f"{len(vectors)}")
+    if len(points) == 0:
+        raise InputError(f"{path}: the field has no points")
+    return points, vectors
+
+
+def _read_field_csv(path):
+    import math
+    import numpy as np
+    from .errors import InputError
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            lines = [(k + 1, row) for k, row in enumerate(csv.reader(fh))]
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text CSV file ({exc})") from None
+    except (OSError, csv.Error) as exc:
+        raise InputError(f"{path}: cannot read ({exc})") from None
+    lines = [(n, [c.strip() for c in row]) for n, row in lines
+             if row and any(c.strip() for c in row) and not row[0].lstrip().startswith("#")]
+    if not lines:
+        raise InputError(f"{path}: the file holds no data")
+
+    def number(cell):
+        try:
+            return float(cell)
+        except ValueError:
+            return None
+
+    first_line, first = lines[0]
+    if all(number(c) is not None for c in first):          # no header: x, y, u, v
+        if len(first) != 4:
+            raise InputError(f"{path}, line {first_line}: without a header the file must have "
+                             f"exactly 4 columns (x, y, u, v), found {len(first)}; or add a "
+                             f"header line naming the columns x,y,u,v")
+        cols, body, width = [0, 1, 2, 3], lines, 4
+    else:
+        names = [c.lower() for c in first]
+        missing = [c for c in CSV_COLUMNS if c not in names]
+        if missing:
+            raise InputError(f"{path}, line {first_line}: header lacks column(s) "
+                             f"{', '.join(missing)}; need x, y, u, v (found: "
+                             f"{', '.join(first)})")
+        dup = [c for c in CSV_COLUMNS if names.count(c) > 1]
+        if dup:
+            raise InputError(f"{path}, line {first_line}: column(s) {', '.join(dup)} appear "
+                             f"more than once in the header")
+        cols, body, width = [names.index(c) for c in CSV_COLUMNS], lines[1:], len(first)
+        if not body:
+            raise InputError(f"{path}: the file has a header but no data rows")
+    data = np.empty((len(body), 4))
+    need = max(cols) + 1
+    for k, (n, row) in enumerate(body):
+        if (len(row) != 4) if body is lines else (len(row) < need):
+            raise InputError(f"{path}, line {n}: expected {width} columns, found {len(row)}")
+        for j, c in enumerate(cols):
+            val = number(row[c])
+            if val is None:
+                raise InputError(f"{path}, line {n}: column {CSV_COLUMNS[j]} is not a number: "
+                                 f"{row[c]!r}")
+            if not math.isfinite(val):
+                raise InputError(f"{path}, line {n}: column {CSV_COLUMNS[j]} is {row[c]!r}; "
+                                 f"values must be finite")
+            data[k, j] = val
+    return data[:, :2].copy(), data[:, 2:].copy()
+
+
+def read_domain(spec):
+    """A domain from a command-line string: ``"x0,y0,x1,y1"`` gives a
+    :class:`~taichi_hh.domain.Box`; a ``.json`` file ``{"outer": [[x, y], ...],
+    "holes": [[[x, y], ...], ...]}`` (holes optional) gives a
+    :class:`~taichi_hh.domain.Polygon`.  ``None`` stays ``None`` (the library
+    then uses the points' bounding box).  Raises
+    :class:`~taichi_hh.errors.InputError`."""
+    import json
+    import math
+    from .domain import Box, Polygon
+    from .errors import InputError
+    if spec is None:
+        return None
+    if not isinstance(spec, str):
+        from .domain import as_domain
+        return as_domain(spec)
+    s = spec.strip()
+    if s.lower().endswith(".json") or os.path.isfile(s):
+        if not os.path.exists(s):
+            raise InputError(f"domain file {s}: no such file")
+        try:
+            with open(s, encoding="utf-8") as fh:
+                obj = json.load(fh)
+        except json.JSONDecodeError as exc:
+            raise InputError(f"domain file {s}: invalid JSON (line {exc.lineno}: {exc.msg})") \
+                from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(f"domain file {s}: cannot read ({exc})") from None
+        if not isinstance(obj, dict) or "outer" not in obj:
+            raise InputError(f'domain file {s}: expected an object {{"outer": [[x, y], ...], '
+                             f'"holes": [[[x, y], ...], ...]}}')
+        unknown = sorted(set(obj) - {"outer", "holes"})
+        if unknown:
+            raise InputError(f"domain file {s}: unknown key(s) {', '.join(unknown)}; "
+                             f"expected 'outer' and optionally 'holes'")
+        holes = obj.get("holes") or []
+        if not isinstance(holes, list):
+            raise InputError(f"domain file {s}: 'holes' must be a list of rings")
+        for name, ring in [("outer", obj["outer"])] + [(f"holes[{k}]", h)
+                                                       for k, h in enumerate(holes)]:
+            if (not isinstance(ring, list) or
+                    not all(isinstance(p, list) and len(p) == 2 and
+                            all(isinstance(c, (int, float)) and not isinstance(c, bool)
+                                for c in p) for p in ring)):
+                raise InputError(f"domain file {s}: '{name}' must be a list of [x, y] "
+                                 f"number pairs")
+        try:
+            return Polygon(obj["outer"], holes=holes)
+        except InputError as exc:
+            raise InputError(f"domain file {s}: {exc}") from None
+    parts = [p.strip() for p in s.split(",")]
+    vals = []
+    for p in parts:
+        try:
+            vals.append(float(p))
+        except ValueError:
+            vals = None
+            break
+    if vals is None or len(vals) != 4 or not all(math.isfinite(v) for v in vals):
+        raise InputError(f"--domain {spec!r}: give four numbers x0,y0,x1,y1 (a box) or a "
+                         f".json polygon file")
+    x0, y0, x1, y1 = vals
+    if not (x0 < x1 and y0 < y1):
+        raise InputError(f"--domain {spec!r}: need x0 < x1 and y0 < y1")
+    return Box((x0, y0), (x1, y1))
+
+
+# --------------------------------------------------------------------------- writers
+
+def _savez(path, arrays) -> None:
+    import numpy as np
+    with atomic_path(path, suffix=".npz") as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+
+
+def write_components(path, result, critical_points=None, threshold: float = 0.1) -> None:
+    """Write a :class:`~taichi_hh.hhd.HHDResult` as a ``.npz`` file, atomically.
+
+    Arrays: ``points``, ``v`` (the input), ``d`` (curl-free), ``r``
+    (divergence-free), ``h`` (harmonic), ``phi``, ``psi``, ``divergence``,
+    ``curl`` and the critical points as ``xs``, ``ys`` (float) and ``kinds``
+    (strings: source, sink, cw_vortex, ccw_vortex).  critical_points: a list of
+    ``(x, y, kind)``; default ``result.critical_points(threshold)``.
+    """
+    import numpy as np
+    if critical_points is None:
+        critical_points = result.critical_points(threshold=threshold)
+    cps = list(critical_points)
+    _savez(path, {
+        "points": np.asarray(result.points, dtype=np.float64),
+        "v": np.asarray(result.vectors, dtype=np.float64),
+        "d": np.asarray(result.curl_free, dtype=np.float64),
+        "r": np.asarray(result.div_free, dtype=np.float64),
+        "h": np.asarray(result.harmonic, dtype=np.float64),
+        "phi": np.asarray(result.phi, dtype=np.float64),
+        "psi": np.asarray(result.psi, dtype=np.float64),
+        "divergence": np.asarray(result.divergence, dtype=np.float64),
+        "curl": np.asarray(result.curl, dtype=np.float64),
+        "xs": np.array([c[0] for c in cps], dtype=np.float64),
+        "ys": np.array([c[1] for c in cps], dtype=np.float64),
+        "kinds": np.array([c[2] for c in cps], dtype="<U10"),
+    })
+
+
+def write_projection(path, result) -> None:
+    """Write a :class:`~taichi_hh.projection.ProjectionResult` as ``.npz``,
+    atomically: ``points``, ``vectors`` (the projected field; the file is again
+    a valid field for :func:`read_field`), ``initial``, ``divergence`` (of the
+    result), ``max_divergence`` and ``sum_sq_divergence`` (per pass, index 0 =
+    before projecting) and ``iterations`` (solver iterations per pass)."""
+    import numpy as np
+    _savez(path, {
+        "points": np.asarray(result.points, dtype=np.float64),
+        "vectors": np.asarray(result.vectors, dtype=np.float64),
+        "initial": np.asarray(result.initial, dtype=np.float64),
+        "divergence": np.asarray(result.divergence, dtype=np.float64),
+        "max_divergence": np.asarray(result.max_divergence, dtype=np.float64),
+        "sum_sq_divergence": np.asarray(result.sum_sq_divergence, dtype=np.float64),
+        "iterations": np.asarray(result.stats.get("iterations", []), dtype=np.int64),
+    })

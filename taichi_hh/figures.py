@@ -1,0 +1,294 @@
+"""Figures of a decomposition or a projection (PNG, headless).
+
+Only matplotlib's object API with the Agg canvas is used (``Figure`` +
+``FigureCanvasAgg``): pyplot is never imported, so no interactive backend is
+ever selected and no figure is kept in pyplot's registry; every file is written
+atomically (:func:`taichi_hh.io.atomic_savefig`).
+
+Decomposition (:func:`decomposition_figures`):
+
+``arrows.png``      2x2 quiver panels of v, d, r, h on a spatially even
+                    subsample (one point per cell of a coarse grid, ~400-900
+                    arrows), one arrow scale for all four panels.
+``magnitude.png``   2x2 panels: |v|, |d|, |r|, |h| by ``tripcolor`` on the
+                    Delaunay triangulation of the points (triangles outside the
+                    domain masked, so holes and concave parts stay empty), one
+                    colour scale, and streamlines of each component (linear
+                    interpolation on a regular grid, masked outside the domain).
+
+Critical points are marked on the d and r panels of both figures in
+Petronetto et al.'s colours (2010, Fig. 15): sources green, sinks purple,
+clockwise vortices blue, counter-clockwise vortices red.
+
+Projection (:func:`projection_figures`): ``projection_arrows.png`` (the field
+before and after) and ``projection_measures.png`` (Colin et al.'s measures
+per pass: max |div| and the sum of squared div, log scale).
+"""
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from .io import atomic_savefig
+
+#: Petronetto et al. 2010, Fig. 15
+CRITICAL_STYLE = {
+    "source": dict(color="#2ca02c", marker="o", label="source"),
+    "sink": dict(color="#8e44ad", marker="o", label="sink"),
+    "cw_vortex": dict(color="#1f4fd6", marker="s", label="clockwise vortex"),
+    "ccw_vortex": dict(color="#d62728", marker="s", label="counter-clockwise vortex"),
+}
+COMPONENT_TITLES = {
+    "v": "v (input)",
+    "d": "d = grad phi (curl-free)",
+    "r": "r = J grad psi (divergence-free)",
+    "h": "h (harmonic)",
+}
+DPI = 110
+
+
+def _figure(width, height):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(width, height), dpi=DPI)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig, path):
+    try:
+        atomic_savefig(fig, path, dpi=DPI)
+    finally:
+        fig.clear()
+
+
+def _domain_of(points, domain):
+    if domain is not None:
+        return domain
+    from .domain import Box
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    return Box(lo, hi)
+
+
+def even_subsample(points, domain=None, target: int = 600) -> np.ndarray:
+    """Indices of a spatially even subsample of about ``target`` points: one
+    point (the one closest to the cell centre) per cell of a square grid whose
+    cell area is ``domain.area / target``.  All indices when there are fewer
+    points than ``target``."""
+    points = np.asarray(points, dtype=np.float64)
+    n = len(points)
+    if n <= target:
+        return np.arange(n)
+    domain = _domain_of(points, domain)
+    (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=np.float64)
+    cell = math.sqrt(domain.area / target)
+    ix = np.clip(((points[:, 0] - x0) / cell).astype(np.int64), 0, None)
+    iy = np.clip(((points[:, 1] - y0) / cell).astype(np.int64), 0, None)
+    nx = int(ix.max()) + 1
+    key = iy * nx + ix
+    centre = np.c_[x0 + (ix + 0.5) * cell, y0 + (iy + 0.5) * cell]
+    dist = ((points - centre) ** 2).sum(axis=1)
+    order = np.lexsort((dist, key))                  # by cell, then closest first
+    first = np.r_[True, key[order][1:] != key[order][:-1]]
+    return np.sort(order[first])
+
+
+def _draw_domain(ax, domain):
+    for ring in domain.rings:
+        ring = np.asarray(ring)
+        closed = np.vstack([ring, ring[:1]])
+        ax.plot(closed[:, 0], closed[:, 1], color="0.25", lw=0.8, zorder=3)
+
+
+def _setup_axes(ax, domain, title):
+    (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=np.float64)
+    pad = 0.02 * max(x1 - x0, y1 - y0)
+    ax.set_xlim(x0 - pad, x1 + pad)
+    ax.set_ylim(y0 - pad, y1 + pad)
+    ax.set_aspect("equal")
+    ax.set_title(title, fontsize=10)
+    ax.tick_params(labelsize=8)
+    _draw_domain(ax, domain)
+
+
+def _mark_critical(ax, critical, kinds):
+    for x, y, kind in critical:
+        if kind in kinds:
+            st = CRITICAL_STYLE[kind]
+            ax.scatter([x], [y], s=70, c=st["color"], marker=st["marker"],
+                       edgecolors="white", linewidths=1.2, zorder=5)
+
+
+def _critical_legend(fig, critical):
+    from matplotlib.lines import Line2D
+    counts = {k: 0 for k in CRITICAL_STYLE}
+    for _, _, kind in critical:
+        if kind in counts:
+            counts[kind] += 1
+    handles = [Line2D([], [], ls="", marker=st["marker"], color=st["color"], markersize=8,
+                      markeredgecolor="white", label=f"{st['label']} ({counts[k]})")
+               for k, st in CRITICAL_STYLE.items()]
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=9, frameon=False,
+               title="critical points (marked on d and r)", title_fontsize=9)
+
+
+def _components(result):
+    return {"v": result.vectors, "d": result.curl_free, "r": result.div_free,
+            "h": result.harmonic}
+
+
+def _quiver(ax, pts, vec, scale, color="k"):
+    ax.quiver(pts[:, 0], pts[:, 1], vec[:, 0], vec[:, 1], color=color, angles="xy",
+              scale_units="xy", scale=scale, width=0.0025, headwidth=3.5, headlength=4,
+              headaxislength=3.5, zorder=2)
+
+
+def _arrow_scale(vectors_list, domain, n_arrows):
+    """Quiver ``scale`` (vector units per data unit) so that the longest arrow
+    of all panels spans about 1.5 sampling cells."""
+    top = max((float(np.nanmax(np.linalg.norm(v, axis=1))) if len(v) else 0.0)
+              for v in vectors_list)
+    cell = math.sqrt(domain.area / max(n_arrows, 1))
+    return top / (1.5 * cell) if top > 0 and math.isfinite(top) else 1.0
+
+
+def arrows_figure(result, domain, path, critical=(), target: int = 600) -> str:
+    """2x2 quiver panels of v, d, r, h (one arrow scale); returns ``path``."""
+    pts = result.points
+    domain = _domain_of(pts, domain)
+    idx = even_subsample(pts, domain, target)
+    comps = _components(result)
+    scale = _arrow_scale([c[idx] for c in comps.values()], domain, len(idx))
+    fig = _figure(11, 11.6)
+    axes = fig.subplots(2, 2).ravel()
+    for ax, (name, vec) in zip(axes, comps.items()):
+        _setup_axes(ax, domain, COMPONENT_TITLES[name])
+        _quiver(ax, pts[idx], vec[idx], scale)
+        if name == "d":
+            _mark_critical(ax, critical, ("source", "sink"))
+        elif name == "r":
+            _mark_critical(ax, critical, ("cw_vortex", "ccw_vortex"))
+    fig.suptitle(f"Helmholtz-Hodge decomposition: {len(idx)} of {len(pts)} points shown, "
+                 f"common arrow scale", fontsize=11)
+    _critical_legend(fig, critical)
+    fig.subplots_adjust(left=0.06, right=0.98, top=0.93, bottom=0.1, wspace=0.15, hspace=0.15)
+    _save(fig, path)
+    return path
+
+
+def masked_triangulation(points, domain):
+    """Delaunay triangulation of ``points`` with the triangles outside ``domain``
+    masked (centroid or an edge midpoint outside)."""
+    from matplotlib.tri import Triangulation
+    tri = Triangulation(points[:, 0], points[:, 1])
+    t = tri.triangles
+    p = points[t]                                          # (T, 3, 2)
+    probes = [p.mean(axis=1)] + [(p[:, k] + p[:, (k + 1) % 3]) / 2 for k in range(3)]
+    scale = float(np.max(np.abs(np.asarray(domain.bounds)))) or 1.0
+    inside = np.ones(len(t), dtype=bool)
+    for q in probes:
+        inside &= domain.contains(q, tol=1e-9 * scale)
+    tri.set_mask(~inside)
+    return tri
+
+
+def _grid(domain, n: int = 90):
+    (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=np.float64)
+    span = max(x1 - x0, y1 - y0)
+    nx = max(8, int(round(n * (x1 - x0) / span)))
+    ny = max(8, int(round(n * (y1 - y0) / span)))
+    return np.linspace(x0, x1, nx), np.linspace(y0, y1, ny)
+
+
+def magnitude_figure(result, domain, path, critical=()) -> str:
+    """2x2 panels of |v|, |d|, |r|, |h| (tripcolor, one colour scale) with
+    streamlines; returns ``path``."""
+    from matplotlib.tri import LinearTriInterpolator
+    pts = result.points
+    domain = _domain_of(pts, domain)
+    tri = masked_triangulation(pts, domain)
+    gx, gy = _grid(domain)
+    X, Y = np.meshgrid(gx, gy)
+    outside = ~domain.contains(np.c_[X.ravel(), Y.ravel()]).reshape(X.shape)
+    comps = _components(result)
+    mags = {k: np.linalg.norm(v, axis=1) for k, v in comps.items()}
+    vmax = max(float(m.max()) for m in mags.values()) or 1.0
+    fig = _figure(11, 11.6)
+    axes = fig.subplots(2, 2).ravel()
+    image = None
+    for ax, (name, vec) in zip(axes, comps.items()):
+        _setup_axes(ax, domain, f"|{name}|, {COMPONENT_TITLES[name]}")
+        image = ax.tripcolor(tri, mags[name], shading="gouraud", cmap="viridis", vmin=0.0,
+                             vmax=vmax, zorder=1)
+        U = LinearTriInterpolator(tri, vec[:, 0])(X, Y)
+        V = LinearTriInterpolator(tri, vec[:, 1])(X, Y)
+        U = np.ma.masked_array(U, mask=np.ma.getmaskarray(U) | outside)
+        V = np.ma.masked_array(V, mask=np.ma.getmaskarray(V) | outside)
+        speed = np.ma.sqrt(U * U + V * V)
+        if speed.count() and float(speed.max()) > 1e-12 * vmax:
+            ax.streamplot(gx, gy, U, V, density=1.0, color="white", linewidth=0.6,
+                          arrowsize=0.7, broken_streamlines=True, zorder=2)
+        if name == "d":
+            _mark_critical(ax, critical, ("source", "sink"))
+        elif name == "r":
+            _mark_critical(ax, critical, ("cw_vortex", "ccw_vortex"))
+    fig.subplots_adjust(left=0.06, right=0.88, top=0.93, bottom=0.1, wspace=0.15, hspace=0.15)
+    cax = fig.add_axes([0.9, 0.2, 0.02, 0.6])
+    fig.colorbar(image, cax=cax, label="magnitude")
+    fig.suptitle("Magnitudes and streamlines", fontsize=11)
+    _critical_legend(fig, critical)
+    _save(fig, path)
+    return path
+
+
+def decomposition_figures(result, domain, out_dir, critical=None,
+                          threshold: float = 0.1) -> list[str]:
+    """Write ``arrows.png`` and ``magnitude.png`` into ``out_dir``; returns the paths.
+    critical: ``[(x, y, kind)]``; default ``result.critical_points(threshold)``."""
+    if critical is None:
+        critical = result.critical_points(threshold=threshold)
+    return [arrows_figure(result, domain, os.path.join(out_dir, "arrows.png"), critical),
+            magnitude_figure(result, domain, os.path.join(out_dir, "magnitude.png"), critical)]
+
+
+def projection_figures(result, domain, out_dir, target: int = 600) -> list[str]:
+    """Write ``projection_arrows.png`` (before/after) and ``projection_measures.png``
+    (max |div| and sum of squared div per pass, log scale); returns the paths."""
+    pts = result.points
+    domain = _domain_of(pts, domain)
+    idx = even_subsample(pts, domain, target)
+    before, after = result.initial[idx], result.vectors[idx]
+    scale = _arrow_scale([before, after], domain, len(idx))
+    fig = _figure(11, 5.8)
+    axes = fig.subplots(1, 2)
+    passes = len(result.max_divergence) - 1
+    for ax, vec, title in ((axes[0], before, "before"),
+                           (axes[1], after, f"after {passes} projection pass{'' if passes == 1 else 'es'}")):
+        _setup_axes(ax, domain, title)
+        _quiver(ax, pts[idx], vec, scale)
+    fig.suptitle(f"Null-divergence projection: {len(idx)} of {len(pts)} points shown, "
+                 f"common arrow scale", fontsize=11)
+    fig.subplots_adjust(left=0.06, right=0.98, top=0.88, bottom=0.08, wspace=0.15)
+    p_arrows = os.path.join(out_dir, "projection_arrows.png")
+    _save(fig, p_arrows)
+
+    fig = _figure(6.5, 4.5)
+    ax = fig.subplots()
+    k = np.arange(passes + 1)
+    for values, label, style in ((result.max_divergence, "max |div|", "o-"),
+                                 (result.sum_sq_divergence, "sum of div^2", "s--")):
+        values = np.asarray(values, dtype=np.float64)
+        ok = values > 0
+        ax.semilogy(k[ok], values[ok], style, label=label)
+    ax.set_xlabel("projection pass (0 = input)")
+    ax.set_ylabel("divergence measure")
+    ax.set_xticks(k)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    ax.set_title("Colin et al.'s divergence measures per pass", fontsize=10)
+    fig.tight_layout()
+    p_measures = os.path.join(out_dir, "projection_measures.png")
+    _save(fig, p_measures)
+    return [p_arrows, p_measures]

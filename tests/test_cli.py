@@ -1,0 +1,355 @@
+"""The command line (taichi-hh decompose / project), its readers, writers and figures.
+
+Runs ``cli.main([...])`` in-process on a small analytic field (~1500 points),
+always with ``--arch cpu --precision f64`` so that the session's Taichi runtime
+(conftest) is reused rather than re-initialised.
+"""
+import contextlib
+import csv
+import dataclasses
+import io as _io
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import taichi_hh as thh
+from taichi_hh import cli, fields, figures
+from taichi_hh import io as thio
+
+RUNTIME = ["--arch", "cpu", "--precision", "f64"]
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def run(argv):
+    """(exit code, stdout, stderr) of cli.main(argv); SystemExit (argparse) counts."""
+    out, err = _io.StringIO(), _io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            rc = cli.main([str(a) for a in argv])
+        except SystemExit as exc:
+            rc = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    return rc, out.getvalue(), err.getvalue()
+
+
+def write_csv(path, points, vectors, header="u,extra,y,v,x"):
+    cols = [c.strip().lower() for c in header.split(",")] if header else ["x", "y", "u", "v"]
+    with open(path, "w") as fh:
+        if header:
+            fh.write(header + "\n")
+        for p, q in zip(points, vectors):
+            val = {"x": p[0], "y": p[1], "u": q[0], "v": q[1], "extra": 1.0}
+            fh.write(",".join(repr(float(val[c])) for c in cols) + "\n")
+
+
+@pytest.fixture(scope="module")
+def gaussian_files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli_fields")
+    f = fields.get("gaussian")
+    pts = f.sample(1500, seed=0)
+    vec = f.evaluate(pts).v
+    npz = d / "gauss.npz"
+    np.savez(npz, points=pts, vectors=vec)
+    csvp = d / "gauss.csv"
+    write_csv(csvp, pts, vec)                   # reordered header plus an extra column
+    return {"dir": d, "npz": npz, "csv": csvp, "points": pts, "vectors": vec, "field": f}
+
+
+@pytest.fixture(scope="module")
+def decomposed(gaussian_files):
+    out = gaussian_files["dir"] / "dec_npz"
+    rc, stdout, stderr = run(["decompose", gaussian_files["npz"], "--domain", "0,0,1,1",
+                              "-o", out, *RUNTIME])
+    return {"rc": rc, "out": out, "stdout": stdout, "stderr": stderr}
+
+
+# --------------------------------------------------------------------------- decompose
+def test_decompose_writes_readable_components(decomposed, gaussian_files):
+    assert decomposed["rc"] == 0, decomposed["stderr"]
+    with np.load(decomposed["out"] / "components.npz", allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    n = len(gaussian_files["points"])
+    for key in ("points", "v", "d", "r", "h"):
+        assert data[key].shape == (n, 2), key
+    for key in ("phi", "psi", "divergence", "curl"):
+        assert data[key].shape == (n,), key
+    np.testing.assert_array_equal(data["points"], gaussian_files["points"])
+    np.testing.assert_array_equal(data["v"], gaussian_files["vectors"])
+    np.testing.assert_allclose(data["d"] + data["r"] + data["h"], data["v"], atol=1e-12)
+    assert data["xs"].shape == data["ys"].shape == data["kinds"].shape
+    assert sorted(data["kinds"].tolist()) == ["ccw_vortex", "cw_vortex", "sink", "source"]
+    exact = {k: (x, y) for x, y, k in gaussian_files["field"].critical_points}
+    for x, y, k in zip(data["xs"], data["ys"], data["kinds"]):
+        assert np.hypot(x - exact[k][0], y - exact[k][1]) < 0.03, (k, x, y)
+
+
+def test_components_match_library(decomposed, gaussian_files):
+    assert decomposed["rc"] == 0
+    res = thh.decompose(gaussian_files["points"], gaussian_files["vectors"],
+                        domain=thh.Box((0, 0), (1, 1)))
+    with np.load(decomposed["out"] / "components.npz") as z:
+        for key, ref in (("d", res.curl_free), ("r", res.div_free), ("h", res.harmonic),
+                         ("phi", res.phi), ("psi", res.psi), ("divergence", res.divergence),
+                         ("curl", res.curl)):
+            scale = np.abs(ref).max()
+            np.testing.assert_allclose(z[key], ref, rtol=0, atol=1e-6 * scale, err_msg=key)
+        cps = res.critical_points()
+        assert sorted(z["kinds"].tolist()) == sorted(k for _, _, k in cps)
+
+
+def test_decompose_figures_are_pngs(decomposed):
+    import imageio.v3 as iio
+    for name in ("arrows.png", "magnitude.png"):
+        path = decomposed["out"] / name
+        assert path.read_bytes()[:8] == PNG_MAGIC, name
+        img = iio.imread(path)
+        assert img.ndim == 3 and img.shape[0] > 300 and img.shape[1] > 300
+        assert img[..., :3].std() > 10, f"{name} looks blank"
+    assert not [p for p in os.listdir(decomposed["out"]) if p.startswith(".tmp-")]
+
+
+def test_decompose_summary_and_progress(decomposed, gaussian_files):
+    out, err = decomposed["stdout"], decomposed["stderr"]
+    n = len(gaussian_files["points"])
+    assert f"Decomposed {n} points" in out
+    assert "Critical points: 4" in out and "components.npz" in out and "magnitude.png" in out
+    assert "Mean |v|" in out and "|h|" in out
+    for stage in ("reading", "setup", "solve phi", "solve psi", "drawing figures"):
+        assert stage in err, stage
+    assert "Traceback" not in err
+
+
+def test_csv_input_gives_the_same_components(decomposed, gaussian_files):
+    out = gaussian_files["dir"] / "dec_csv"
+    rc, stdout, stderr = run(["decompose", gaussian_files["csv"], "--domain", "0,0,1,1", "-o",
+                              out, "--no-figures", "-q", *RUNTIME])
+    assert rc == 0, stderr
+    assert stderr == ""                                   # --quiet
+    assert sorted(os.listdir(out)) == ["components.npz"]  # --no-figures
+    with np.load(out / "components.npz") as a, \
+            np.load(decomposed["out"] / "components.npz") as b:
+        np.testing.assert_array_equal(a["points"], b["points"])
+        for key in ("d", "r", "h", "phi", "psi"):
+            np.testing.assert_allclose(a[key], b[key], rtol=0,
+                                       atol=1e-6 * np.abs(b[key]).max(), err_msg=key)
+
+
+def test_options_only_override_what_is_given():
+    from taichi_hh.hhd import METHODS, options_for
+    args = cli.build_parser().parse_args(["decompose", "f.npz", "--method", "petronetto2010",
+                                          "--tol", "1e-5", "--no-bordered"])
+    over = cli._numeric_overrides(args)
+    assert over == {"tol": 1e-5, "bordered": False}
+    opts = options_for(args.method, **over)
+    assert opts == dataclasses.replace(METHODS["petronetto2010"], tol=1e-5, bordered=False)
+    args = cli.build_parser().parse_args(["decompose", "dir/my.field.csv"])
+    assert cli._numeric_overrides(args) == {}
+    assert cli._out_dir(args) == os.path.join("outputs", "my.field_decompose")
+
+
+# --------------------------------------------------------------------------- project
+def test_project(gaussian_files):
+    out = gaussian_files["dir"] / "proj"
+    rc, stdout, stderr = run(["project", gaussian_files["npz"], "--domain", "0,0,1,1", "-o",
+                              out, "--iterations", "2", *RUNTIME])
+    assert rc == 0, stderr
+    pts, vec = thio.read_field(out / "projected.npz")      # the result is again a field
+    np.testing.assert_array_equal(pts, gaussian_files["points"])
+    with np.load(out / "projected.npz") as z:
+        assert z["max_divergence"].shape == z["sum_sq_divergence"].shape == (3,)
+        assert z["max_divergence"][-1] < 0.5 * z["max_divergence"][0]
+        np.testing.assert_array_equal(z["initial"], gaussian_files["vectors"])
+    with open(out / "measures.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["pass"]) for r in rows] == [0, 1, 2]
+    for name in ("projection_arrows.png", "projection_measures.png"):
+        data = (out / name).read_bytes()
+        assert data[:8] == PNG_MAGIC and len(data) > 5000, name
+    assert "Projected 1" in stdout and "2 passes" in stdout and "projection 2/2" in stderr
+
+
+# --------------------------------------------------------------------------- bad input
+def _bad_files(d, pts, vec):
+    files = {}
+    p = d / "no_v.csv"
+    write_csv(p, pts[:50], vec[:50], header="x,y,u")
+    files["no_column"] = p
+    p = d / "nan.csv"
+    write_csv(p, pts[:50], vec[:50], header="x,y,u,v")
+    lines = p.read_text().splitlines()
+    lines[3] = lines[3].rsplit(",", 1)[0] + ",nan"           # file line 4
+    p.write_text("\n".join(lines) + "\n")
+    files["nan_csv"] = p
+    p = d / "word.csv"
+    write_csv(p, pts[:50], vec[:50], header="")
+    lines = p.read_text().splitlines()
+    lines[6] = "0.5,0.5,abc,0.1"                              # file line 7
+    p.write_text("\n".join(lines) + "\n")
+    files["word_csv"] = p
+    v = vec.copy()
+    v[10, 1] = np.nan
+    p = d / "nan.npz"
+    np.savez(p, points=pts, vectors=v)
+    files["nan_npz"] = p
+    p = d / "missing_array.npz"
+    np.savez(p, points=pts, velocity=vec)
+    files["missing_array"] = p
+    p = d / "shape.npz"
+    np.savez(p, points=pts, vectors=np.c_[vec, vec[:, :1]])
+    files["shape"] = p
+    p = d / "notzip.npz"
+    p.write_text("hello")
+    files["notzip"] = p
+    return files
+
+
+@pytest.fixture(scope="module")
+def bad_files(gaussian_files, tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli_bad")
+    return d, _bad_files(d, gaussian_files["points"], gaussian_files["vectors"])
+
+
+@pytest.mark.parametrize("case, extra, message", [
+    ("missing", [], "no such file"),
+    ("no_column", [], "lacks column(s) v"),
+    ("nan_csv", [], "line 4: column v is 'nan'"),
+    ("word_csv", [], "line 7: column u is not a number"),
+    ("nan_npz", [], "NaN or inf, first at index 10"),
+    ("missing_array", [], "missing array(s) vectors"),
+    ("shape", [], "shape (N, 2)"),
+    ("notzip", [], "not a readable .npz"),
+    ("good", ["--domain", "0,0,0.5,0.5"], "outside the domain"),
+    ("good", ["--domain", "0,0,1"], "four numbers"),
+    ("good", ["--domain", "1,0,0,1"], "x0 < x1"),
+    ("good", ["--domain", "nowhere.json"], "no such file"),
+    ("good", ["--max-iterations", "2"], "max_iterations"),
+    ("good", ["--support-ratio", "0.8"], "no neighbour within the kernel support"),
+])
+def test_bad_input_exits_2_with_one_line(case, extra, message, bad_files, gaussian_files):
+    d, files = bad_files
+    field = d / "missing.npz" if case == "missing" else (
+        gaussian_files["npz"] if case == "good" else files[case])
+    out = d / f"out_{case}_{len(extra)}_{abs(hash(tuple(extra)))}"
+    rc, stdout, stderr = run(["decompose", field, "-o", out, "-q", *extra, *RUNTIME])
+    assert rc == 2
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("taichi-hh decompose: error: "), stderr
+    assert message in lines[0], lines[0]
+    assert "Traceback" not in stderr
+    assert not (out / "components.npz").exists()
+
+
+def test_project_refuses_petronetto_boundary(gaussian_files, tmp_path):
+    rc, _, stderr = run(["project", gaussian_files["npz"], "-o", tmp_path / "p", "-q",
+                         "--method", "petronetto2010", *RUNTIME])
+    assert rc == 2 and stderr.startswith("taichi-hh project: error: ") and "boundary" in stderr
+
+
+def test_bad_option_values_are_usage_errors(gaussian_files):
+    for opt in (["--tol", "-1"], ["--support-ratio", "0"], ["--kernel", "gauss"],
+                ["--max-iterations", "1.5"]):
+        rc, _, stderr = run(["decompose", gaussian_files["npz"], *opt, *RUNTIME])
+        assert rc == 2 and opt[0] in stderr and "Traceback" not in stderr
+
+
+def test_python_dash_m_reports_errors(tmp_path):
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [os.path.dirname(os.path.dirname(os.path.abspath(thh.__file__)))] +
+        [p for p in [os.environ.get("PYTHONPATH")] if p]))
+    proc = subprocess.run([sys.executable, "-m", "taichi_hh", "decompose",
+                           str(tmp_path / "none.csv"), *RUNTIME], capture_output=True,
+                          text=True, env=env, cwd=tmp_path, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1] == \
+        f"taichi-hh decompose: error: {tmp_path / 'none.csv'}: no such file"
+    assert "Traceback" not in proc.stderr
+    assert proc.stdout == ""
+
+
+# --------------------------------------------------------------------------- help
+@pytest.mark.parametrize("command", ["decompose", "project"])
+def test_help_mentions_every_option(command):
+    from taichi_hh.hhd import HHDOptions
+    rc, out, _ = run([command, "--help"])
+    assert rc == 0
+    flags = ["--" + f.name.replace("_", "-") for f in dataclasses.fields(HHDOptions)]
+    flags += ["--domain", "--out", "--method", "--arch", "--precision", "--no-figures",
+              "--quiet", "FIELD"]
+    flags += ["--critical-threshold"] if command == "decompose" else ["--iterations"]
+    for flag in flags:
+        assert flag in out, flag
+    parser = cli.build_parser()
+    sub = parser._subparsers._group_actions[0].choices[command]
+    for action in sub._actions:
+        assert action.help and len(action.help) > 10, action.dest     # every option explained
+    assert "default" in out and "petronetto2010" in out and "wendland" in out
+
+
+def test_top_level_help():
+    rc, out, _ = run(["--help"])
+    assert rc == 0 and "decompose" in out and "project" in out
+
+
+# --------------------------------------------------------------------------- readers
+def test_read_field_csv_variants(tmp_path):
+    pts = np.array([[0.1, 0.2], [0.3, 0.4], [0.5, 0.6]])
+    vec = np.array([[1.0, -1.0], [2.0, -2.0], [3.0, 1e-3]])
+    p = tmp_path / "plain.csv"
+    p.write_text("# a comment\n\n" + "\n".join(
+        f"{a},{b},{c},{d}" for (a, b), (c, d) in zip(pts, vec)) + "\n")
+    got = thio.read_field(p)
+    np.testing.assert_array_equal(got[0], pts)
+    np.testing.assert_array_equal(got[1], vec)
+    p = tmp_path / "header.csv"
+    write_csv(p, pts, vec, header=" V , X,extra,Y,U")
+    got = thio.read_field(p)
+    np.testing.assert_array_equal(got[0], pts)
+    np.testing.assert_array_equal(got[1], vec)
+    p = tmp_path / "five.csv"
+    p.write_text("1,2,3,4,5\n")
+    with pytest.raises(thh.InputError, match="line 1: without a header .* exactly 4"):
+        thio.read_field(p)
+    p = tmp_path / "short.csv"
+    p.write_text("x,y,u,v\n1,2,3,4\n1,2,3\n")
+    with pytest.raises(thh.InputError, match="line 3: expected 4 columns"):
+        thio.read_field(p)
+    p = tmp_path / "field.txt"
+    p.write_text("1,2,3,4\n")
+    with pytest.raises(thh.InputError, match="unknown field format"):
+        thio.read_field(p)
+
+
+def test_read_domain(tmp_path):
+    box = thio.read_domain("-1, -2, 3, 4")
+    assert isinstance(box, thh.Box) and box.lo == (-1.0, -2.0) and box.hi == (3.0, 4.0)
+    h = fields.get("hole").domain
+    p = tmp_path / "hole.json"
+    p.write_text(json.dumps({"outer": h.outer.tolist(), "holes": [r.tolist() for r in h.holes]}))
+    poly = thio.read_domain(str(p))
+    assert isinstance(poly, thh.Polygon) and len(poly.holes) == 1
+    assert poly.area == pytest.approx(h.area)
+    p.write_text('{"outer": [[0, 0], [1, 0]]}')
+    with pytest.raises(thh.InputError, match="domain file"):
+        thio.read_domain(str(p))
+    p.write_text('{"outer": [[0, 0], [1, 0], [1, 1]], "hole": []}')
+    with pytest.raises(thh.InputError, match="unknown key"):
+        thio.read_domain(str(p))
+    args = cli.build_parser().parse_args(["decompose", "f.npz", "--domain=-1,-1,1,1"])
+    assert thio.read_domain(args.domain) == thh.Box((-1, -1), (1, 1))
+
+
+# --------------------------------------------------------------------------- figures
+def test_even_subsample_and_masked_triangulation():
+    f = fields.get("hole")
+    pts = f.sample(3000, seed=2)
+    idx = figures.even_subsample(pts, f.domain)
+    assert 400 <= len(idx) <= 900 and len(np.unique(idx)) == len(idx)
+    tri = figures.masked_triangulation(pts, f.domain)
+    kept = tri.triangles[~tri.mask]
+    centroids = pts[kept].mean(axis=1)
+    assert f.domain.contains(centroids).all()
+    assert tri.mask.any()                                   # the hole's triangles are gone
+    assert len(figures.even_subsample(pts[:100], f.domain)) == 100
