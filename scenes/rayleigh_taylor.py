@@ -67,7 +67,7 @@ SCENE = Scene(
     name="rayleigh_taylor",
     description="Rayleigh-Taylor instability (two-phase projection SPH), headless PNG frames.",
     defaults={"particles": 12500, "end_time": 10.0, "out": "outputs/rayleigh_taylor",
-              "output_interval": 0.1},
+              "output_interval": 0.1, "montage": "0,4,8,10"},
     add_arguments=add_arguments, build=build, measures=measures,
     measure_columns=["bubble_tip", "spike_tip", "amplitude"],
     terms="gravity, viscosity, density-weighted pressure projection, no-slip walls, "

@@ -62,7 +62,7 @@ SCENE = Scene(
     description="Light droplet rising in a denser fluid (two-phase projection SPH), "
                 "headless PNG frames.",
     defaults={"particles": 10500, "end_time": 6.0, "out": "outputs/rising_droplet",
-              "output_interval": 0.1},
+              "output_interval": 0.1, "montage": "0,2,4,6"},
     add_arguments=add_arguments, build=build, measures=measures,
     measure_columns=["centroid_x", "centroid_y", "rise_speed"],
     terms="gravity, viscosity, density-weighted pressure projection, no-slip walls, "

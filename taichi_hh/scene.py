@@ -49,6 +49,26 @@ def lattice_in_box(n_target: int, box):
     return np.stack(np.meshgrid(gx, gy), -1).reshape(-1, 2), dx
 
 
+def _montage(args, name: str) -> None:
+    import imageio.v3 as iio
+    times = [float(t) for t in args.montage.split(",") if t.strip()]
+    paths = [frame_path(args.out, int(round(t / args.output_interval))) for t in times]
+    missing = [p for p in paths if not os.path.exists(p)]
+    if missing:
+        print(f"montage skipped: no frame {missing[0]}", file=sys.stderr)
+        return
+    frames = [iio.imread(p)[..., :3] for p in paths]
+    gap = np.full((frames[0].shape[0], 8, 3), 255, dtype=np.uint8)
+    row = np.concatenate(sum(([f, gap] for f in frames), [])[:-1], axis=1)
+    stride = max(1, int(np.ceil(row.shape[1] / 1200)))      # keep the figure small
+    row = np.ascontiguousarray(row[::stride, ::stride])
+    write_png(os.path.join(args.out, "montage.png"), row)
+    if args.docs:
+        docs = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "docs", "figures",
+                            f"{name}.png")
+        write_png(docs, row)
+
+
 def main(scene: Scene, argv=None) -> int:
     ap = argparse.ArgumentParser(prog=f"{scene.name}.py", description=scene.description,
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -56,6 +76,11 @@ def main(scene: Scene, argv=None) -> int:
     add_common_arguments(ap, common)
     ap.add_argument("--output-interval", type=float, default=scene.defaults.get("output_interval", 0.1),
                     help="simulated time between frames and diagnostics rows")
+    ap.add_argument("--montage", default=scene.defaults.get("montage", ""),
+                    help="comma-separated output times whose frames are put side by side "
+                         "into OUT/montage.png at the end (empty: none)")
+    ap.add_argument("--docs", action="store_true",
+                    help="also copy the montage to docs/figures/<scene>.png (the README's figure)")
     scene.add_arguments(ap)
     args = ap.parse_args(argv)
     runtime.init(arch=args.arch, precision=args.precision)
@@ -108,6 +133,8 @@ def main(scene: Scene, argv=None) -> int:
             blowup_types=(BlowUpError,))
     finally:
         writer.close()
+    if args.montage:
+        _montage(args, scene.name)
     if args.movie != "none":
         path = write_movie(os.path.join(args.out, "frame_*.png"),
                            os.path.join(args.out, f"{scene.name}.{args.movie}"), fps=args.fps)
