@@ -72,7 +72,7 @@ def _montage(args, name: str) -> None:
 def main(scene: Scene, argv=None) -> int:
     ap = argparse.ArgumentParser(prog=f"{scene.name}.py", description=scene.description,
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    common = {k: v for k, v in scene.defaults.items() if k != "output_interval"}
+    common = {k: v for k, v in scene.defaults.items() if k not in ("output_interval", "montage")}
     add_common_arguments(ap, common)
     ap.add_argument("--output-interval", type=float, default=scene.defaults.get("output_interval", 0.1),
                     help="simulated time between frames and diagnostics rows")
