@@ -41,8 +41,11 @@ _OPTION_HELP = {
     "bordered": "add one unknown for the pure-Neumann compatibility condition (bordered "
                 "system); --no-bordered solves the singular system as is",
     "tol": "relative residual at which the linear solver stops",
-    "solver": "iterative linear solver: bicgstab (Jacobi-preconditioned BiCGSTAB) or "
+    "solver": "iterative linear solver: bicgstab (BiCGSTAB, see --preconditioner) or "
               "cgnr (CG on the normal equations)",
+    "preconditioner": "preconditioner of BiCGSTAB: multilevel (aggregation multigrid "
+                      "cycle on the neighbour grid), jacobi (diagonal), auto (multilevel from "
+                      "1000 particles on, Jacobi below and for cgnr)",
     "max_iterations": "iteration cap of each linear solve (none = max(1000, unknowns))",
     "seed": "random seed of sampled boundary/fake particles",
 }
@@ -109,7 +112,7 @@ def _method_defaults(name, methods):
 
 # --------------------------------------------------------------------------- parser
 def _add_common(p, command):
-    from .hhd import BOUNDARY_METHODS, METHODS, HHDOptions
+    from .hhd import BOUNDARY_METHODS, METHODS, PRECONDITIONERS, HHDOptions
     from .kernels import KERNELS
     from .operators import GRADIENT_VARIANTS, LAPLACIAN_VARIANTS
     io = p.add_argument_group("input and output")
@@ -150,7 +153,7 @@ def _add_common(p, command):
     choices = {"kernel": KERNELS, "divergence": GRADIENT_VARIANTS,
                "gradient": GRADIENT_VARIANTS, "laplacian": LAPLACIAN_VARIANTS,
                "neumann_gradient": GRADIENT_VARIANTS, "boundary": BOUNDARY_METHODS,
-               "solver": _SOLVERS}
+               "solver": _SOLVERS, "preconditioner": PRECONDITIONERS}
     types = {"support_ratio": (_positive_float, "R"), "kappa": (_nonnegative_float, "K"),
              "tol": (_positive_float, "TOL"), "max_iterations": (_positive_int, "N"),
              "seed": (_nonnegative_int, "SEED")}

@@ -64,6 +64,7 @@ class FlowParams:
     projection_passes: int = 1
     div_tol: float = 1e-3                       # on max |div v| * dt (relative volume change)
     solver_tol: float = 1e-6
+    preconditioner: str = "auto"                # of the pressure BiCGSTAB: auto | multilevel | jacobi
     pressure_laplacian: str = "corrected"
     gradient: str = "corrected"
     viscous_laplacian: str = "corrected"
@@ -298,6 +299,7 @@ class TwoPhaseFlow:
         for k in range(pr.projection_passes):
             try:
                 res = A.solve(b, x0=self.q_by_id[ids] if k == 0 else None, tol=pr.solver_tol,
+                              preconditioner=pr.preconditioner,
                               border0=self.border if k == 0 else 0.0)
             except SolverError as exc:
                 raise BlowUpError(f"pressure solve failed at t={self.time:.4g}: {exc}") from exc

@@ -720,15 +720,23 @@ def _initial_x(x0, n: int, k):
     return x
 
 
+def _is_preconditioner_object(preconditioner) -> bool:
+    return callable(getattr(preconditioner, "apply", None))
+
+
 def _jacobi(preconditioner, A, ws: Workspace, n: int, k, method: str, *, normal: bool = False):
-    """The inverse preconditioner diagonal ``dinv`` (ones without preconditioner)."""
+    """The inverse preconditioner diagonal ``dinv`` (ones without preconditioner
+    or with a preconditioner object, which is applied separately)."""
     dinv = ws.vector("dinv", n)
-    if preconditioner is None:
+    if _is_preconditioner_object(preconditioner) and normal:
+        raise InputError(f"{method}: a preconditioner object is supported by bicgstab only; "
+                         "use 'jacobi' or None")
+    if preconditioner is None or _is_preconditioner_object(preconditioner):
         k.fill(dinv, 1.0, n)
         return dinv
     if preconditioner != "jacobi":
-        raise InputError(f"{method}: preconditioner must be 'jacobi' or None, "
-                         f"got {preconditioner!r}")
+        raise InputError(f"{method}: preconditioner must be 'jacobi', None or an object "
+                         f"with apply(r, z), got {preconditioner!r}")
     getter = "normal_diagonal" if normal else "diagonal"
     if not callable(getattr(A, getter, None)):
         raise InputError(f"{method}: the Jacobi preconditioner needs A.{getter}(d); "
@@ -786,16 +794,24 @@ class _Method:
 class _BiCGSTAB(_Method):
     name = "bicgstab"
 
-    def __init__(self, A, b, x, dinv, k, n, bnorm, ws: Workspace):
+    def __init__(self, A, b, x, dinv, k, n, bnorm, ws: Workspace, M=None):
         super().__init__(A, b, x, dinv, k, n, bnorm)
         v = ws.vector
         self.r, self.r_hat, self.p = v("r", n), v("r_hat", n), v("p", n)
         self.v, self.t, self.z = v("v", n), v("t", n), v("z", n)
+        # A preconditioner object: the kernels' z = dinv * (.) (dinv = 1) is
+        # overwritten by z = M^-1 (.) right after each of them.
+        self.M = M
+
+    def _precondition(self, src) -> None:
+        if self.M is not None:
+            self.M.apply(src, self.z)
 
     def restart(self):
         self._apply(self.x, self.t)
         rr = self.k.bicg_restart(self.b, self.t, self.r, self.r_hat, self.p, self.z,
                                  self.dinv, self.n)
+        self._precondition(self.p)
         self.rr = self.rho = self.rhat2 = rr
         relres = self._relres(rr)
         return relres, relres, None
@@ -807,11 +823,13 @@ class _BiCGSTAB(_Method):
         if half_flag:   # x and r untouched
             relres = self._relres(self.rr)
             return relres, relres, "<r_hat, A M^-1 p> vanished"
+        self._precondition(self.r)      # r holds s
         self._apply(self.z, self.t)
         rr, rho, omega_flag, rho_flag = self.k.bicg_full(
             self.x, self.r, self.r_hat, self.p, self.v, self.t, self.z, self.dinv,
             alpha, self.rho, self.rhat2, self.btol, self.n)
         self.rr, self.rho = rr, rho
+        self._precondition(self.p)
         relres = self._relres(rr)
         failure = None
         if omega_flag:
@@ -1042,7 +1060,13 @@ def _solve_square(cls, A, b, x0, preconditioner, raise_on_failure, workspace, *s
     x = _initial_x(x0, n, k)
     bnorm = math.sqrt(k.norm2(b_nd, n))
     dinv = _jacobi(preconditioner, A, ws, n, k, cls.name)
-    method = cls(A, b_nd, x, dinv, k, n, bnorm, ws)
+    if _is_preconditioner_object(preconditioner):
+        if cls is not _BiCGSTAB:
+            raise InputError(f"{cls.name}: a preconditioner object is supported by bicgstab "
+                             "only; use 'jacobi' or None")
+        method = cls(A, b_nd, x, dinv, k, n, bnorm, ws, M=preconditioner)
+    else:
+        method = cls(A, b_nd, x, dinv, k, n, bnorm, ws)
     return _solve(method, settings, t0, raise_on_failure)
 
 
