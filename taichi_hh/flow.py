@@ -29,6 +29,7 @@ dt_max): the advective, viscous and body-force limits (Monaghan 1992; Morris et
 al. 1997).  Nothing else is modelled: no surface tension, no turbulence model.
 """
 import math
+import time as _time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -42,6 +43,69 @@ from .operators import Operators
 from .particles import FLUID, GHOST, Particles
 from .poisson import PoissonMatrix
 from .runloop import BlowUp
+
+
+#: The stages of a time step whose wall time :attr:`TwoPhaseFlow.timings` accumulates.
+STAGES = ("neighbours", "operators", "solve", "other")
+
+
+class StageClock:
+    """Wall time of a time step split into stages, accumulated over steps.
+
+    Lap timing: :meth:`lap` charges the time since the previous lap (or since
+    :meth:`start`) to a stage, so the stages of a step add up to its wall time
+    exactly; :meth:`stop` charges what is left to ``"other"``.  ``detail`` keys
+    name finer parts of a stage (e.g. ``"bin"`` and ``"pairs"`` of
+    ``"neighbours"``).  Outside a step (between :meth:`stop` and :meth:`start`)
+    laps are ignored.  Taichi kernels run synchronously on the CPU; on a GPU
+    every lap calls ``ti.sync()`` first so that a stage is charged with the
+    kernels it launched.
+    """
+
+    def __init__(self):
+        self.totals = dict.fromkeys(STAGES, 0.0)
+        self.detail = {}
+        self.steps = 0
+        self.last_step = dict.fromkeys(STAGES, 0.0)
+        self._t = None
+        self._sync = runtime.state().arch not in ("", "cpu")
+
+    def _now(self) -> float:
+        if self._sync:
+            ti.sync()
+        return _time.perf_counter()
+
+    def start(self) -> None:
+        self.last_step = dict.fromkeys(STAGES, 0.0)
+        self._t = self._now()
+
+    def lap(self, stage: str, detail: str | None = None) -> None:
+        if self._t is None:
+            return
+        now = self._now()
+        dt, self._t = now - self._t, now
+        self.last_step[stage] += dt
+        self.totals[stage] += dt
+        key = f"{stage}.{detail or stage}"
+        self.detail[key] = self.detail.get(key, 0.0) + dt
+
+    def stop(self) -> dict:
+        """End the step; returns its stage seconds (and ``"total"``)."""
+        self.lap("other", "other")
+        self._t = None
+        self.steps += 1
+        return {**self.last_step, "total": sum(self.last_step.values())}
+
+    def abort(self) -> None:
+        """A step that raised: charge its time so far to ``"other"`` and stop."""
+        if self._t is not None:
+            self.lap("other", "aborted")
+            self._t = None
+
+    def reset(self) -> None:
+        self.totals = dict.fromkeys(STAGES, 0.0)
+        self.detail = {}
+        self.steps = 0
 
 
 class BlowUpError(BlowUp):
@@ -169,6 +233,26 @@ class TwoPhaseFlow:
         self.q_by_id = np.zeros(p.n)            # last pressure impulse, by particle id
         self.border = 0.0
         self._gx, self._gy = (float(c) for c in params.gravity)
+        self.clock = StageClock()
+
+    @property
+    def timings(self) -> dict:
+        """Wall seconds spent in :meth:`step`, accumulated over the steps since
+        construction (or :meth:`reset_timings`), by stage: ``neighbours`` (binning,
+        reorder, pair list), ``operators`` (viscous predictor, gradient/Laplacian
+        coefficient builds and the Poisson assembly, divergence and wall rows,
+        pressure-gradient correction, shifting), ``solve`` (the pressure Poisson
+        solve, preconditioner set-up included), ``other`` (time step, copies,
+        advection, checks); ``total`` is their sum and ``steps`` the step count.
+        Finer parts are in ``flow.clock.detail``.  Timing does not change any
+        result."""
+        t = dict(self.clock.totals)
+        t["total"] = sum(self.clock.totals.values())
+        t["steps"] = self.clock.steps
+        return t
+
+    def reset_timings(self) -> None:
+        self.clock.reset()
 
     # ---- set-up ------------------------------------------------------------------
     def _wall_layer(self) -> np.ndarray:
@@ -189,8 +273,10 @@ class TwoPhaseFlow:
     def _neighbours(self):
         p = self.particles
         self.grid = bin_particles(p, self.spec)
+        self.clock.lap("neighbours", "bin")
         self.pairs.build(p.position, p.n, p.position, self.grid, self.support)
         self.ops = Operators(p, self.pairs, self.support, self.params.kernel)
+        self.clock.lap("neighbours", "pairs")
 
     def time_step(self, vmax: float) -> float:
         pr = self.params
@@ -237,8 +323,19 @@ class TwoPhaseFlow:
         return float(0.5 * (p.get("mass")[fluid] * (v ** 2).sum(axis=1)).sum())
 
     def step(self, dt: float | None = None) -> dict:
+        """One time step (see the module doc).  Returns its diagnostics: dt, solver
+        iterations, projection passes, max |div| before/after, max speed and
+        ``seconds`` (its wall time by stage, see :attr:`timings`)."""
+        self.clock.start()
+        try:
+            return self._step(dt)
+        finally:
+            self.clock.abort()          # only if _step raised (it stops the clock itself)
+
+    def _step(self, dt: float | None) -> dict:
         pr = self.params
         p = self.particles
+        self.clock.lap("other", "setup")
         self._neighbours()
         kind = p.get("kind")
         ids = p.get("original_index")
@@ -247,6 +344,7 @@ class TwoPhaseFlow:
         vel = p.get("velocity")
         vmax = float(np.sqrt((vel[fluid] ** 2).sum(axis=1).max()))
         dt = self.time_step(vmax) if dt is None else float(dt)
+        self.clock.lap("other", "setup")
 
         # 1. predict: gravity and viscosity (no-slip walls: mirrored velocity)
         real = runtime.np_real()
@@ -264,6 +362,7 @@ class TwoPhaseFlow:
         w = vel.copy()
         w[fluid] += dt * (np.array(pr.gravity) + pr.nu * visc[fluid])
         w[~fluid] = 0.0
+        self.clock.lap("operators", "predict")
 
         # 2. project (iterated, density-weighted); walls carry the extrapolated fluid
         # velocity in the divergence, the no-penetration condition enters their rows
@@ -282,6 +381,7 @@ class TwoPhaseFlow:
         g_nd = _ndarray_like(p, 2)
         wall_b = _ndarray_like(p, 1)
         pr_ = self.pairs
+        self.clock.lap("operators", "coefficients")
 
         def divergence_and_walls(w, gdt):
             w_nd.from_numpy(w.astype(real))
@@ -296,6 +396,7 @@ class TwoPhaseFlow:
         gdt = (dt * self._gx, dt * self._gy)
         b = divergence_and_walls(w, gdt)
         div_before = float(np.abs(b[fluid]).max())
+        self.clock.lap("operators", "divergence")
         for k in range(pr.projection_passes):
             try:
                 res = A.solve(b, x0=self.q_by_id[ids] if k == 0 else None, tol=pr.solver_tol,
@@ -303,6 +404,7 @@ class TwoPhaseFlow:
                               border0=self.border if k == 0 else 0.0)
             except SolverError as exc:
                 raise BlowUpError(f"pressure solve failed at t={self.time:.4g}: {exc}") from exc
+            self.clock.lap("solve")
             iters.append(res.iterations)
             q_total += res.x
             if k == 0:
@@ -312,6 +414,7 @@ class TwoPhaseFlow:
             grad_q = g_nd.to_numpy()[: p.n].astype(np.float64)
             w[fluid] -= grad_q[fluid] / rho[fluid, None]
             b = divergence_and_walls(w, (0.0, 0.0))   # gravity is balanced by now
+            self.clock.lap("operators", "correction")
             if np.abs(b[fluid]).max() * dt < pr.div_tol:
                 break
         div_after = float(np.abs(b[fluid]).max())
@@ -321,7 +424,9 @@ class TwoPhaseFlow:
         pos = p.get("position")
         shift = np.zeros_like(pos)
         if pr.shifting > 0:
+            self.clock.lap("other", "advect")
             shift = self._shifting(pos, fluid, dt, np.sqrt((w[fluid] ** 2).sum(axis=1)).max())
+            self.clock.lap("operators", "shifting")
         pos[fluid] += dt * w[fluid] + shift[fluid]
         w[~fluid] = 0.0
         if not (np.isfinite(pos).all() and np.isfinite(w).all()):
@@ -341,9 +446,12 @@ class TwoPhaseFlow:
         p.set("velocity", w)
         self.time += dt
         self.step_count += 1
-        return {"dt": dt, "iterations": int(sum(iters)), "passes": len(iters),
+        info = {"dt": dt, "iterations": int(sum(iters)), "passes": len(iters),
                 "max_div_before": div_before, "max_div": div_after,
                 "max_speed": float(np.sqrt((w[fluid] ** 2).sum(axis=1)).max())}
+        self.clock.lap("other", "advect")
+        info["seconds"] = self.clock.stop()
+        return info
 
     def _shifting(self, pos, fluid, dt, vmax):
         """Particle shifting (Xu et al. 2009; Lind et al. 2012): move particles down the

@@ -74,3 +74,32 @@ def test_bad_setup_is_refused():
         TwoPhaseFlow(pts + [0.5, 0], np.zeros(len(pts), int), dx, FlowParams())
     with pytest.raises(ValueError, match="phase"):
         TwoPhaseFlow(pts, np.full(len(pts), 5), dx, FlowParams())
+
+
+def test_step_timings_add_up_to_the_wall_time():
+    import time
+    pts, dx = tank(8, 16)
+    phases = np.where(pts[:, 1] > 1.0, 1, 0)
+    params = FlowParams(box=(0, 0, 1, 2), densities=(1.0, 2.0), nu=0.01, shifting=1.0)
+    flow = TwoPhaseFlow(pts, phases, dx, params)
+    flow.step()                                     # compiles kernels: not timed below
+    flow.reset_timings()
+    assert flow.timings["total"] == 0.0 and flow.timings["steps"] == 0
+    wall = 0.0
+    for _ in range(3):
+        t0 = time.perf_counter()
+        info = flow.step()
+        wall += time.perf_counter() - t0
+        sec = info["seconds"]
+        assert set(sec) == {"neighbours", "operators", "solve", "other", "total"}
+        assert sec["total"] == pytest.approx(sum(v for k, v in sec.items() if k != "total"))
+    t = flow.timings
+    assert t["steps"] == 3
+    stages = [t[k] for k in ("neighbours", "operators", "solve", "other")]
+    assert all(s >= 0.0 for s in stages) and min(stages[:3]) > 0.0
+    assert t["total"] == pytest.approx(sum(stages))
+    assert t["total"] <= wall and t["total"] > 0.9 * wall - 1e-3
+    # the finer split adds up to the stages
+    for stage in ("neighbours", "operators", "solve", "other"):
+        parts = [v for k, v in flow.clock.detail.items() if k.startswith(stage + ".")]
+        assert sum(parts) == pytest.approx(t[stage])
