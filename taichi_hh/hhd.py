@@ -175,17 +175,28 @@ def _extra_particles(domain, pts, opts: HHDOptions, spacing: float, support: flo
     return None, band                                   # petronetto: fake particles
 
 
-def decompose(points, vectors, domain=None, *, method: str = "default", progress=None,
-              **options) -> HHDResult:
-    """Helmholtz-Hodge decomposition of ``vectors`` sampled at ``points``.
+@dataclass
+class PoissonProblems:
+    """The two Poisson problems of a decomposition (Eq. 5), assembled: the
+    matrix ``A`` shared by both and the right-hand sides ``rhs["phi"]`` = div v
+    and ``rhs["psi"]`` = -curl v on the particle slots (zero on boundary and
+    fake particles).  From :func:`poisson_problems`; :func:`decompose` solves
+    them.  Useful on its own to benchmark or compare solvers on the matrix."""
+    opts: HHDOptions
+    points: np.ndarray
+    ps: PointSet
+    A: PoissonMatrix
+    rhs: dict
+    vectors: np.ndarray
+    kind: np.ndarray
+    seconds: dict
+    stats: dict
 
-    points, vectors: (N, 2) arrays.  domain: :class:`~taichi_hh.domain.Box` or
-    :class:`~taichi_hh.domain.Polygon` (holes allowed); default the points'
-    bounding box.  method: a bundle of :data:`METHODS`; keyword ``options``
-    override single fields of :class:`HHDOptions`.  progress: optional
-    ``callable(stage: str)`` told as each stage starts.
-    """
-    t_start = time.perf_counter()
+
+def poisson_problems(points, vectors, domain=None, *, method: str = "default", progress=None,
+                     **options) -> PoissonProblems:
+    """Steps (a)-(d) of :func:`decompose` (arguments alike): particles, boundary
+    or fake particles, div v and curl v, the assembled Poisson matrix."""
     opts = options_for(method, **options)
     runtime.ensure_init()
     pts, vec, domain = _validate(points, vectors, domain)
@@ -248,8 +259,29 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     stats = {"n_points": n, "n_boundary": int((kind == BOUNDARY).sum()),
              "n_ghosts": int((kind == GHOST).sum()), "support": support, "spacing": spacing,
              "mean_neighbours": float(ps.neighbour_counts.mean())}
+    return PoissonProblems(opts, pts, ps, A, {"phi": div_slots, "psi": -curl_slots}, vec, kind,
+                           seconds, stats)
+
+
+def decompose(points, vectors, domain=None, *, method: str = "default", progress=None,
+              **options) -> HHDResult:
+    """Helmholtz-Hodge decomposition of ``vectors`` sampled at ``points``.
+
+    points, vectors: (N, 2) arrays.  domain: :class:`~taichi_hh.domain.Box` or
+    :class:`~taichi_hh.domain.Polygon` (holes allowed); default the points'
+    bounding box.  method: a bundle of :data:`METHODS`; keyword ``options``
+    override single fields of :class:`HHDOptions`.  progress: optional
+    ``callable(stage: str)`` told as each stage starts.
+    """
+    t_start = time.perf_counter()
+    say = progress or (lambda stage: None)
+    problems = poisson_problems(points, vectors, domain, method=method, progress=progress,
+                                **options)
+    opts, ps, A, vec, kind = problems.opts, problems.ps, problems.A, problems.vectors, problems.kind
+    pts, div_slots, curl_slots = problems.points, problems.rhs["phi"], -problems.rhs["psi"]
+    ops, seconds, stats = ps.ops, problems.seconds, problems.stats
     potentials = {}
-    for name, rhs in (("phi", div_slots), ("psi", -curl_slots)):
+    for name, rhs in problems.rhs.items():
         say(f"solve {name}")
         t = time.perf_counter()
         res = A.solve(rhs, method=opts.solver, tol=opts.tol,

@@ -18,16 +18,16 @@ its cell's value), restriction ``P^T`` (a cell sums its particles) and the
 Galerkin operator ``B_1 = P^T B P``.  Neighbours are closer than the support,
 so ``B_1`` couples a cell only to its 3 x 3 block: a 9-point stencil on a
 structured grid.  Each further level aggregates 2 x 2 cells, which keeps the
-9-point form, until the grid has at most ``max_coarse`` cells; that level is
-solved by a precomputed dense pseudo-inverse (the coarse operators of a pure
-Neumann problem are singular: constants are their null space).  Cells
+9-point form, down to at most ``COARSEST`` cells, solved by a dense
+pseudo-inverse (the coarse operators of a pure Neumann problem are singular:
+constants are their null space).  Cells
 without particles give empty rows; they are left out (zero correction).
 
 Cycle
 -----
 A V-cycle with damped Jacobi smoothing (``omega``; one sweep from zero
-before the coarse correction, ``post`` sweeps after it) on every level and the coarse correction
-scaled by ``correction`` (plain aggregation under-corrects: interpolation
+before the coarse correction, ``post`` sweeps after it) on every level and
+the coarse correction scaled by ``correction`` (plain aggregation under-corrects: interpolation
 by constants has too much energy; an over-correction of about 1.5-2 is the
 classic remedy, Blaheta 1986, Vanek et al. 1996).  The cycle is a fixed
 linear operator, so it can precondition BiCGSTAB (right preconditioning:
@@ -52,6 +52,9 @@ import taichi as ti
 from . import runtime
 from .errors import InputError
 from .neighbors import CellGrid, GridSpec, _CELL_PAD
+
+#: cells of the coarsest level at most, solved by a dense pseudo-inverse
+COARSEST = 16
 
 # ---------------------------------------------------------------------------
 # Level 0 (particles) <-> level 1 (cells)
@@ -131,18 +134,39 @@ def _coarsen_stencil(S: ti.types.ndarray(), off: ti.i32, nx: ti.i32, ny: ti.i32,
 
 
 @ti.kernel
-def _stencil_dinv(m: ti.i32, S: ti.types.ndarray(), dinv: ti.types.ndarray()):
+def _stencil_dinv(m: ti.i32, S: ti.types.ndarray(), dinv: ti.types.ndarray(), noise: float):
     for c in range(m):
         d = S[c, 4]
         inv = 0.0
-        if d != 0.0:
+        if ti.abs(d) > noise:
             inv = 1.0 / d
         dinv[c] = inv
 
 
+@ti.func
+def _restrict_level(S: ti.template(), cr: ti.template(), cx: ti.template(), off, nx, ny,
+                    coff, c, ncx):
+    """Coarse cell c of level k+1: the sum over its 2 x 2 children of r - S x."""
+    px = c % ncx
+    py = c // ncx
+    acc = 0.0
+    for a, b in ti.static(ti.ndrange(2, 2)):
+        ix = 2 * px + a
+        iy = 2 * py + b
+        if ix < nx and iy < ny:
+            f = iy * nx + ix
+            acc += cr[off + f] - _stencil_apply(S, cx, off, f, nx, ny)
+    cr[coff + c] = acc
+
+
+@ti.func
+def _parent(c, nx, ncx):
+    return ((c // nx) // 2) * ncx + (c % nx) // 2
+
+
 @ti.kernel
-def _cycle(L: ti.template(), post: ti.template(), omega: ti.template(),
-           correction: ti.template(), bordered: ti.template(), n: ti.i32,
+def _cycle(post: ti.template(), omega: ti.template(), correction: ti.template(),
+           bordered: ti.template(), L: ti.i32, n: ti.i32,
            start: ti.types.ndarray(), order: ti.types.ndarray(), cell_of: ti.types.ndarray(),
            offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), K: ti.types.ndarray(),
            D: ti.types.ndarray(), dinv: ti.types.ndarray(), lvl: ti.types.ndarray(),
@@ -150,9 +174,13 @@ def _cycle(L: ti.template(), post: ti.template(), omega: ti.template(),
            cx: ti.types.ndarray(), ctmp: ti.types.ndarray(), Minv: ti.types.ndarray(),
            ftmp: ti.types.ndarray(), border_c: float, r: ti.types.ndarray(),
            z: ti.types.ndarray()):
-    """z = M^-1 r: one V-cycle from zero, all levels in one launch."""
-    # level 0 (particles): pre-smoothing from zero x = omega D^-1 r (computed
-    # on the fly, never stored), scaled residual D^-1 (r - A x) summed per cell
+    """z = M^-1 r: one V-cycle from zero, in one launch.  The particle level
+    and the first (largest) cell level run in parallel loops; the smaller
+    levels run in one serial loop whose level count is a runtime value (one
+    compiled kernel for every hierarchy; a parallel loop per small level would
+    cost more in thread synchronisation than its work)."""
+    # particles: pre-smoothing from zero x = omega D^-1 r (on the fly, never
+    # stored); the scaled residual D^-1 (r - A x) summed per cell
     for c in range(lvl[0, 1] * lvl[0, 2]):
         acc = 0.0
         for s in range(start[c], start[c + 1]):
@@ -163,44 +191,48 @@ def _cycle(L: ti.template(), post: ti.template(), omega: ti.template(),
                 ax += K[k] * (omega * dinv[j] * r[j])
             acc += dinv[i] * (r[i] - ax)
         cr[c] = acc
-    # structured levels, down: pre-smoothing from zero, restriction of the residual
-    for k in ti.static(range(L - 1)):
-        off, nx, ny = lvl[k, 0], lvl[k, 1], lvl[k, 2]
-        coff, ncx, ncy = lvl[k + 1, 0], lvl[k + 1, 1], lvl[k + 1, 2]
-        for c in range(nx * ny):
-            cx[off + c] = omega * cdinv[off + c] * cr[off + c]
-        for c in range(ncx * ncy):
-            px = c % ncx
-            py = c // ncx
+    # cell level 0, down: pre-smoothing from zero, then restriction
+    for c in range(lvl[0, 1] * lvl[0, 2]):
+        cx[c] = omega * cdinv[c] * cr[c]
+    for c in range(lvl[1, 1] * lvl[1, 2]):
+        _restrict_level(S, cr, cx, 0, lvl[0, 1], lvl[0, 2], lvl[1, 0], c, lvl[1, 1])
+    # levels 1 .. L-1, serially: down, coarsest solve, up
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        for k in range(1, L - 1):
+            off, nx, ny = lvl[k, 0], lvl[k, 1], lvl[k, 2]
+            for c in range(nx * ny):
+                cx[off + c] = omega * cdinv[off + c] * cr[off + c]
+            for c in range(lvl[k + 1, 1] * lvl[k + 1, 2]):
+                _restrict_level(S, cr, cx, off, nx, ny, lvl[k + 1, 0], c, lvl[k + 1, 1])
+        loff, lm = lvl[L - 1, 0], lvl[L - 1, 1] * lvl[L - 1, 2]
+        for i in range(lm):
             acc = 0.0
-            for a, b in ti.static(ti.ndrange(2, 2)):
-                ix = 2 * px + a
-                iy = 2 * py + b
-                if ix < nx and iy < ny:
-                    f = iy * nx + ix
-                    acc += cr[off + f] - _stencil_apply(S, cx, off, f, nx, ny)
-            cr[coff + c] = acc
-    # coarsest level: dense (pseudo-)inverse
-    loff, lm = lvl[L - 1, 0], lvl[L - 1, 1] * lvl[L - 1, 2]
-    for i in range(lm):
-        acc = 0.0
-        for j in range(lm):
-            acc += Minv[i, j] * cr[loff + j]
-        cx[loff + i] = acc
-    # up: prolongation of the correction, post-smoothing
-    for kk in ti.static(range(L - 1)):
-        k = L - 2 - kk
-        off, nx, ny = lvl[k, 0], lvl[k, 1], lvl[k, 2]
-        coff, ncx = lvl[k + 1, 0], lvl[k + 1, 1]
-        for c in range(nx * ny):
-            cx[off + c] += correction * cx[coff + ((c // nx) // 2) * ncx + (c % nx) // 2]
-        for _ in ti.static(range(post)):
+            for j in range(lm):
+                acc += Minv[i, j] * cr[loff + j]
+            cx[loff + i] = acc
+        for kk in range(L - 2):
+            k = L - 2 - kk
+            off, nx, ny = lvl[k, 0], lvl[k, 1], lvl[k, 2]
+            coff, ncx = lvl[k + 1, 0], lvl[k + 1, 1]
             for c in range(nx * ny):
-                ctmp[off + c] = cx[off + c] + omega * cdinv[off + c] * (
-                    cr[off + c] - _stencil_apply(S, cx, off, c, nx, ny))
-            for c in range(nx * ny):
-                cx[off + c] = ctmp[off + c]
-    # level 0, up: x = omega D^-1 r + correction P x_1 (on the fly), post-smoothing
+                cx[off + c] += correction * cx[coff + _parent(c, nx, ncx)]
+            for _s in range(post):
+                for c in range(nx * ny):
+                    ctmp[off + c] = cx[off + c] + omega * cdinv[off + c] * (
+                        cr[off + c] - _stencil_apply(S, cx, off, c, nx, ny))
+                for c in range(nx * ny):
+                    cx[off + c] = ctmp[off + c]
+    # cell level 0, up: prolongation, post-smoothing
+    for c in range(lvl[0, 1] * lvl[0, 2]):
+        cx[c] += correction * cx[lvl[1, 0] + _parent(c, lvl[0, 1], lvl[1, 1])]
+    for _s in ti.static(range(post)):
+        for c in range(lvl[0, 1] * lvl[0, 2]):
+            ctmp[c] = cx[c] + omega * cdinv[c] * (
+                cr[c] - _stencil_apply(S, cx, 0, c, lvl[0, 1], lvl[0, 2]))
+        for c in range(lvl[0, 1] * lvl[0, 2]):
+            cx[c] = ctmp[c]
+    # particles, up: x = omega D^-1 r + correction P x_0 (on the fly), post-smoothing
     for i in range(n):
         xi = omega * dinv[i] * r[i] + correction * cx[cell_of[i]]
         ax = D[i] * xi
@@ -212,7 +244,7 @@ def _cycle(L: ti.template(), post: ti.template(), omega: ti.template(),
             ftmp[i] = zi
         else:
             z[i] = zi
-    for _ in ti.static(range(post - 1)):
+    for _s in ti.static(range(post - 1)):
         for i in range(n):
             ax = D[i] * ftmp[i]
             for k in range(offsets[i], offsets[i + 1]):
@@ -243,19 +275,16 @@ class MultilevelPreconditioner:
     A: a :class:`~taichi_hh.poisson.PoissonMatrix` (rows assembled).
     post: damped-Jacobi sweeps after the coarse correction on every level (one
     sweep before it, from zero, is always done); omega: Jacobi damping;
-    correction: coarse-correction scale; max_coarse: at most this many cells
-    on the coarsest level, which is solved densely.
+    correction: coarse-correction scale.
     """
 
     name = "multilevel"
 
-    def __init__(self, A, *, post: int = 2, omega: float = 0.7, correction: float = 1.5,
-                 max_coarse: int = 256):
+    def __init__(self, A, *, post: int = 2, omega: float = 0.7, correction: float = 1.5):
         runtime.ensure_init()
-        if not (1 <= post <= 3) or not (0 < omega < 2) or not correction > 0 \
-                or not max_coarse >= 1:
+        if not (1 <= post <= 3) or not (0 < omega < 2) or not correction > 0:
             raise InputError("multilevel: need 1 <= post <= 3, 0 < omega < 2, "
-                             "correction > 0, max_coarse >= 1")
+                             "correction > 0")
         self.post, self.omega, self.correction = int(post), float(omega), float(correction)
         self.A = A
         ops = A.ops
@@ -268,7 +297,8 @@ class MultilevelPreconditioner:
         size = ops.support * _CELL_PAD
         shapes = [(max(1, int(math.floor((hi[0] - lo[0]) / size)) + 1),
                    max(1, int(math.floor((hi[1] - lo[1]) / size)) + 1))]
-        while shapes[-1][0] * shapes[-1][1] > max_coarse:
+        # at least two cell levels (the cycle's first two are fixed)
+        while shapes[-1][0] * shapes[-1][1] > COARSEST or len(shapes) < 2:
             shapes.append(((shapes[-1][0] + 1) // 2, (shapes[-1][1] + 1) // 2))
         sizes = [nx * ny for nx, ny in shapes]
         offs = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32)
@@ -291,20 +321,23 @@ class MultilevelPreconditioner:
                              "support grid (pairs longer than the kernel support?)")
         for k in range(len(shapes) - 1):
             _coarsen_stencil(self.S, int(offs[k]), *shapes[k], int(offs[k + 1]), *shapes[k + 1])
+        # Constants are (nearly) in the null space of every level of a Neumann
+        # problem, so the coarsest levels' entries are sums of terms that cancel:
+        # values below the round-off of such a sum are zero, not pivots.
+        S_np = self.S.to_numpy()
+        noise = 1e3 * np.finfo(runtime.np_real()).eps * float(np.abs(S_np[: sizes[0]]).sum())
         self.cdinv = ti.ndarray(real, shape=(total,))
-        _stencil_dinv(total, self.S, self.cdinv)
+        _stencil_dinv(total, self.S, self.cdinv, noise)
         self.cr = ti.ndarray(real, shape=(total,))
         self.cx = ti.ndarray(real, shape=(total,))
         self.ctmp = ti.ndarray(real, shape=(total,))
         self.ftmp = ti.ndarray(real, shape=(max(n, 1) if self.post > 1 else 1,))
-        # coarsest level: dense pseudo-inverse (the coarse Neumann operator is
-        # singular: constants); empty cells are identity rows, zero correction
+        # coarsest level: pseudo-inverse (singular for a Neumann problem)
         cnx, cny = shapes[-1]
-        M = _stencil_to_dense(self.S.to_numpy()[offs[-2]:], cnx, cny)
-        empty = ~np.any(M != 0.0, axis=1) & ~np.any(M != 0.0, axis=0)
-        M[empty, empty] = 1.0
-        Minv = np.linalg.pinv(M, rcond=1e-12)
-        Minv[:, empty] = 0.0
+        M = _stencil_to_dense(S_np[offs[-2]:], cnx, cny)
+        U, sv, Vt = np.linalg.svd(M)
+        keep = sv > noise
+        Minv = (Vt[keep].T / sv[keep]) @ U[:, keep].T
         self.coarse_inverse = ti.ndarray(real, shape=M.shape)
         self.coarse_inverse.from_numpy(Minv.astype(runtime.np_real()))
         self._bordered = bool(getattr(A, "bordered", False))
@@ -315,13 +348,14 @@ class MultilevelPreconditioner:
         return 1 + len(self.shapes)
 
     def describe(self) -> str:
-        sizes = [str(self.n)] + [f"{nx}x{ny}" for nx, ny in self.shapes]
+        real = [s for k, s in enumerate(self.shapes) if k == 0 or s != self.shapes[k - 1]]
+        sizes = [str(self.n)] + [f"{nx}x{ny}" for nx, ny in real]
         return "V-cycle, levels " + " > ".join(sizes)
 
     def apply(self, r, z) -> None:
         """z = M^-1 r (one V-cycle from zero)."""
         A, pr, g = self.A, self.A.ops.pairs, self.grid
-        _cycle(len(self.shapes), self.post, self.omega, self.correction, self._bordered,
+        _cycle(self.post, self.omega, self.correction, self._bordered, len(self.shapes),
                self.n, g.cell_start, g.order, g.cell_of, pr.offsets, pr.neighbours, A.K, A.D,
                self.dinv, self.lvl, self.S, self.cdinv, self.cr, self.cx, self.ctmp,
                self.coarse_inverse, self.ftmp, self._border_c, r, z)
