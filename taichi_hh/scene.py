@@ -8,6 +8,7 @@ import argparse
 import math
 import os
 import sys
+import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -69,7 +70,38 @@ def _montage(args, name: str) -> None:
         write_png(docs, row)
 
 
+@dataclass
+class SceneRun:
+    """What :func:`run_scene` did: the flow at the end, the parsed options,
+    the wall seconds of the whole run (``wall``) and of the time loop alone
+    (``loop``), the seconds by part (``seconds``: the flow's stages
+    ``neighbours``, ``operators``, ``solve``, ``other`` (see
+    :attr:`~taichi_hh.flow.TwoPhaseFlow.timings`), then ``render`` (drawing and
+    writing frames), ``diagnostics`` (the CSV row's measures), ``checkpoint``
+    and ``driver`` (the loop's own overhead: progress bar, time-step choice)),
+    the solver iterations and dt of every step, and the steps taken."""
+    flow: object
+    args: argparse.Namespace
+    wall: float = 0.0
+    loop: float = 0.0
+    seconds: dict = field(default_factory=dict)
+    iterations: list = field(default_factory=list)
+    dts: list = field(default_factory=list)
+    steps: int = 0
+    frames: int = 0
+
+
 def main(scene: Scene, argv=None) -> int:
+    """Run a scene from the command line (``argv``); returns the exit status."""
+    run_scene(scene, argv)
+    return 0
+
+
+def run_scene(scene: Scene, argv=None) -> SceneRun:
+    """Parse ``argv`` like the scene script, run it and return a :class:`SceneRun`
+    (blow-ups and Ctrl-C raise ``SystemExit`` as described in
+    :mod:`taichi_hh.runloop`)."""
+    wall0 = time.perf_counter()
     ap = argparse.ArgumentParser(prog=f"{scene.name}.py", description=scene.description,
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     common = {k: v for k, v in scene.defaults.items() if k not in ("output_interval", "montage")}
@@ -100,6 +132,8 @@ def main(scene: Scene, argv=None) -> int:
     columns = BASE_COLUMNS + list(scene.measure_columns)
     writer = DiagnosticsWriter(os.path.join(args.out, "diagnostics.csv"), columns,
                                resume_time=flow.time if args.resume else None)
+    result = SceneRun(flow=flow, args=args)
+    spent = dict.fromkeys(("render", "diagnostics", "checkpoint"), 0.0)
     if not args.quiet:
         print(f"{scene.name}: {flow.n_fluid} fluid particles, spacing {flow.dx:.4g}, "
               f"support {flow.support:.4g}, until t={args.end_time}; terms: {scene.terms}; "
@@ -108,13 +142,19 @@ def main(scene: Scene, argv=None) -> int:
     def step_fn(t_stop):
         dt = min(flow.suggested_dt(), t_stop - flow.time)
         info = flow.step(dt)
+        result.iterations.append(info["iterations"])
+        result.dts.append(dt)
         return flow.time, dt, info
 
     def on_output(t, step, info):
+        t0 = time.perf_counter()
         pos, vel, ph, _ = flow.fluid_state()
         scalar = np.linalg.norm(vel, axis=1) if args.color == "speed" else None
         image = renderer.draw(pos, phase=ph, scalar=scalar)
         write_png(frame_path(args.out, int(round(t / args.output_interval))), image)
+        result.frames += 1
+        t1 = time.perf_counter()
+        spent["render"] += t1 - t0
         vmean, vmax = flow.volume_error()
         row = {"time": t, "step": step, "dt": info.get("dt", ""),
                "solver_iterations": info.get("iterations", ""), "max_div": info.get("max_div", ""),
@@ -122,10 +162,16 @@ def main(scene: Scene, argv=None) -> int:
                "volume_error_max": vmax, "kinetic_energy": flow.kinetic_energy()}
         row.update(scene.measures(flow))
         writer.write(row)
+        spent["diagnostics"] += time.perf_counter() - t1
 
     def checkpoint_fn():
-        return Checkpoint.save(ckpt_path, flow.state_dict())
+        t0 = time.perf_counter()
+        path = Checkpoint.save(ckpt_path, flow.state_dict())
+        spent["checkpoint"] += time.perf_counter() - t0
+        return path
 
+    flow.reset_timings()
+    loop0 = time.perf_counter()
     try:
         run(step_fn, t0=flow.time, t_end=args.end_time, output_interval=args.output_interval,
             on_output=on_output, checkpoint_fn=checkpoint_fn, progress=not args.quiet,
@@ -133,10 +179,27 @@ def main(scene: Scene, argv=None) -> int:
             blowup_types=(BlowUpError,))
     finally:
         writer.close()
+        result.loop = time.perf_counter() - loop0
+        result.steps = len(result.iterations)
+        result.seconds = {k: v for k, v in flow.timings.items() if k not in ("total", "steps")}
+        result.seconds.update(spent)
+        result.seconds["driver"] = max(result.loop - sum(result.seconds.values()), 0.0)
+    if not args.quiet:
+        print(timing_summary(result), file=sys.stderr)
     if args.montage:
         _montage(args, scene.name)
     if args.movie != "none":
         path = write_movie(os.path.join(args.out, "frame_*.png"),
                            os.path.join(args.out, f"{scene.name}.{args.movie}"), fps=args.fps)
         print(f"movie: {path}", file=sys.stderr)
-    return 0
+    result.wall = time.perf_counter() - wall0
+    return result
+
+
+def timing_summary(result: SceneRun) -> str:
+    """One line: the time loop's wall seconds and their split by part."""
+    total = max(result.loop, 1e-12)
+    parts = ", ".join(f"{k} {v:.1f} s ({100 * v / total:.0f}%)" for k, v in result.seconds.items())
+    n = result.steps
+    return (f"time loop {result.loop:.1f} s for {n} steps "
+            f"({n * result.flow.n_fluid / total:.3g} particle-steps/s): {parts}")
