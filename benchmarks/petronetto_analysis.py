@@ -433,9 +433,16 @@ def plot_histograms(hist_runs, path):
     plt.close(fig)
 
 
+def _size_ticks(ax, sizes):
+    from matplotlib.ticker import FixedLocator, NullLocator
+    sizes = sorted(set(int(n) for n in sizes))
+    ax.xaxis.set_major_locator(FixedLocator(sizes))
+    ax.xaxis.set_minor_locator(NullLocator())
+    ax.set_xticklabels([f"{n / 1000:.1f}k" for n in sizes])
+
+
 def plot_convergence(conv, orders, path):
     plt = _pyplot()
-    from matplotlib.ticker import NullFormatter
     fields_ = list(conv)
     fig, axes = plt.subplots(1, len(fields_), figsize=(6.2 * len(fields_), 4.6), squeeze=False)
     styles = {"err_d": ("o", "-", "d"), "err_r": ("s", "--", "r"), "err_h": ("^", ":", "h")}
@@ -448,7 +455,7 @@ def plot_convergence(conv, orders, path):
                 ax.loglog(n, [r[key] for r in rows], marker=mk, ls=ls, color=COLORS[m],
                           label=f"{LABEL[m]} {lab} (p={p:.2f})")
         ax.axhline(TARGET_MEAN_ERROR, color="gray", lw=0.8, ls="-.")
-        ax.xaxis.set_minor_formatter(NullFormatter())
+        _size_ticks(ax, [r["n"] for r in conv[fname]])
         ax.set_xlabel("particles N")
         ax.set_ylabel("mean error / mean |v0|")
         ax.set_title(f"field {fname}: err ~ spacing^p (dash-dot: 1% target)", fontsize=10)
@@ -463,7 +470,6 @@ def plot_critical_points(cps, n, conv_rows, path):
     """Left: offset of each found centre from the true one, in particle spacings
     (circle: one spacing).  Right: the largest offset against N."""
     plt = _pyplot()
-    from matplotlib.ticker import NullFormatter
     markers = {"source": "o", "sink": "s", "cw_vortex": "v", "ccw_vortex": "^"}
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 5))
     t = np.linspace(0, 2 * np.pi, 200)
@@ -491,13 +497,13 @@ def plot_critical_points(cps, n, conv_rows, path):
     ax.set_xlabel("found - true, x (spacings)")
     ax.set_ylabel("found - true, y (spacings)")
     ax.set_title(f"critical points, gaussian field, N={n} (circle: one spacing)", fontsize=10)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="lower left")
     for m in CONFIGS:
         rows = [r for r in conv_rows if r["method"] == m and r.get("cp_max_dist_spacings") != ""]
         ax2.loglog([r["n"] for r in rows], [r["cp_max_dist_spacings"] for r in rows], "o-",
                    color=COLORS[m], label=LABEL[m])
     ax2.axhline(1.0, color="gray", lw=0.8, ls="-.")
-    ax2.xaxis.set_minor_formatter(NullFormatter())
+    _size_ticks(ax2, [r["n"] for r in conv_rows])
     ax2.set_xlabel("particles N")
     ax2.set_ylabel("largest distance to the true centre (spacings)")
     ax2.set_title("largest critical-point offset against N (dash-dot: one spacing)",
@@ -510,6 +516,20 @@ def plot_critical_points(cps, n, conv_rows, path):
 
 
 # ---------------------------------------------------------------------------
+
+def source_version():
+    """The checkout's commit (with '+changes' when the library files differ from it)."""
+    import subprocess
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO_ROOT, text=True,
+                             capture_output=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "taichi_hh"],
+                               cwd=REPO_ROOT, text=True, capture_output=True,
+                               timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return (rev + ("+changes" if dirty else "")) if rev else "unknown"
+
 
 def parse_floats(text):
     return [float(s) for s in text.split(",") if s.strip()]
@@ -756,8 +776,8 @@ def main(argv=None) -> int:
     if target_note:
         print(target_note)
     notes = list(runner.notes)
-    print("\nsolver: default tol " + g(args.tol) + (", fallbacks " + ", ".join(
-        g(t) for t in args.fallback_tols) if args.fallback_tols else "") +
+    print(f"\nsolver: default tol {args.tol:g}" + (", fallbacks " + ", ".join(
+        f"{t:g}" for t in args.fallback_tols) if args.fallback_tols else "") +
         "; paper configuration as published (Jacobi BiCGSTAB, 1e-6) unless noted")
     for nt in notes or ["no workaround was needed: every solve succeeded as configured"]:
         print("note: " + nt)
@@ -827,11 +847,11 @@ def main(argv=None) -> int:
 
     md = [f"# Petronetto et al. 2010 analyses, redone\n",
           f"Made by `{cmd.strip()}` on {time.strftime('%Y-%m-%d')} in {run_seconds:.0f} s "
-          f"(2-core CPU, f64). 'paper' = `method=\"petronetto2010\"`, 'default' = "
+          f"(library at {source_version()}; 2-core CPU, f64). 'paper' = `method=\"petronetto2010\"`, 'default' = "
           f"`method=\"default\"`, both on the same blue-noise points (seed {args.seed} "
           f"unless noted). Errors are mean |x - x0| over mean |v0|.\n",
-          f"Solver: default configuration at tol {g(args.tol)}"
-          + (f" (falling back to {', '.join(g(t) for t in args.fallback_tols)} on a "
+          f"Solver: default configuration at tol {args.tol:g}"
+          + (f" (falling back to {', '.join(f'{t:g}' for t in args.fallback_tols)} on a "
              f"SolverError)" if args.fallback_tols else "")
           + "; paper configuration as published (Jacobi BiCGSTAB to 1e-6) unless a note "
             "below says otherwise.\n"]
