@@ -354,7 +354,9 @@ class TwoPhaseFlow:
                        p.volume, p.kind, self.support, v_nd, -1.0, ext)
         lap_v = _ndarray_like(p, 2)
         if pr.nu > 0:
+            self.clock.lap("operators", "predict")
             st_visc = ops.laplacian_coefficients(pr.viscous_laplacian, row_kinds=(FLUID,))
+            self.clock.lap("operators", "viscous_coefficients")
             ops.laplacian(st_visc, ext, lap_v)
             visc = lap_v.to_numpy()[: p.n].astype(np.float64)
         else:
@@ -369,8 +371,10 @@ class TwoPhaseFlow:
         st_grad = ops.gradient_coefficients(pr.gradient, row_kinds=(FLUID,))
         st_pgrad = ops.gradient_coefficients(pr.gradient, row_kinds=(FLUID,),
                                              density_weighted=pr.pair_density_gradient)
+        self.clock.lap("operators", "gradient_coefficients")
         A = PoissonMatrix(ops, laplacian=pr.pressure_laplacian, kappa=0.0, bordered=True,
                           density_weighted=True)
+        self.clock.lap("operators", "poisson_assembly")
         rho = p.get("density")
         q_total = np.zeros(p.n)
         iters = []
@@ -381,7 +385,7 @@ class TwoPhaseFlow:
         g_nd = _ndarray_like(p, 2)
         wall_b = _ndarray_like(p, 1)
         pr_ = self.pairs
-        self.clock.lap("operators", "coefficients")
+        self.clock.lap("other", "setup")
 
         def divergence_and_walls(w, gdt):
             w_nd.from_numpy(w.astype(real))
