@@ -18,7 +18,10 @@ def __getattr__(name):
     if name in ("decompose", "HHDResult", "METHODS"):
         from . import hhd
         return getattr(hhd, name)
+    if name in ("project", "ProjectionResult"):
+        from . import projection
+        return getattr(projection, name)
     raise AttributeError(f"module 'taichi_hh' has no attribute {name!r}")
 
 
-__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError"]
+__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError"]

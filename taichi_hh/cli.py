@@ -210,9 +210,12 @@ def build_parser() -> argparse.ArgumentParser:
     pro = sub.add_parser(
         "project", help="null-divergence projection of a sampled field (Colin et al. 2006)",
         description=(
-            "Project a 2D vector field sampled at scattered points onto null divergence: "
-            "solve lap q = div w with dq/dn = 0, set w <- w - grad q, K times (--iterations) "
-            "(Colin, Egli & Lin 2006). Writes DIR/projected.npz (points, vectors = the "
+            "Project a 2D vector field sampled at scattered points onto null divergence, "
+            "K times (--iterations) (Colin, Egli & Lin 2006). Default method: a Poisson "
+            "step (lap q = div w, dq/dn = 0, w <- w - grad q) then the exact orthogonal "
+            "projection onto zero quadratic divergence, so one pass leaves the divergence "
+            "at the solver tolerance and further passes change nothing; colin2006: their "
+            "formulation, whose divergence decreases pass by pass. Writes DIR/projected.npz (points, vectors = the "
             "projected field, initial, divergence, per-pass max_divergence, "
             "sum_sq_divergence, iterations), DIR/measures.csv and the figures "
             "DIR/projection_arrows.png and DIR/projection_measures.png. Only the "
