@@ -27,7 +27,9 @@ Gradient variants (``V_j = m_j / rho_j``, ``grad W_ij = grad_i W(x_i - x_j)``):
                      exact on quadratics, so second-order accurate even on one-sided
                      neighbourhoods.  Used for Neumann rows on the boundary, where the
                      first-order error of ``corrected`` (support x curvature) would
-                     dominate the whole solution.
+                     dominate the whole solution.  A particle whose neighbours do
+                     not determine a quadratic (fewer than five, or all on one
+                     conic: a sparse corner) falls back to ``corrected``.
 
 Laplacian variants:
 
@@ -204,10 +206,19 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
             continue
         L = ti.Matrix.identity(float, 2)
         Lf = ti.Matrix.identity(float, 5)
+        linear = 0
         if ti.static(variant == 5):
             Lf, ok = _quadratic_fit_rows(kid, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
             if not ok:
-                ti.atomic_max(bad[0], i)
+                # Too few neighbours for a quadratic fit (e.g. a corner): this
+                # particle falls back to the linearly corrected gradient, and only
+                # if that is singular too is the set refused.
+                M = _correction_matrix(kid, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
+                if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
+                    ti.atomic_max(bad[0], i)
+                else:
+                    L = M.inverse()
+                    linear = 1
         if ti.static(variant == 4):
             M = _correction_matrix(kid, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
             if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
@@ -233,12 +244,15 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
             elif ti.static(variant == 4):
                 coef = (mj / rho[j]) * (L @ gw)
             else:
-                # rows 0-1 of M^-1 (V_j W_ij p_j) / H: the fitted gradient's weights
-                W, _F2, _L2 = kernel_wfl(kid, xij.norm(), H)
-                u = -xij / H
-                p = ti.Vector([u[0], u[1], u[0] * u[0], u[0] * u[1], u[1] * u[1]])
-                z = _cholesky_solve5(Lf, (mj / rho[j]) * W * p)
-                coef = ti.Vector([z[0], z[1]]) / H
+                if linear:
+                    coef = (mj / rho[j]) * (L @ gw)
+                else:
+                    # rows 0-1 of M^-1 (V_j W_ij p_j) / H: the fitted gradient's weights
+                    W, _F2, _L2 = kernel_wfl(kid, xij.norm(), H)
+                    u = -xij / H
+                    p = ti.Vector([u[0], u[1], u[0] * u[0], u[0] * u[1], u[1] * u[1]])
+                    z = _cholesky_solve5(Lf, (mj / rho[j]) * W * p)
+                    coef = ti.Vector([z[0], z[1]]) / H
             G[k] = coef
             if ti.static(variant == 0):
                 gsum += coef   # sum_j G f_j = sum_j G (f_j - f_i) + (sum_j G) f_i

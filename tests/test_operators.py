@@ -279,3 +279,20 @@ def test_all_variants_are_listed():
     assert set(GRADIENT_VARIANTS) == {"basic", "difference", "colin_difference", "symmetric",
                                       "corrected", "quadratic"}
     assert set(LAPLACIAN_VARIANTS) == {"basic", "colin_difference", "brookshaw", "corrected"}
+
+
+def test_quadratic_gradient_falls_back_to_linear_where_a_quadratic_is_undetermined():
+    """A particle with three neighbours cannot fit a quadratic (five unknowns):
+    it takes the linearly corrected gradient (still exact on linear fields)
+    instead of refusing the whole set; one neighbour is refused."""
+    from fieldgen import lattice
+    pts, dx = lattice(10)
+    corner = np.vstack([pts, [[1.0, 1.0]]])     # neighbours (0.95, 0.95), (0.85, 0.95), (0.95, 0.85)
+    ps = thh.PointSet(corner, area=1.0, support=1.7 * dx)
+    assert ps.neighbour_counts[ps.slot_of[-1]] <= 4
+    f = 2.0 * corner[:, 0] - 3.0 * corner[:, 1] + 0.5
+    g = ps.gradient(f, "quadratic")
+    assert np.abs(g - [2.0, -3.0]).max() < 1e-10
+    lone = np.vstack([pts, [[1.05, 0.95]]])
+    with pytest.raises(thh.NeighbourError, match="singular"):
+        thh.PointSet(lone, area=1.0, support=1.05 * dx).gradient(lone[:, 0], "quadratic")
