@@ -39,7 +39,7 @@ from . import runtime
 from .errors import InputError, SolverError
 from .kernels import kernel_wfl
 from .neighbors import GridSpec, PairList, bin_particles
-from .operators import Operators
+from .operators import GradientStencil, Operators, _weight_gradient_by_mean_density
 from .particles import FLUID, GHOST, Particles
 from .poisson import PoissonMatrix
 from .runloop import BlowUp
@@ -369,11 +369,23 @@ class TwoPhaseFlow:
         # 2. project (iterated, density-weighted); walls carry the extrapolated fluid
         # velocity in the divergence, the no-penetration condition enters their rows
         st_grad = ops.gradient_coefficients(pr.gradient, row_kinds=(FLUID,))
-        st_pgrad = ops.gradient_coefficients(pr.gradient, row_kinds=(FLUID,),
-                                             density_weighted=pr.pair_density_gradient)
+        st_pgrad = st_grad
+        if pr.pair_density_gradient:
+            # the same coefficients times 2 / (rho_i + rho_j): what
+            # gradient_coefficients(..., density_weighted=True) computes, without
+            # building the (correction-matrix) coefficients a second time
+            G = ti.Vector.ndarray(2, runtime.real_dtype(), shape=st_grad.G.shape)
+            G.copy_from(st_grad.G)
+            _weight_gradient_by_mean_density(p.n, self.pairs.offsets, self.pairs.neighbours,
+                                             p.density, G)
+            st_pgrad = GradientStencil(G, st_grad.s, st_grad.variant, st_grad.row_kinds,
+                                       st_grad.source_kinds)
         self.clock.lap("operators", "gradient_coefficients")
-        A = PoissonMatrix(ops, laplacian=pr.pressure_laplacian, kappa=0.0, bordered=True,
-                          density_weighted=True)
+        # The flow has no BOUNDARY particles (its walls are GHOST rows) and no
+        # near-boundary term, so the Neumann gradient of the Poisson rows is
+        # multiplied by zero: the cheapest variant gives the identical matrix.
+        A = PoissonMatrix(ops, laplacian=pr.pressure_laplacian, gradient="basic", kappa=0.0,
+                          bordered=True, density_weighted=True)
         self.clock.lap("operators", "poisson_assembly")
         rho = p.get("density")
         q_total = np.zeros(p.n)

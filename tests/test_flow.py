@@ -103,3 +103,31 @@ def test_step_timings_add_up_to_the_wall_time():
     for stage in ("neighbours", "operators", "solve", "other"):
         parts = [v for k, v in flow.clock.detail.items() if k.startswith(stage + ".")]
         assert sum(parts) == pytest.approx(t[stage])
+
+
+def test_step_shortcuts_build_the_same_coefficients():
+    """The step builds the density-weighted pressure gradient by weighting a copy
+    of the plain one, and assembles the Poisson rows with the cheapest Neumann
+    gradient (the flow has no BOUNDARY rows): both must equal the long way."""
+    import taichi as ti
+    from taichi_hh import runtime
+    from taichi_hh.flow import _weight_gradient_by_mean_density
+    from taichi_hh.particles import FLUID
+    from taichi_hh.poisson import PoissonMatrix
+    pts, dx = tank(8, 16)
+    phases = np.where(np.linalg.norm(pts - [0.5, 0.5], axis=1) < 0.25, 0, 1)
+    flow = TwoPhaseFlow(pts, phases, dx, FlowParams(box=(0, 0, 1, 2), densities=(1.0, 2.0)))
+    flow.step()
+    flow._neighbours()
+    ops, p = flow.ops, flow.particles
+    full = ops.gradient_coefficients("corrected", row_kinds=(FLUID,), density_weighted=True)
+    st = ops.gradient_coefficients("corrected", row_kinds=(FLUID,))
+    G = ti.Vector.ndarray(2, runtime.real_dtype(), shape=st.G.shape)
+    G.copy_from(st.G)
+    _weight_gradient_by_mean_density(p.n, flow.pairs.offsets, flow.pairs.neighbours, p.density, G)
+    assert np.array_equal(full.G.to_numpy(), G.to_numpy())
+    A = PoissonMatrix(ops, laplacian="corrected", kappa=0.0, bordered=True, density_weighted=True)
+    B = PoissonMatrix(ops, laplacian="corrected", gradient="basic", kappa=0.0, bordered=True,
+                      density_weighted=True)
+    assert np.array_equal(A.K.to_numpy(), B.K.to_numpy())
+    assert np.array_equal(A.D.to_numpy(), B.D.to_numpy())
