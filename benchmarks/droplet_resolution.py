@@ -131,6 +131,8 @@ def main(argv=None) -> int:
                     help="take resolution N from DIR/diagnostics.csv instead of running it")
     ap.add_argument("--report-only", action="store_true",
                     help="run nothing; compare what the run directories hold")
+    ap.add_argument("--times", default="2,4",
+                    help="earlier output times to compare the centroid heights at as well")
     ap.add_argument("--frame-width", type=int, default=800)
     ap.add_argument("--progress", action="store_true", help="show the scene's progress bar")
     args = ap.parse_args(argv)
@@ -198,6 +200,16 @@ def main(argv=None) -> int:
     print(format_table(["particles", "t", "y_c(0)", "y_c(t)", "rise", "diff y_c", "diff rise",
                         "steps", "wall s"], table))
     worst = max(r["rel_diff_vs_finest"] for r in out_rows)
+    times = [float(t) for t in args.times.split(",") if t.strip() and float(t) < t_cmp]
+    for t in times:
+        ref_t = at_time(series[finest], t)["centroid_y"]
+        diffs = []
+        for row in out_rows:
+            y = at_time(series[row["particles"]], t)["centroid_y"]
+            row[f"centroid_y_t{t:g}"] = y
+            row[f"rel_diff_t{t:g}"] = abs(y - ref_t) / abs(ref_t)
+            diffs.append(f"{row['particles']}: {y:.4f} ({100 * row[f'rel_diff_t{t:g}']:.2f}%)")
+        print(f"t = {t:g}: centroid heights " + ", ".join(diffs))
     print(f"centroid heights at t = {t_cmp:g} agree within {100 * worst:.2f}% of the finest "
           f"({finest} particles); target {100 * TARGET:g}%: "
           f"{'met' if worst <= TARGET else 'not met'}"
