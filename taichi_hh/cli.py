@@ -40,6 +40,8 @@ _OPTION_HELP = {
     "kappa": "ridge term added to the Poisson rows (Petronetto Sec. 6a); 0 = none",
     "bordered": "add one unknown for the pure-Neumann compatibility condition (bordered "
                 "system); --no-bordered solves the singular system as is",
+    "remove_mean": "subtract the volume-weighted means of div v and curl v (the "
+                   "compatibility condition of the pure Neumann problems) before solving",
     "tol": "relative residual at which the linear solver stops",
     "solver": "iterative linear solver: bicgstab (BiCGSTAB, see --preconditioner) or "
               "cgnr (CG on the normal equations)",

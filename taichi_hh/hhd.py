@@ -56,6 +56,7 @@ class HHDOptions:
     boundary: str = "collocation"       # collocation | petronetto | colin | none
     kappa: float = 0.0                  # ridge term (Petronetto Sec. 6a)
     bordered: bool = True               # compatibility unknown for pure Neumann
+    remove_mean: bool = False           # subtract the volume-weighted mean of div v, curl v
     solver: str = "bicgstab"            # bicgstab | cgnr
     preconditioner: str = "auto"        # auto | multilevel | jacobi (see PoissonMatrix.solve)
     tol: float = 1e-8
@@ -248,6 +249,12 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
     fluid = kind == FLUID
     div_slots[~fluid] = 0.0
     curl_slots[~fluid] = 0.0
+    if opts.remove_mean:
+        # the compatibility option for pure Neumann problems: the right-hand
+        # sides' discrete integrals over the domain made zero
+        vol = p.get("volume")[fluid]
+        for slots in (div_slots, curl_slots):
+            slots[fluid] -= np.average(slots[fluid], weights=vol)
     seconds["divergence"] = time.perf_counter() - t
 
     say("assemble")
