@@ -1,0 +1,665 @@
+"""Speed against accuracy: one-factor-at-a-time sweeps of the decomposition
+and of the Rayleigh-Taylor flow, every configuration timed and scored against
+an exact answer.
+
+    python benchmarks/speed_accuracy.py [--quick] [--out DIR] [--workers 2]
+                                        [--repeats 3] [--groups g1,g2,...]
+
+Decomposition (``thh.decompose``) on the analytic fields of
+:mod:`taichi_hh.fields`, whose exact d, r, h are known.  Starting from the
+``default`` bundle, one option is changed at a time:
+
+``resolution``    N = 400 ... 25600 blue-noise points (quick: 400, 1600) for
+                  the default, the two paper bundles (``petronetto2010``,
+                  ``colin2006``) and every gradient variant (``grad:X`` sets
+                  the divergence, gradient and Neumann-row gradient to X:
+                  basic, difference, colin_difference, symmetric, corrected;
+                  the default is quadratic) and Laplacian variant (``lap:X``:
+                  basic, colin_difference, brookshaw; the default is
+                  corrected).  Both ``with and without correction``: corrected
+                  and quadratic are the corrected (consistent) operators.
+``kernel``        quartic, poly6, wendland, cubic.
+``support``       support / mean spacing 1.5 ... 4.
+``boundary``      collocation (default), petronetto, colin, none.
+``kappa``         ridge kappa 0, 1e-8 ... 1e-1 for ``petronetto2010`` and the
+                  default on the ``gaussian`` field at Petronetto's Table 9 sizes
+                  (1640, 5000, 18221; quick: 1640): solver iterations per potential.
+``tol``           solver tolerance 1e-4 ... 1e-10 (default and petronetto2010).
+``precond``       preconditioner auto | multilevel | jacobi.
+``precision``     f32 against f64 (default, petronetto2010; each also with
+                  tol 1e-3, since f32 cannot reach 1e-8).
+
+Every configuration runs in a worker process of a pool (spawn context, 2
+workers, one Taichi CPU thread each, each worker initialised with its
+precision); a configuration whose kernels the worker has not compiled yet gets
+one untimed warm-up run.  Times are the median of ``--repeats`` runs (quick: 1)
+of ``decompose``, split from ``res.stats["seconds"]``: ``setup_s`` (particles,
+boundary/fake particles, neighbour grid and pairs, div v and curl v, Poisson
+assembly), ``solve_s`` (both potentials), ``components_s`` (gradients of the
+potentials) and ``total_s``.  Errors are mean |d - d_exact| / mean |v| and
+likewise for r and h (``err_d``, ``err_r``, ``err_h``; ``*_max`` the maxima);
+``err`` = max(err_d, err_r, err_h), the worst component, is what the charts
+plot.  A configuration that raises is kept with ``status=error`` and the
+exception (``error``: class, ``reason``: SolverError.reason, ``message``).
+
+Flow (``flow`` group): the Rayleigh-Taylor growth rate of a single mode
+(:func:`rt_growth.run_case`, density ratio 2, viscosity 2e-3, shifting 2)
+against viscous linear theory, over resolution (800 ... 7200 particles) and
+pressure-solver tolerance (1e-3 ... 1e-8); quick: 800 particles, t <= 1,
+two tolerances.  Wall time is the time-stepping loop.
+
+Writes ``speed_accuracy.csv`` to ``--out`` (default outputs/benchmarks; the
+quick mode writes ``speed_accuracy_quick.csv``) and, to ``--out`` (default
+outputs/charts), the charts:
+
+``speed_accuracy_pareto.png``       err against total time (trig field), the
+                                    Pareto front (no configuration both faster
+                                    and more accurate) marked, the paper
+                                    configurations labelled;
+``speed_accuracy_convergence.png``  err against N per variant, least-squares
+                                    slopes of log err against log N (slope -1
+                                    is second order in the spacing);
+``speed_accuracy_kappa.png``        solver iterations against kappa per N
+                                    (Petronetto Table 9 extended; their
+                                    iteration counts as open markers);
+``speed_accuracy_flow.png``         RT growth-rate error against wall time.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import multiprocessing as mp
+import os
+import statistics
+import sys
+import time
+import traceback
+import types
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+from _common import REPO_ROOT, add_repo_to_path, format_table, write_csv_atomic  # noqa: E402
+
+add_repo_to_path()
+
+CSV_FIELDS = ["group", "label", "task", "field", "sampling", "method", "overrides", "precision",
+              "n_points", "repeats", "status", "error", "reason", "message",
+              "setup_s", "solve_s", "components_s", "total_s", "wall_s",
+              "iterations_phi", "iterations_psi", "residual_phi", "residual_psi",
+              "mean_neighbours", "err", "err_d", "err_r", "err_h", "err_d_max", "err_r_max",
+              "err_h_max", "finite", "max_abs_ratio",
+              "s_theory", "s_measured", "relative_error", "steps", "t_end", "max_speed",
+              "flow_solve_s", "flow_neighbours_s", "flow_operators_s", "flow_iterations"]
+
+PAPER_TABLE9 = {  # (N, kappa) -> (seconds, iterations curl-free, div-free); REFERENCE.md
+    (1640, 1e-8): (4.31, 1234, 629), (1640, 1e-2): (2.23, 476, 477),
+    (5000, 1e-8): (37.78, 2609, 636), (5000, 1e-2): (9.53, 407, 411),
+    (18221, 1e-8): (130.39, 683, 582), (18221, 1e-2): (78.95, 393, 391),
+}
+
+GRADIENTS = ("basic", "difference", "colin_difference", "symmetric", "corrected")
+LAPLACIANS = ("basic", "colin_difference", "brookshaw")
+
+
+def variant(name: str) -> tuple[str, dict]:
+    """(method bundle, option overrides) of a variant label."""
+    if name in ("default", "petronetto2010", "colin2006"):
+        return name, {}
+    kind, _, val = name.partition(":")
+    if kind == "grad":
+        return "default", {"divergence": val, "gradient": val, "neumann_gradient": val}
+    if kind == "lap":
+        return "default", {"laplacian": val}
+    raise ValueError(f"unknown variant {name!r}")
+
+
+# ---------------------------------------------------------------------------- sampling
+
+def sample_points(F, n: int, sampling: str, seed: int) -> np.ndarray:
+    """About ``n`` points inside ``F.domain``.  sampling: ``poisson`` (blue noise),
+    ``lattice``, ``jitterX`` (lattice, each point moved uniformly in a square of
+    side X spacings), ``random`` (uniform) or ``clustered`` (half blue noise, half
+    in four Gaussian clusters of width 0.05: local density up to ~20x the mean)."""
+    dom = F.domain
+    if sampling in ("poisson", "random"):
+        return dom.sample_interior(n, kind=sampling, seed=seed)
+    if sampling == "lattice":
+        return dom.sample_interior(n, kind="jittered", jitter=0.0, seed=seed)
+    if sampling.startswith("jitter"):
+        return dom.sample_interior(n, kind="jittered", jitter=float(sampling[6:]), seed=seed)
+    if sampling == "clustered":
+        rng = np.random.default_rng(seed)
+        bg = dom.sample_interior(n // 2, kind="poisson", seed=seed)
+        centres = np.array([[0.3, 0.3], [0.7, 0.35], [0.4, 0.75], [0.75, 0.8]])
+        need = n - len(bg)
+        out = []
+        while sum(len(o) for o in out) < need:
+            c = centres[rng.integers(0, len(centres), size=need)]
+            p = c + 0.05 * rng.standard_normal((need, 2))
+            out.append(p[dom.contains(p)])
+        return np.vstack([bg, np.vstack(out)[:need]])
+    raise ValueError(f"unknown sampling {sampling!r}")
+
+
+# ---------------------------------------------------------------------------- workers
+
+_SEEN: set = set()
+
+
+def _worker_init(precision: str, threads: int) -> None:
+    add_repo_to_path()
+    if str(HERE) not in sys.path:
+        sys.path.insert(0, str(HERE))
+    import taichi_hh as thh
+    thh.init(arch="cpu", precision=precision, threads=threads, verbose=False)
+
+
+def _rel_errors(got, exact, vmean):
+    e = np.linalg.norm(np.asarray(got, dtype=np.float64) - exact, axis=1) / vmean
+    return float(e.mean()), float(e.max())
+
+
+def _error_fields(exc: BaseException) -> dict:
+    return {"status": "error", "error": type(exc).__name__,
+            "reason": getattr(exc, "reason", "") or getattr(exc, "cause", "") or "",
+            "message": " ".join(str(exc).split())[:300]}
+
+
+def _median(xs):
+    return statistics.median(xs) if xs else float("nan")
+
+
+def run_hhd(task: dict) -> dict:
+    """One decomposition configuration: warm-up when new to this worker, then
+    ``repeats`` timed runs.  Never raises: an exception becomes the row's status."""
+    import taichi_hh as thh
+    from taichi_hh import fields
+    F = fields.get(task["field"])
+    pts = sample_points(F, task["n"], task.get("sampling", "poisson"), task.get("seed", 1))
+    ex = F.evaluate(pts)
+    vecs = ex.v
+    if task.get("corrupt") == "nan":
+        vecs = vecs.copy()
+        vecs[len(vecs) // 2, 0] = np.nan
+    vmean = float(np.linalg.norm(ex.v, axis=1).mean())
+    opts = dict(task.get("overrides", {}))
+    row = {"n_points": len(pts)}
+    sig = (task["method"], tuple(sorted((k, v) for k, v in opts.items()
+                                        if k not in ("tol", "kappa", "max_iterations"))))
+    times = {"setup": [], "solve": [], "components": [], "total": [], "wall": []}
+    res = None
+    try:
+        if sig not in _SEEN:
+            _SEEN.add(sig)
+            try:
+                thh.decompose(pts, vecs, F.domain, method=task["method"], **opts)
+            except Exception:
+                pass                  # the timed run reports it
+        for _ in range(task.get("repeats", 1)):
+            t0 = time.perf_counter()
+            res = thh.decompose(pts, vecs, F.domain, method=task["method"], **opts)
+            wall = time.perf_counter() - t0
+            s = res.stats["seconds"]
+            times["setup"].append(s["setup"] + s["divergence"] + s["assemble"])
+            times["solve"].append(s["solve_phi"] + s["solve_psi"])
+            times["components"].append(s["components"])
+            times["total"].append(s["total"])
+            times["wall"].append(wall)
+    except Exception as exc:          # noqa: BLE001 - recorded, not hidden
+        row.update(_error_fields(exc))
+        return row
+    st = res.stats
+    comps = (res.curl_free, res.div_free, res.harmonic, res.phi, res.psi)
+    finite = all(np.isfinite(a).all() for a in comps)
+    vmax = float(np.abs(ex.v).max())
+    big = max(float(np.nanmax(np.abs(a))) if np.isfinite(a).any() else math.inf
+              for a in comps[:3])
+    row.update({"status": "ok", "finite": finite, "max_abs_ratio": big / vmax,
+                "iterations_phi": st.get("iterations_phi"),
+                "iterations_psi": st.get("iterations_psi"),
+                "residual_phi": st.get("residual_phi"), "residual_psi": st.get("residual_psi"),
+                "mean_neighbours": st.get("mean_neighbours"),
+                "repeats": len(times["total"])})
+    for k, v in times.items():
+        row[f"{k}_s"] = _median(v)
+    errs = {}
+    for name, got, exact in (("d", res.curl_free, ex.d), ("r", res.div_free, ex.r),
+                             ("h", res.harmonic, ex.h)):
+        errs[name], row[f"err_{name}_max"] = _rel_errors(got, exact, vmean)
+        row[f"err_{name}"] = errs[name]
+    row["err"] = max(errs.values())
+    return row
+
+
+def run_project(task: dict) -> dict:
+    """One null-divergence projection: error of the result against the exact
+    divergence-free part r + h (relative to mean |v|) and the divergence left."""
+    import taichi_hh as thh
+    from taichi_hh import fields
+    F = fields.get(task["field"])
+    pts = sample_points(F, task["n"], task.get("sampling", "poisson"), task.get("seed", 1))
+    ex = F.evaluate(pts)
+    vmean = float(np.linalg.norm(ex.v, axis=1).mean())
+    row = {"n_points": len(pts)}
+    opts = dict(task.get("overrides", {}))
+    try:
+        t0 = time.perf_counter()
+        out = thh.project(pts, ex.v, F.domain, iterations=task.get("iterations", 1),
+                          method=task["method"], **opts)
+        row["total_s"] = row["wall_s"] = time.perf_counter() - t0
+    except Exception as exc:          # noqa: BLE001
+        row.update(_error_fields(exc))
+        return row
+    w = np.asarray(out.vectors, dtype=np.float64)
+    row["finite"] = bool(np.isfinite(w).all() and np.isfinite(out.max_divergence).all())
+    row["max_abs_ratio"] = float(np.nanmax(np.abs(w)) / np.abs(ex.v).max()) if row["finite"] \
+        else math.inf
+    row["err"], row["err_r_max"] = _rel_errors(w, ex.r + ex.h, vmean)
+    row["err_r"] = row["err"]
+    row["status"] = "ok"
+    row["message"] = (f"max|div| {out.max_divergence[0]:.3g} -> {out.max_divergence[-1]:.3g}")
+    its = out.stats.get("iterations")
+    row["iterations_phi"] = int(np.sum(its)) if its is not None else ""
+    return row
+
+
+def run_rt(task: dict) -> dict:
+    """Rayleigh-Taylor growth through :func:`rt_growth.run_case`, with extra
+    FlowParams (``task["params"]``, e.g. solver_tol, cfl) and a record of every
+    step (max speed, iterations)."""
+    import rt_growth
+    import taichi_hh.flow as fl
+    record = {"max_speed": 0.0, "iterations": 0, "flow": None}
+    orig_params, orig_flow = fl.FlowParams, fl.TwoPhaseFlow
+    extra = dict(task.get("params", {}))
+
+    def params(**kw):
+        kw.update(extra)
+        return orig_params(**kw)
+
+    class RecordingFlow(orig_flow):
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw)
+            record["flow"] = self
+
+        def step(self, dt=None):
+            info = super().step(dt)
+            ms = info.get("max_speed", 0.0)
+            record["max_speed"] = ms if not np.isfinite(ms) else max(record["max_speed"], ms)
+            record["iterations"] += info.get("iterations", 0)
+            return info
+
+    args = types.SimpleNamespace(viscosity=task.get("viscosity", 2e-3),
+                                 shifting=task.get("shifting", 2.0),
+                                 max_time=task.get("max_time", 6.0))
+    row = {}
+    fl.FlowParams, fl.TwoPhaseFlow = params, RecordingFlow
+    try:
+        out, (ts, amps) = rt_growth.run_case(task.get("ratio", 2.0), task["n"], args)
+    except Exception as exc:          # noqa: BLE001
+        row.update(_error_fields(exc))
+        flow = record["flow"]
+        if flow is not None:
+            row.update({"n_points": flow.n_fluid, "steps": flow.step_count, "t_end": flow.time})
+        return row
+    finally:
+        fl.FlowParams, fl.TwoPhaseFlow = orig_params, orig_flow
+    tm = record["flow"].timings
+    finite = bool(np.isfinite(amps).all() and np.isfinite(out["s_measured"])
+                  and np.isfinite(record["max_speed"]))
+    row.update({"status": "ok", "n_points": out["particles"], "s_theory": out["s_theory"],
+                "s_measured": out["s_measured"], "relative_error": out["relative_error"],
+                "err": abs(out["relative_error"]), "steps": out["steps"], "t_end": out["t_end"],
+                "wall_s": out["wall_seconds"], "total_s": out["wall_seconds"],
+                "max_speed": record["max_speed"], "finite": finite,
+                "max_abs_ratio": float(np.nanmax(np.abs(amps)) / abs(amps[0])),
+                "flow_solve_s": tm["solve"], "flow_neighbours_s": tm["neighbours"],
+                "flow_operators_s": tm["operators"], "flow_iterations": record["iterations"]})
+    return row
+
+
+def run_task(task: dict) -> dict:
+    """Dispatch one task (``task["task"]`` in hhd | project | rt) and return its
+    CSV row (the task's descriptive fields plus the measurements)."""
+    base = {"group": task.get("group", ""), "label": task.get("label", ""),
+            "task": task["task"], "field": task.get("field", ""),
+            "sampling": task.get("sampling", ""), "method": task.get("method", ""),
+            "overrides": ";".join(f"{k}={v}" for k, v in
+                                  {**task.get("overrides", {}), **task.get("params", {})}.items()),
+            "precision": task.get("precision", "f64"), "repeats": task.get("repeats", 1)}
+    try:
+        fn = {"hhd": run_hhd, "project": run_project, "rt": run_rt}[task["task"]]
+        row = fn(task)
+    except Exception as exc:          # a bug in this script, not in a method
+        row = _error_fields(exc)
+        row["message"] = "benchmark script: " + traceback.format_exc(limit=3)[-300:]
+    for k in ("status", "error", "reason", "message"):
+        row.setdefault(k, "")
+    return {**base, **row, **{k: v for k, v in task.get("extra", {}).items()}}
+
+
+def run_pool(tasks: list[dict], workers: int = 2, threads: int = 1,
+             progress: bool = True) -> list[dict]:
+    """Run tasks in process pools (spawn), one pool per precision (Taichi's
+    precision is process-wide), with a progress bar; rows in task order."""
+    from taichi_hh.runloop import ProgressBar
+    rows: list = [None] * len(tasks)
+    bar = ProgressBar(len(tasks)) if progress else None
+    done = 0
+    ctx = mp.get_context("spawn")
+    for precision in sorted({t.get("precision", "f64") for t in tasks}, reverse=True):
+        idx = [i for i, t in enumerate(tasks) if t.get("precision", "f64") == precision]
+        # longest first keeps both workers busy to the end
+        idx.sort(key=lambda i: -tasks[i].get("cost", 1.0))
+        with ProcessPoolExecutor(max_workers=max(1, min(workers, len(idx))), mp_context=ctx,
+                                 initializer=_worker_init,
+                                 initargs=(precision, threads)) as pool:
+            futures = {pool.submit(run_task, tasks[i]): i for i in idx}
+            for fut in as_completed(futures):
+                i = futures[fut]
+                try:
+                    rows[i] = fut.result()
+                except Exception as exc:     # the worker died (a crash in Taichi)
+                    rows[i] = {**{k: tasks[i].get(k, "") for k in ("group", "label", "task")},
+                               **_error_fields(exc), "status": "crash"}
+                done += 1
+                if bar:
+                    bar.update(done, done)
+    if bar:
+        bar.close()
+    return rows
+
+
+# ---------------------------------------------------------------------------- the sweep
+
+def build_tasks(quick: bool, repeats: int, groups: set | None) -> list[dict]:
+    tasks = []
+    base_n = 900 if quick else 6400
+    sizes = (400, 1600) if quick else (400, 1600, 6400, 25600)
+
+    def add(group, label, method="default", overrides=None, n=base_n, field="trig",
+            precision="f64", **kw):
+        if groups and group not in groups:
+            return
+        tasks.append({"task": "hhd", "group": group, "label": label, "method": method,
+                      "overrides": overrides or {}, "n": n, "field": field, "seed": 1,
+                      "sampling": "poisson", "precision": precision, "repeats": repeats,
+                      "cost": n * (4 if method != "default" else 1), **kw})
+
+    variants = ["default", "petronetto2010", "colin2006"]
+    variants += ["grad:corrected", "lap:brookshaw"] if quick else \
+        [f"grad:{g}" for g in GRADIENTS] + [f"lap:{l}" for l in LAPLACIANS]
+    for v in variants:
+        m, o = variant(v)
+        for n in sizes:
+            add("resolution", v, m, o, n=n)
+    for k in ("quartic", "poly6", "cubic") if not quick else ("quartic", "poly6"):
+        add("kernel", f"kernel={k}", overrides={"kernel": k})
+    for s in (1.5, 2.0, 3.0, 3.5, 4.0) if not quick else (2.0, 3.5):
+        add("support", f"support={s:g}", overrides={"support_ratio": s})
+    for b in ("petronetto", "colin", "none") if not quick else ("petronetto",):
+        add("boundary", f"boundary={b}", overrides={"boundary": b})
+    for m in ("petronetto2010", "default"):
+        for tol in (1e-4, 1e-6, 1e-8, 1e-10) if not quick else (1e-4,):
+            add("tol", f"{m} tol={tol:g}", m, {"tol": tol})
+    for pc in ("multilevel", "jacobi") if not quick else ("jacobi",):
+        add("precond", f"precond={pc}", overrides={"preconditioner": pc})
+    for prec in ("f32", "f64"):
+        for m in ("default", "petronetto2010") if not quick else ("default",):
+            add("precision", f"{m} {prec}", m, precision=prec)
+            add("precision", f"{m} {prec} tol=1e-3", m, {"tol": 1e-3}, precision=prec)
+    kappas = (0.0, 1e-8, 1e-6, 1e-4, 1e-3, 1e-2, 1e-1) if not quick else (0.0, 1e-8, 1e-2)
+    for m in ("petronetto2010", "default") if not quick else ("petronetto2010",):
+        for n in (1640, 5000, 18221) if not quick else (1640,):
+            for kp in kappas:
+                add("kappa", f"{m} kappa={kp:g}", m, {"kappa": kp}, n=n, field="gaussian")
+    if not groups or "flow" in groups:
+        rt = [(800, 1e-6), (1800, 1e-6), (3200, 1e-6), (7200, 1e-6),
+              (1800, 1e-3), (1800, 1e-4), (1800, 1e-8)]
+        if quick:
+            rt = [(800, 1e-6), (800, 1e-3)]
+        for n, tol in rt:
+            tasks.append({"task": "rt", "group": "flow", "label": f"RT N={n} tol={tol:g}",
+                          "n": n, "ratio": 2.0, "params": {"solver_tol": tol},
+                          "max_time": 1.0 if quick else 6.0, "precision": "f64",
+                          "cost": 40 * n})
+    return tasks
+
+
+# ---------------------------------------------------------------------------- charts
+
+def _num(x):
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return math.nan
+    return v
+
+
+def pareto_front(points):
+    """Indices of the points (time, err) that no other point beats in both."""
+    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
+    front, best = [], math.inf
+    for i in order:
+        if points[i][1] < best:
+            front.append(i)
+            best = points[i][1]
+    return front
+
+
+def fit_slope(ns, errs):
+    ns, errs = np.asarray(ns, float), np.asarray(errs, float)
+    ok = np.isfinite(errs) & (errs > 0)
+    if ok.sum() < 2:
+        return math.nan
+    return float(np.polyfit(np.log(ns[ok]), np.log(errs[ok]), 1)[0])
+
+
+def _ok(rows, **match):
+    return [r for r in rows if r.get("status") == "ok" and np.isfinite(_num(r.get("err")))
+            and all(r.get(k) == v for k, v in match.items())]
+
+
+def make_charts(rows: list[dict], out: Path, quick: bool) -> dict:
+    import matplotlib
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+    from taichi_hh.io import atomic_savefig
+    out.mkdir(parents=True, exist_ok=True)
+    info = {}
+    suffix = "_quick" if quick else ""
+
+    # 1. error against time, Pareto front
+    hh = [r for r in _ok(rows, task="hhd", field="trig")]
+    fig = Figure(figsize=(8, 5.5))
+    ax = fig.add_subplot(111)
+    groups = sorted({r["group"] for r in hh})
+    cmap = matplotlib.colormaps["tab10"]
+    for gi, g in enumerate(groups):
+        sel = [r for r in hh if r["group"] == g]
+        ax.scatter([r["total_s"] for r in sel], [r["err"] for r in sel], s=16,
+                   color=cmap(gi % 10), label=g, alpha=0.8)
+    pts = [(r["total_s"], r["err"]) for r in hh]
+    front = pareto_front(pts)
+    if front:
+        fx = [pts[i][0] for i in front]
+        fy = [pts[i][1] for i in front]
+        ax.step(fx, fy, where="post", color="k", lw=1.0, label="Pareto front")
+        ax.scatter(fx, fy, s=60, facecolors="none", edgecolors="k")
+        for j, i in enumerate(front):
+            r = hh[i]
+            ax.annotate(f"{r['label']} N={r['n_points']}", pts[i], fontsize=6,
+                        xytext=(6, -10 if j % 2 else 5), textcoords="offset points")
+    info["pareto"] = [(hh[i]["label"], hh[i]["n_points"], hh[i]["total_s"], hh[i]["err"])
+                      for i in front]
+    for r in hh:
+        if r["method"] in ("petronetto2010", "colin2006") and r["group"] == "resolution":
+            ax.annotate(f"{r['method']} N={r['n_points']}", (r["total_s"], r["err"]),
+                        fontsize=7, color="C3", xytext=(4, 4), textcoords="offset points",
+                        arrowprops=dict(arrowstyle="-", color="C3", lw=0.5))
+    failed = sorted({r["label"] for r in rows if r.get("task") == "hhd"
+                     and r.get("status") != "ok" and r.get("field") == "trig"})
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("decompose wall time [s] (median; setup + solve + components)")
+    ax.set_ylabel("error: max over d, r, h of mean |err| / mean |v|")
+    title = "Speed against accuracy (trig field, one factor at a time around default)"
+    ax.set_title(title, fontsize=9)
+    if failed:
+        fig.text(0.01, 0.01, "raised (not plotted): " + ", ".join(failed)[:200], fontsize=6,
+                 va="bottom")
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=7, loc="upper right")
+    atomic_savefig(fig, str(out / f"speed_accuracy_pareto{suffix}.png"), dpi=120)
+
+    # 2. convergence per variant
+    fig = Figure(figsize=(8, 5.5))
+    ax = fig.add_subplot(111)
+    res_rows = [r for r in rows if r.get("group") == "resolution"]
+    labels = list(dict.fromkeys(r["label"] for r in res_rows))
+    slopes = {}
+    for li, lab in enumerate(labels):
+        sel = sorted(_ok(res_rows, label=lab), key=lambda r: r["n_points"])
+        if not sel:
+            continue
+        ns = [r["n_points"] for r in sel]
+        es = [r["err"] for r in sel]
+        k = fit_slope(ns, es)
+        slopes[lab] = k
+        style = "-" if lab in ("default", "petronetto2010", "colin2006") else "--"
+        ax.loglog(ns, es, style, marker="o", ms=4, color=cmap(li % 10),
+                  label=f"{lab} (slope {k:+.2f})")
+    info["slopes"] = slopes
+    ax.set_xlabel("particles N")
+    ax.set_ylabel("error: max over d, r, h of mean |err| / mean |v|")
+    ax.set_title("Convergence per variant (trig field, blue noise); slope of log err vs log N "
+                 "(-1 = 2nd order in spacing)", fontsize=8)
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=6, ncol=2)
+    atomic_savefig(fig, str(out / f"speed_accuracy_convergence{suffix}.png"), dpi=120)
+
+    # 3. iterations against kappa
+    fig = Figure(figsize=(8, 5))
+    ax = fig.add_subplot(111)
+    kap = [r for r in rows if r.get("group") == "kappa"]
+    zero_at = 1e-10
+    li = 0
+    for m in ("petronetto2010", "default"):
+        for n in sorted({r["n_points"] for r in kap if r["method"] == m
+                         and isinstance(r.get("n_points"), int)}):
+            sel = [r for r in kap if r["method"] == m and r.get("n_points") == n]
+            sel.sort(key=lambda r: _kappa_of(r))
+            color = cmap(li % 10)
+            li += 1
+            ks = [_kappa_of(r) or zero_at for r in sel]
+            it = [(r.get("iterations_phi") if r["status"] == "ok" else math.nan) for r in sel]
+            its = [(r.get("iterations_psi") if r["status"] == "ok" else math.nan) for r in sel]
+            ax.loglog(ks, it, "-o", ms=4, color=color, label=f"{m} N={n}: curl-free")
+            ax.loglog(ks, its, ":s", ms=3, color=color, label="  div-free")
+            for kx, r in zip(ks, sel):
+                if r["status"] != "ok":
+                    ax.annotate(f"x {r.get('reason') or r.get('error')}", (kx, 1.5), fontsize=6,
+                                color=color, rotation=90, va="bottom")
+    for (n, kp), (sec, i1, i2) in PAPER_TABLE9.items():
+        ax.scatter([kp, kp], [i1, i2], facecolors="none", edgecolors="k", s=30, zorder=3)
+        ax.annotate(f"paper N={n}", (kp, i1), fontsize=6, xytext=(3, 2),
+                    textcoords="offset points")
+    ax.set_xlabel(f"ridge kappa (kappa = 0 plotted at {zero_at:g})")
+    ax.set_ylabel("BiCGSTAB iterations (to the method's tol)")
+    ax.set_title("Iterations against kappa, gaussian field (Petronetto Table 9 extended; "
+                 "open circles: paper; x: solver raised)", fontsize=8)
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=6, ncol=2)
+    atomic_savefig(fig, str(out / f"speed_accuracy_kappa{suffix}.png"), dpi=120)
+
+    # 4. flow: RT growth-rate error against wall time
+    fig = Figure(figsize=(7, 4.5))
+    ax = fig.add_subplot(111)
+    fl = _ok(rows, task="rt")
+    for r in fl:
+        ax.scatter(r["wall_s"], max(r["err"], 1e-4), color="C0")
+        ax.annotate(r["label"].replace("RT ", ""), (r["wall_s"], max(r["err"], 1e-4)),
+                    fontsize=7, xytext=(4, 2), textcoords="offset points")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("wall time of the time stepping [s]")
+    ax.set_ylabel("|s_SPH / s_theory - 1|")
+    ax.set_title("Rayleigh-Taylor growth rate (density ratio 2) against linear theory",
+                 fontsize=9)
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    atomic_savefig(fig, str(out / f"speed_accuracy_flow{suffix}.png"), dpi=120)
+    return info
+
+
+def _kappa_of(r) -> float:
+    for part in str(r.get("overrides", "")).split(";"):
+        if part.startswith("kappa="):
+            return float(part[6:])
+    return 0.0
+
+
+def _fmt(x, spec=".3g"):
+    v = _num(x)
+    return "" if not np.isfinite(v) else format(v, spec)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="small sweep, under two minutes")
+    ap.add_argument("--out", default=None,
+                    help="directory for the CSV and the charts (default: outputs/benchmarks "
+                         "for the CSV, outputs/charts for the charts)")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=1, help="Taichi CPU threads per worker")
+    ap.add_argument("--repeats", type=int, default=None, help="timed runs per configuration "
+                    "(default 3; quick 1)")
+    ap.add_argument("--groups", default="", help="comma-separated subset of groups")
+    ap.add_argument("--no-progress", action="store_true")
+    args = ap.parse_args(argv)
+    repeats = args.repeats or (1 if args.quick else 3)
+    groups = {g for g in args.groups.split(",") if g} or None
+    if args.out:
+        csv_dir = chart_dir = Path(args.out)
+    else:
+        csv_dir, chart_dir = REPO_ROOT / "outputs" / "benchmarks", REPO_ROOT / "outputs" / "charts"
+    tasks = build_tasks(args.quick, repeats, groups)
+    t0 = time.perf_counter()
+    print(f"{len(tasks)} configurations, {args.workers} workers", flush=True)
+    rows = run_pool(tasks, args.workers, args.threads, progress=not args.no_progress)
+    elapsed = time.perf_counter() - t0
+    name = "speed_accuracy_quick.csv" if args.quick else "speed_accuracy.csv"
+    write_csv_atomic(csv_dir / name, rows, CSV_FIELDS)
+    header = ["group", "label", "N", "prec", "status", "setup s", "solve s", "total s",
+              "it phi/psi", "err d", "err r", "err h", "note"]
+    table = []
+    for r in rows:
+        note = r.get("error", "") and f"{r['error']}:{r.get('reason', '')}"
+        if r.get("task") == "rt" and r.get("status") == "ok":
+            note = f"s {_fmt(r['s_measured'])} vs {_fmt(r['s_theory'])}"
+        table.append([r.get("group", ""), r.get("label", ""), r.get("n_points", ""),
+                      r.get("precision", ""), r.get("status", ""), _fmt(r.get("setup_s")),
+                      _fmt(r.get("solve_s")), _fmt(r.get("total_s")),
+                      f"{r.get('iterations_phi', '')}/{r.get('iterations_psi', '')}"
+                      if r.get("task") == "hhd" else str(r.get("flow_iterations", "")),
+                      _fmt(r.get("err_d")), _fmt(r.get("err_r")),
+                      _fmt(r.get("err_h") if r.get("task") == "hhd" else r.get("err")), note])
+    print(format_table(header, table, "llrllrrrrrrrl"))
+    info = make_charts(rows, chart_dir, args.quick)
+    print("\nPareto front (label, N, seconds, err):")
+    for lab, n, s, e in info["pareto"]:
+        print(f"  {lab:28s} N={n:<6} {s:8.3f} s  err {e:.3g}")
+    print("Convergence slopes (d log err / d log N):")
+    for lab, k in info["slopes"].items():
+        print(f"  {lab:28s} {k:+.2f}")
+    print(f"wrote {csv_dir / name} and charts in {chart_dir}; {elapsed:.0f} s")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
