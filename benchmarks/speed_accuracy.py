@@ -175,6 +175,15 @@ def _median(xs):
     return statistics.median(xs) if xs else float("nan")
 
 
+def _corrupt(task: dict, v: np.ndarray) -> np.ndarray:
+    """``task["corrupt"] == "nan"``: one NaN in the input vectors (to provoke an
+    InputError); ``"duplicate"`` (handled by the callers): a repeated point."""
+    if task.get("corrupt") == "nan":
+        v = v.copy()
+        v[len(v) // 2, 0] = np.nan
+    return v
+
+
 def run_hhd(task: dict) -> dict:
     """One decomposition configuration: warm-up when new to this worker, then
     ``repeats`` timed runs.  Never raises: an exception becomes the row's status."""
@@ -183,10 +192,10 @@ def run_hhd(task: dict) -> dict:
     F = fields.get(task["field"])
     pts = sample_points(F, task["n"], task.get("sampling", "poisson"), task.get("seed", 1))
     ex = F.evaluate(pts)
-    vecs = ex.v
-    if task.get("corrupt") == "nan":
-        vecs = vecs.copy()
-        vecs[len(vecs) // 2, 0] = np.nan
+    vecs = _corrupt(task, ex.v)
+    if task.get("corrupt") == "duplicate":
+        pts = np.vstack([pts, pts[:1]])
+        vecs = np.vstack([vecs, vecs[:1]])
     vmean = float(np.linalg.norm(ex.v, axis=1).mean())
     opts = dict(task.get("overrides", {}))
     row = {"n_points": len(pts)}
@@ -195,12 +204,9 @@ def run_hhd(task: dict) -> dict:
     times = {"setup": [], "solve": [], "components": [], "total": [], "wall": []}
     res = None
     try:
-        if sig not in _SEEN:
+        if sig not in _SEEN:          # compile; a failure here is the row's answer
             _SEEN.add(sig)
-            try:
-                thh.decompose(pts, vecs, F.domain, method=task["method"], **opts)
-            except Exception:
-                pass                  # the timed run reports it
+            thh.decompose(pts, vecs, F.domain, method=task["method"], **opts)
         for _ in range(task.get("repeats", 1)):
             t0 = time.perf_counter()
             res = thh.decompose(pts, vecs, F.domain, method=task["method"], **opts)
@@ -248,9 +254,10 @@ def run_project(task: dict) -> dict:
     vmean = float(np.linalg.norm(ex.v, axis=1).mean())
     row = {"n_points": len(pts)}
     opts = dict(task.get("overrides", {}))
+    vecs = _corrupt(task, ex.v)
     try:
         t0 = time.perf_counter()
-        out = thh.project(pts, ex.v, F.domain, iterations=task.get("iterations", 1),
+        out = thh.project(pts, vecs, F.domain, iterations=task.get("iterations", 1),
                           method=task["method"], **opts)
         row["total_s"] = row["wall_s"] = time.perf_counter() - t0
     except Exception as exc:          # noqa: BLE001
