@@ -199,6 +199,15 @@ def main(argv=None) -> int:
                       f"{row['wall_s_one_go']:.0f}" if row["wall_s_one_go"] != "" else "-"])
     print(format_table(["particles", "t", "y_c(0)", "y_c(t)", "rise", "diff y_c", "diff rise",
                         "steps", "wall s"], table))
+    pairs = []
+    for a in out_rows:
+        for b in out_rows:
+            if a["particles"] < b["particles"]:
+                d = abs(a["centroid_y"] - b["centroid_y"]) / abs(b["centroid_y"])
+                pairs.append(f"{a['particles']} vs {b['particles']}: {100 * d:.2f}%"
+                             f"{'' if d <= TARGET else ' (over)'}")
+    if pairs:
+        print(f"pairwise at t = {t_cmp:g}: " + "; ".join(pairs))
     worst = max(r["rel_diff_vs_finest"] for r in out_rows)
     times = [float(t) for t in args.times.split(",") if t.strip() and float(t) < t_cmp]
     for t in times:
