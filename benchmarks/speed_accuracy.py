@@ -556,6 +556,7 @@ def make_charts(rows: list[dict], out: Path, quick: bool) -> dict:
     ax = fig.add_subplot(111)
     kap = [r for r in rows if r.get("group") == "kappa"]
     zero_at = 1e-10
+    fail_at = 5000.0
     li = 0
     for m in ("petronetto2010", "default"):
         for n in sorted({r["n_points"] for r in kap if r["method"] == m
@@ -570,15 +571,17 @@ def make_charts(rows: list[dict], out: Path, quick: bool) -> dict:
             ax.loglog(ks, it, "-o", ms=4, color=color, label=f"{m} N={n}: curl-free")
             ax.loglog(ks, its, ":s", ms=3, color=color, label="  div-free")
             for kx, r in zip(ks, sel):
-                if r["status"] != "ok":
-                    ax.annotate(f"x {r.get('reason') or r.get('error')}", (kx, 1.5), fontsize=6,
-                                color=color, rotation=90, va="bottom")
+                if r["status"] != "ok":      # failed solves: x at the top, with the reason
+                    ax.scatter([kx], [fail_at], marker="x", color=color, s=40, zorder=4)
+                    ax.annotate(f"{r.get('reason') or r.get('error')}", (kx, fail_at),
+                                fontsize=6, color=color, xytext=(4, -4 - 7 * (li % 4)),
+                                textcoords="offset points")
     for (n, kp), (sec, i1, i2) in PAPER_TABLE9.items():
         ax.scatter([kp, kp], [i1, i2], facecolors="none", edgecolors="k", s=30, zorder=3)
         ax.annotate(f"paper N={n}", (kp, i1), fontsize=6, xytext=(3, 2),
                     textcoords="offset points")
     ax.set_xlabel(f"ridge kappa (kappa = 0 plotted at {zero_at:g})")
-    ax.set_ylabel("BiCGSTAB iterations (to the method's tol)")
+    ax.set_ylabel(f"BiCGSTAB iterations (to the method's tol); x at {fail_at:g}: raised")
     ax.set_title("Iterations against kappa, gaussian field (Petronetto Table 9 extended; "
                  "open circles: paper; x: solver raised)", fontsize=8)
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
@@ -611,6 +614,26 @@ def _kappa_of(r) -> float:
     return 0.0
 
 
+def read_rows(path) -> list[dict]:
+    """Rows of a CSV written by this script, numbers converted back."""
+    import csv
+    rows = []
+    with open(path) as fh:
+        for r in csv.DictReader(fh):
+            for k, v in r.items():
+                if k in ("n_points", "iterations_phi", "iterations_psi", "repeats", "steps",
+                         "flow_iterations") and v not in ("", None):
+                    r[k] = int(float(v))
+                elif k == "finite":
+                    r[k] = v == "True"
+                elif k.endswith("_s") or k.startswith("err") or k in (
+                        "residual_phi", "residual_psi", "mean_neighbours", "max_abs_ratio",
+                        "s_theory", "s_measured", "relative_error", "t_end", "max_speed"):
+                    r[k] = _num(v)
+            rows.append(r)
+    return rows
+
+
 def _fmt(x, spec=".3g"):
     v = _num(x)
     return "" if not np.isfinite(v) else format(v, spec)
@@ -628,7 +651,13 @@ def main(argv=None):
                     "(default 3; quick 1)")
     ap.add_argument("--groups", default="", help="comma-separated subset of groups")
     ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--replot", metavar="CSV", help="only redraw the charts from this CSV")
     args = ap.parse_args(argv)
+    if args.replot:
+        out = Path(args.out) if args.out else REPO_ROOT / "outputs" / "charts"
+        info = make_charts(read_rows(args.replot), out, args.quick)
+        print(info)
+        return info
     repeats = args.repeats or (1 if args.quick else 3)
     groups = {g for g in args.groups.split(",") if g} or None
     if args.out:
