@@ -178,3 +178,38 @@ def test_stability_map_classification():
     assert classify({**err, "error": "ZeroDivisionError"}, 0.01)[0] == "crash"
     rt = {"status": "ok", "task": "rt", "finite": True, "err": 0.05, "max_speed": 50.0}
     assert classify(rt, 0.05)[0] == "garbage"
+
+
+# Silent garbage found by benchmarks/stability_map.py (reported, not fixed here:
+# the fix belongs in taichi_hh/projection.py and taichi_hh/operators.py).  These
+# state the contract; they pass once the failures are detected and reported.
+
+@pytest.mark.xfail(reason="project(method='colin2006') diverges silently on blue noise: "
+                          "max|div| 31.7 -> 4.2e6 over 5 passes, |w| ~1e5 x |v|, no error",
+                   strict=False)
+def test_colin2006_projection_never_returns_garbage():
+    F = fields.get("trig")
+    pts = F.domain.sample_interior(1600, kind="poisson", seed=3)
+    v = F.evaluate(pts).v
+    try:
+        out = thh.project(pts, v, F.domain, iterations=5, method="colin2006")
+    except (thh.SolverError, thh.NeighbourError):
+        return
+    assert np.isfinite(out.vectors).all()
+    assert np.abs(out.vectors).max() < 100 * np.abs(v).max()
+    assert out.max_divergence[-1] <= out.max_divergence[0]
+
+
+@pytest.mark.xfail(reason="the symmetric gradient on uniform random points converges "
+                          "(residual 1e-9) to components ~1000 x |v|, no error", strict=False)
+def test_symmetric_gradient_on_random_points_never_returns_garbage():
+    F = fields.get("trig")
+    pts = F.domain.sample_interior(1600, kind="random", seed=3)
+    v = F.evaluate(pts).v
+    try:
+        res = thh.decompose(pts, v, F.domain, divergence="symmetric", gradient="symmetric",
+                            neumann_gradient="symmetric")
+    except (thh.SolverError, thh.NeighbourError):
+        return
+    assert _finite(res)
+    assert np.abs(res.curl_free).max() < 100 * np.abs(v).max()
