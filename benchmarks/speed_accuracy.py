@@ -626,7 +626,7 @@ def read_rows(path) -> list[dict]:
                     r[k] = int(float(v))
                 elif k == "finite":
                     r[k] = v == "True"
-                elif k.endswith("_s") or k.startswith("err") or k in (
+                elif k.endswith("_s") or (k.startswith("err") and k != "error") or k in (
                         "residual_phi", "residual_psi", "mean_neighbours", "max_abs_ratio",
                         "s_theory", "s_measured", "relative_error", "t_end", "max_speed"):
                     r[k] = _num(v)

@@ -197,9 +197,10 @@ def classify(row: dict, ref_err: float) -> tuple[str, str]:
     if row.get("task") == "rt":
         speed = _f(row.get("max_speed"))
         if not row.get("finite") or not math.isfinite(err) or not (speed <= ABSURD_SPEED):
-            return "garbage", f"max speed {speed:.3g}, err {err:.3g}"
+            return "garbage", f"max speed {speed:.2g}\nerr {err:.2g}"
     elif not row.get("finite") or not math.isfinite(err) or not (absurd <= ABSURD_RATIO):
-        return "garbage", f"non-finite or |component| {absurd:.3g} x max|v|"
+        return "garbage", ("non-finite" if not row.get("finite") else
+                           f"|out| {absurd:.1e}\nx max|v|")
     note = f"err {err:.2g}"
     if row.get("task") == "hhd" and row.get("iterations_phi") not in (None, ""):
         note += f"\nit {row['iterations_phi']}/{row['iterations_psi']}"
@@ -274,15 +275,23 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--replot", metavar="CSV", help="reclassify and redraw from this CSV")
     args = ap.parse_args(argv)
-    tasks = build_tasks(args.quick)
     t0 = time.perf_counter()
-    print(f"{len(tasks)} cells, {args.workers} workers", flush=True)
-    rows = run_pool(tasks, args.workers, args.threads, progress=not args.no_progress)
     refs = {}
-    for r in rows:
-        if r.get("reference") and r.get("status") == "ok":
-            refs[(r["family"], r["row"])] = _f(r.get("err"))
+    if args.replot:
+        from speed_accuracy import read_rows
+        rows = read_rows(args.replot)
+        for r in rows:
+            r["status"] = r.pop("run_status")
+            refs[(r["family"], r["row"])] = _f(r.get("ref_err"))
+    else:
+        tasks = build_tasks(args.quick)
+        print(f"{len(tasks)} cells, {args.workers} workers", flush=True)
+        rows = run_pool(tasks, args.workers, args.threads, progress=not args.no_progress)
+        for r in rows:
+            if r.get("reference") and r.get("status") == "ok":
+                refs[(r["family"], r["row"])] = _f(r.get("err"))
     cells = []
     for r in rows:
         ref = refs.get((r["family"], r["row"]), math.nan)
@@ -309,7 +318,7 @@ def main(argv=None):
     garbage = [c for c in cells if c["status"] in ("garbage", "crash")]
     print(f"\n{len(garbage)} garbage/crash cell(s)")
     for c in garbage:
-        print(f"  {c['family']} {c['row']} @ {c['column']}: {c['note']} "
+        print(f"  {c['family']} {c['row']} @ {c['column']}: {c['note'].replace(chr(10), ' ')} "
               f"[{c.get('message', '')[:200]}]")
     print(f"wrote {out / (name + '.csv')} and {out / (name + '.png')}; "
           f"{time.perf_counter() - t0:.0f} s")
