@@ -3,7 +3,7 @@
 Importing this package does not initialise Taichi; the first call that needs
 it does (CPU, f64), unless :func:`init` chose otherwise.
 """
-from .errors import InputError, NeighbourError, SolverError, TaichiHHError
+from .errors import AccuracyWarning, InputError, NeighbourError, SolverError, TaichiHHError
 from .domain import Box, Polygon, as_domain
 from .runtime import init
 
@@ -24,4 +24,4 @@ def __getattr__(name):
     raise AttributeError(f"module 'taichi_hh' has no attribute {name!r}")
 
 
-__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError"]
+__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError", "AccuracyWarning"]

@@ -24,3 +24,10 @@ class SolverError(TaichiHHError, RuntimeError):
         self.reason = reason
         self.iteration = iteration
         self.residual = residual
+
+
+class AccuracyWarning(UserWarning):
+    """A result was computed but fails a consistency check that an accurate one
+    passes (e.g. a decomposition whose components carry far more energy than the
+    field): the operators are not consistent on these points.  The result's
+    ``stats["flags"]`` lists the same findings."""

@@ -315,6 +315,7 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     seconds["components"] = time.perf_counter() - t
     seconds["total"] = time.perf_counter() - t_start
     stats["seconds"] = seconds
+    _check_energy(stats, vec, d, r, h, ps.particles.get("volume")[ps.slot_of], opts)
 
     def at_points(slots):
         return np.asarray(slots)[ps.slot_of]
@@ -323,6 +324,38 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
                      phi=at_points(potentials["phi"]), psi=at_points(potentials["psi"]),
                      divergence=at_points(div_slots), curl=at_points(curl_slots),
                      stats=stats, options=opts, pointset=ps)
+
+
+#: components with more than this many times the field's energy are flagged
+ENERGY_LIMIT = 4.0
+
+
+def _check_energy(stats, v, d, r, h, vol, opts) -> None:
+    """The decomposition is L2-orthogonal (Petronetto Eq. 16), so
+    |d|^2 + |r|^2 + |h|^2 = |v|^2 (volume-weighted sums) for an exact one; an
+    accurate discrete one stays within a few percent (measured 1.00-1.01 by
+    default, up to 1.1 for the paper's operators).  Components carrying several
+    times the field's energy cancel each other: the operators are inconsistent on
+    these points (e.g. the symmetric gradient on random points).  Flagged in
+    ``stats["flags"]`` and by an :class:`~taichi_hh.errors.AccuracyWarning`."""
+    import warnings
+    from .errors import AccuracyWarning
+
+    def energy(x):
+        return float((vol * (x * x).sum(axis=1)).sum())
+
+    total = energy(v)
+    ratio = (energy(d) + energy(r) + energy(h)) / total if total > 0 else 1.0
+    stats["energy_ratio"] = ratio
+    stats.setdefault("flags", [])
+    if not np.isfinite(ratio) or ratio > ENERGY_LIMIT:
+        msg = (f"decomposition components carry {ratio:.3g} times the field's energy "
+               f"(|d|^2 + |r|^2 + |h|^2 over |v|^2; 1 for an exact decomposition): the "
+               f"operators (gradient {opts.gradient!r}, divergence {opts.divergence!r}, "
+               f"Laplacian {opts.laplacian!r}) are not consistent on these points; the "
+               "components are unreliable (the default method is consistent)")
+        stats["flags"].append(msg)
+        warnings.warn(msg, AccuracyWarning, stacklevel=3)
 
 
 def _ghosts_with_data(ps, reach: float = 0.8) -> np.ndarray:

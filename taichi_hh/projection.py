@@ -91,7 +91,7 @@ import numpy as np
 import taichi as ti
 
 from . import runtime, solvers
-from .errors import InputError
+from .errors import InputError, SolverError
 from .hhd import _validate, options_for
 from .particles import BOUNDARY, FLUID
 from .pointset import PointSet
@@ -373,6 +373,7 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
         sum_sq.append(q)
         if history:
             fields.append(w.copy())
+        _check_pass(k + 1, w, vec, max_div, method, scheme)
     if scheme == "poisson" and opts.boundary == "colin":
         what = (f"{opts.divergence} divergence over the data and wall particles at rest "
                 f"({opts.kernel}, support {support:.4g}) at the data points")
@@ -386,6 +387,35 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
     return ProjectionResult(points=pts, vectors=w, initial=vec,
                             max_divergence=np.array(max_div), sum_sq_divergence=np.array(sum_sq),
                             divergence=div, stats=stats, history=fields)
+
+
+#: a pass that multiplies the smallest max |div| so far by more than this, or
+#: leaves speeds above SPEED_GROWTH times the input's, is a diverging projection
+DIVERGENCE_GROWTH = 10.0
+SPEED_GROWTH = 100.0
+
+
+def _check_pass(k, w, vec, max_div, method, scheme):
+    """Raise SolverError('divergence') when pass k made things worse instead of
+    returning the garbage: e.g. Colin's operators on disordered points, where the
+    discrete Laplacian is not the divergence of the discrete gradient and
+    repeated passes amplify the mismatch (stability map, benchmarks/)."""
+    speed_in = float(np.abs(vec).max())
+    speed = float(np.abs(w).max())
+    best = min(max_div[:-1])
+    if not np.isfinite(w).all():
+        why = "the field became non-finite"
+    elif max_div[-1] > DIVERGENCE_GROWTH * max(best, 1e-300) and max_div[-1] > max_div[0]:
+        why = (f"max |div| grew to {max_div[-1]:.3e} from {best:.3e} (input: "
+               f"{max_div[0]:.3e})")
+    elif speed > SPEED_GROWTH * max(speed_in, 1e-300):
+        why = f"max |w| reached {speed:.3e}, {speed / speed_in:.0f} times the input's"
+    else:
+        return
+    raise SolverError(f"projection diverged at pass {k} (method {method!r}, scheme "
+                      f"{scheme!r}): {why}; these operators are not stable on these points "
+                      "(use method='default')", reason="divergence", iteration=k,
+                      residual=float(max_div[-1]))
 
 
 def _to_slots(ps, values):
