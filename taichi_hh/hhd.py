@@ -27,7 +27,11 @@ Every numerical choice is an option; :data:`METHODS` bundles them:
 ``colin2006``       Colin et al.'s operators: poly6 kernel, DGAF (Eq. 13),
                     Laplacian Eq. 21, a layer of boundary particles with normals
                     whose rows enforce dq/dn = 0 (Eq. 37), CG on the normal
-                    equations (Sec. 3.5).
+                    equations (Sec. 3.5) to the least-squares solution (normal
+                    residual 1e-4: the stacked system is inconsistent and its
+                    condition number about 1e5).  Made for projections on
+                    lattices: as a decomposition on blue noise its components
+                    are ~100% wrong and flagged (AccuracyWarning).
 """
 from __future__ import annotations
 
@@ -90,7 +94,8 @@ METHODS = {
     "colin2006": HHDOptions(kernel="poly6", support_ratio=2.0, divergence="colin_difference",
                             gradient="colin_difference", laplacian="colin_difference",
                             neumann_gradient="colin_difference", boundary="colin",
-                            bordered=True, solver="cgnr", preconditioner="jacobi", tol=1e-8),
+                            bordered=False, solver="cgnr", preconditioner="jacobi", tol=1e-4,
+                            max_iterations=20000),
 }
 
 
@@ -291,8 +296,12 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     for name, rhs in problems.rhs.items():
         say(f"solve {name}")
         t = time.perf_counter()
+        # Colin's stacked boundary system is overdetermined and inconsistent in
+        # general: CGNR then seeks its least-squares solution (Colin Sec. 3.5)
+        extra = {"least_squares": True} if opts.solver == "cgnr" else {}
         res = A.solve(rhs, method=opts.solver, tol=opts.tol,
-                      max_iterations=opts.max_iterations, preconditioner=opts.preconditioner)
+                      max_iterations=opts.max_iterations, preconditioner=opts.preconditioner,
+                      **extra)
         seconds[f"solve_{name}"] = time.perf_counter() - t
         potentials[name] = res.x
         stats[f"iterations_{name}"] = res.iterations
