@@ -639,6 +639,14 @@ def _fmt(x, spec=".3g"):
     return "" if not np.isfinite(v) else format(v, spec)
 
 
+def _to_docs(chart: Path) -> None:
+    """Copy a chart to docs/figures/ atomically (the README embeds it)."""
+    from taichi_hh.io import atomic_path
+    dest = REPO_ROOT / "docs" / "figures" / chart.name.replace("_quick", "")
+    with atomic_path(str(dest)) as tmp:
+        Path(tmp).write_bytes(chart.read_bytes())
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small sweep, under two minutes")
@@ -652,10 +660,14 @@ def main(argv=None):
     ap.add_argument("--groups", default="", help="comma-separated subset of groups")
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument("--replot", metavar="CSV", help="only redraw the charts from this CSV")
+    ap.add_argument("--docs", action="store_true",
+                    help="also copy the Pareto chart to docs/figures/ (the README's)")
     args = ap.parse_args(argv)
     if args.replot:
         out = Path(args.out) if args.out else REPO_ROOT / "outputs" / "charts"
         info = make_charts(read_rows(args.replot), out, args.quick)
+        if args.docs:
+            _to_docs(out / f"speed_accuracy_pareto{'_quick' if args.quick else ''}.png")
         print(info)
         return info
     repeats = args.repeats or (1 if args.quick else 3)
@@ -687,6 +699,8 @@ def main(argv=None):
                       _fmt(r.get("err_h") if r.get("task") == "hhd" else r.get("err")), note])
     print(format_table(header, table, "llrllrrrrrrrl"))
     info = make_charts(rows, chart_dir, args.quick)
+    if args.docs:
+        _to_docs(chart_dir / f"speed_accuracy_pareto{'_quick' if args.quick else ''}.png")
     print("\nPareto front (label, N, seconds, err):")
     for lab, n, s, e in info["pareto"]:
         print(f"  {lab:28s} N={n:<6} {s:8.3f} s  err {e:.3g}")

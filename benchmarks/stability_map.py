@@ -276,6 +276,8 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument("--replot", metavar="CSV", help="reclassify and redraw from this CSV")
+    ap.add_argument("--docs", action="store_true",
+                    help="also copy the map's chart to docs/figures/ (the README's)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     refs = {}
@@ -302,6 +304,8 @@ def main(argv=None):
     name = "stability_map_quick" if args.quick else "stability_map"
     write_csv_atomic(out / f"{name}.csv", cells, MAP_FIELDS + ["run_status", "message"])
     make_chart(cells, out / f"{name}.png", args.quick)
+    if args.docs:
+        make_chart(cells, REPO_ROOT / "docs" / "figures" / "stability_map.png", args.quick)
     for fam in dict.fromkeys(c["family"] for c in cells):
         fc = [c for c in cells if c["family"] == fam]
         print(f"\n== {fam}")
