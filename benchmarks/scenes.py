@@ -172,7 +172,7 @@ def chart(rows, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    fig, ax = plt.subplots(figsize=(8.5, 4.2))
     labels = [f"{r['case']}\n{r['fluid_particles']} p, {r['steps']} steps" for r in rows]
     bottom = [0.0] * len(rows)
     for part in PARTS:
@@ -185,7 +185,7 @@ def chart(rows, path: Path) -> None:
     ax.set_ylabel("wall ms per time step")
     ax.set_ylim(0, 1.2 * max(bottom))
     ax.set_title("Scene time per step by part (2-core CPU, frames included)")
-    ax.legend(fontsize=8, loc="upper left")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
     save_figure_atomic(fig, path, dpi=110)
     plt.close(fig)
@@ -208,8 +208,19 @@ def main(argv=None) -> int:
     ap.add_argument("--no-warmup", action="store_true", help="include compilation in the timings")
     ap.add_argument("--progress", action="store_true", help="show the scenes' progress bars")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: all)")
+    ap.add_argument("--replot", action="store_true", help="only redraw the chart from the CSV")
     args = ap.parse_args(argv)
     out_dir = Path(args.out_dir)
+    if args.replot:
+        name = "scenes_full" if args.full_only else "scenes"
+        with open(out_dir / f"{name}.csv") as fh:
+            rows = list(csv.DictReader(fh))
+        for r in rows:
+            for k in ["steps", "fluid_particles", "median_iterations"] + [f"{p}_s" for p in PARTS]:
+                r[k] = float(r[k])
+            r["steps"], r["fluid_particles"] = int(r["steps"]), int(r["fluid_particles"])
+        chart(rows, out_dir / f"{name}.png")
+        return 0
 
     import taichi_hh
     taichi_hh.init(arch="cpu", precision="f64", threads=args.threads, verbose=False)
