@@ -37,6 +37,9 @@ Status of a cell (thresholds stated here and in the chart):
                   flow: |s_SPH / s_theory - 1|), or err > 4 x the same row's
                   reference cell (blue noise, the bundle's own support and kappa,
                   flow at its defaults): it lost accuracy as it was pushed;
+``flagged``       returned, but flagged by the library's own consistency
+                  check (``AccuracyWarning``, ``stats["flags"]``: components
+                  carrying more than 4x the field's energy): reported;
 ``error``         raised an exception of this package naming the cause
                   (InputError, NeighbourError, SolverError with its ``reason``,
                   BlowUpError with its ``cause``): reported;
@@ -76,7 +79,7 @@ PACKAGE_ERRORS = ("InputError", "NeighbourError", "SolverError", "BlowUpError", 
                   "TaichiHHError")
 
 MAP_FIELDS = ["family", "row", "column", "status", "note", "ref_err"] + CSV_FIELDS
-COLORS = {"ok": "#7fc97f", "inaccurate": "#fdc086", "error": "#80b1d3",
+COLORS = {"ok": "#7fc97f", "inaccurate": "#fdc086", "error": "#80b1d3", "flagged": "#beaed4",
           "garbage": "#e41a1c", "crash": "#444444"}
 
 HHD_ROWS = ["default", "petronetto2010", "colin2006", "grad:basic", "grad:difference",
@@ -192,6 +195,12 @@ def classify(row: dict, ref_err: float) -> tuple[str, str]:
             return "crash", f"{row.get('error')}: {row.get('message', '')[:60]}"
         why = row.get("reason") or ""
         return "error", f"{row['error']}{': ' + why if why else ''}"
+    if row.get("flags"):
+        # returned, but flagged by the library's own consistency check
+        # (AccuracyWarning, stats["flags"]): reported, not silent
+        import re
+        m = re.search(r"carry ([0-9.e+]+) times", row["flags"])
+        return "flagged", f"AccuracyWarning\nenergy x{m.group(1) if m else '?'}"
     err = _f(row.get("err"))
     absurd = _f(row.get("max_abs_ratio"))
     if row.get("task") == "rt":
