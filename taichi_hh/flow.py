@@ -189,6 +189,24 @@ def _wall_velocity(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
                 out[i] = sign * num / den
 
 
+@ti.kernel
+def _concentration_gradient(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
+                            nbrs: ti.types.ndarray(), pos: ti.types.ndarray(),
+                            mass: ti.types.ndarray(), rho: ti.types.ndarray(),
+                            kind: ti.types.ndarray(), H: float, out: ti.types.ndarray()):
+    """grad C_i = sum_j V_j grad W_ij on fluid rows (0 elsewhere): the basic SPH
+    gradient of f = 1 in one gather, without materialising its coefficients."""
+    for i in range(n):
+        g = ti.Vector.zero(float, 2)
+        if kind[i] == FLUID:
+            for k in range(offsets[i], offsets[i + 1]):
+                j = nbrs[k]
+                xij = pos[i] - pos[j]
+                _W, F, _L = kernel_wfl(kid, xij.norm(), H)
+                g += (mass[j] / rho[j]) * (F * xij)
+        out[i] = g
+
+
 class TwoPhaseFlow:
     """State and time stepping of a two-phase flow in a closed box.
 
@@ -383,9 +401,15 @@ class TwoPhaseFlow:
         self.clock.lap("operators", "gradient_coefficients")
         # The flow has no BOUNDARY particles (its walls are GHOST rows) and no
         # near-boundary term, so the Neumann gradient of the Poisson rows is
-        # multiplied by zero: the cheapest variant gives the identical matrix.
-        A = PoissonMatrix(ops, laplacian=pr.pressure_laplacian, gradient="basic", kappa=0.0,
-                          bordered=True, density_weighted=True)
+        # multiplied by zero: any stencil at hand gives the identical matrix.  The
+        # pressure Laplacian is the viscous one weighted by the pair densities
+        # when the variants agree (the default): computed once.
+        if pr.nu > 0 and pr.viscous_laplacian == pr.pressure_laplacian:
+            A = PoissonMatrix(ops, laplacian=ops.density_weighted(st_visc), gradient=st_grad,
+                              kappa=0.0, bordered=True)
+        else:
+            A = PoissonMatrix(ops, laplacian=pr.pressure_laplacian, gradient=st_grad,
+                              kappa=0.0, bordered=True, density_weighted=True)
         self.clock.lap("operators", "poisson_assembly")
         rho = p.get("density")
         q_total = np.zeros(p.n)
@@ -473,13 +497,11 @@ class TwoPhaseFlow:
         """Particle shifting (Xu et al. 2009; Lind et al. 2012): move particles down the
         gradient of the particle concentration C_i = sum_j V_j W_ij,
         dr = -D grad C with D = shifting * support * vmax * dt."""
-        ops = self.ops
-        st = ops.gradient_coefficients("basic", row_kinds=(FLUID,))
-        one = _ndarray_like(self.particles, 1)
-        one.fill(1.0)
-        g = _ndarray_like(self.particles, 2)
-        ops.gradient(st, one, g)
-        gradC = g.to_numpy()[: self.particles.n].astype(np.float64)
+        ops, p = self.ops, self.particles
+        g = _ndarray_like(p, 2)
+        _concentration_gradient(ops._kid, p.n, self.pairs.offsets, self.pairs.neighbours,
+                                p.position, p.mass, p.density, p.kind, self.support, g)
+        gradC = g.to_numpy()[: p.n].astype(np.float64)
         D = self.params.shifting * self.support * max(vmax, 1e-12) * dt
         shift = -D * gradC
         cap = 0.1 * self.dx                                 # never more than 0.1 dx per step

@@ -584,6 +584,17 @@ class Operators:
             _weight_by_mean_density(p.n, *self._pair_args(), p.density, C)
         return LaplacianStencil(C, s, variant, tuple(row_kinds), tuple(source_kinds))
 
+    def density_weighted(self, st: LaplacianStencil) -> LaplacianStencil:
+        """A copy of a difference-form Laplacian's coefficients times
+        2 / (rho_i + rho_j): what ``laplacian_coefficients(..., density_weighted=True)``
+        returns, without computing the coefficients again."""
+        if st.variant == "basic":
+            raise ValueError("density weighting needs a difference-form Laplacian")
+        C = ti.ndarray(runtime.real_dtype(), shape=st.C.shape)
+        C.copy_from(st.C)
+        _weight_by_mean_density(self.particles.n, *self._pair_args(), self.particles.density, C)
+        return LaplacianStencil(C, st.s, st.variant, st.row_kinds, st.source_kinds)
+
     # ---- applies (Taichi arrays in, Taichi arrays out) --------------------------
     def gradient(self, st: GradientStencil, f, out) -> None:
         _apply_gradient(self.n, *self._pair_args(), st.G, st.s, f, out)

@@ -28,6 +28,7 @@ import taichi as ti
 from . import runtime, solvers
 from .kernels import kernel_wfl
 from .errors import InputError, NeighbourError
+from .operators import GradientStencil, LaplacianStencil
 from .particles import BOUNDARY, FLUID, GHOST
 
 
@@ -184,7 +185,8 @@ class PoissonMatrix:
     ops: :class:`~taichi_hh.operators.Operators` on the particle set (with
     densities computed); boundary rows use ``particles.normal``.
     laplacian, gradient: operator variants of the fluid rows and of the Neumann
-    (boundary) rows.  ``gradient="quadratic"`` makes the Neumann rows exact on
+    (boundary) rows, or stencils already computed with those rows (e.g. shared
+    with another use of the same coefficients; used as given).  ``gradient="quadratic"`` makes the Neumann rows exact on
     quadratics; the first-order ``corrected`` gradient errs by about support x
     curvature on a one-sided boundary neighbourhood, which then pollutes the
     whole solution.
@@ -212,9 +214,18 @@ class PoissonMatrix:
         self.n = p.n + (1 if self.bordered else 0)
         self.kappa = float(kappa)
         real = runtime.real_dtype()
-        self.lap = ops.laplacian_coefficients(laplacian, row_kinds=(FLUID,),
-                                              density_weighted=density_weighted)
-        self.grad = ops.gradient_coefficients(gradient, row_kinds=(FLUID, BOUNDARY))
+        if isinstance(laplacian, LaplacianStencil):     # precomputed: used as given
+            if density_weighted:
+                raise ValueError("density_weighted applies to a variant name; pass "
+                                 "ops.density_weighted(stencil) instead")
+            self.lap = laplacian
+        else:
+            self.lap = ops.laplacian_coefficients(laplacian, row_kinds=(FLUID,),
+                                                  density_weighted=density_weighted)
+        if isinstance(gradient, GradientStencil):
+            self.grad = gradient
+        else:
+            self.grad = ops.gradient_coefficients(gradient, row_kinds=(FLUID, BOUNDARY))
         npairs = max(ops.pairs.n_pairs, 1)
         size = max(self.n_particles, 1)
         self.K = ti.ndarray(real, shape=(npairs,))
