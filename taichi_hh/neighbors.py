@@ -259,6 +259,29 @@ def _fill_pairs(qpos: ti.types.ndarray(), nq: ti.i32, spos: ti.types.ndarray(),
                 k += ti.select((r2 < support2) & (j != skip), 1, 0)
 
 
+@ti.kernel
+def _reverse_pairs(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                   reverse: ti.types.ndarray(), missing: ti.types.ndarray()):
+    # rows are sorted by neighbour index (cells are scanned in increasing order
+    # and slots are sorted by cell), so the reverse pair is found by bisection
+    for i in range(n):
+        for k in range(offsets[i], offsets[i + 1]):
+            j = nbrs[k]
+            lo = offsets[j]
+            hi = offsets[j + 1]
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if nbrs[mid] < i:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            if lo < offsets[j + 1] and nbrs[lo] == i:
+                reverse[k] = lo
+            else:
+                reverse[k] = -1
+                ti.atomic_max(missing[0], k)
+
+
 class PairList:
     """Neighbour rows: for query i, sources ``neighbours[offsets[i]:offsets[i+1]]``.
 
@@ -277,6 +300,7 @@ class PairList:
         self._cap_p = 0
         self._count = None
         self._dup = ti.ndarray(ti.i32, shape=(1,))
+        self._reverse = None
 
     def build(self, qpos, nq: int, spos, grid: CellGrid, support: float, *,
               exclude_self: bool = True, duplicate_tolerance: float = 0.0) -> "PairList":
@@ -309,7 +333,22 @@ class PairList:
         _fill_pairs(qpos, nq, spos, grid.cell_start, *args, self.offsets, self.neighbours)
         self.n_queries = nq
         self.n_pairs = int(total)
+        self._reverse = None
         return self
+
+    def reverse_index(self):
+        """``reverse[k]``: the index of pair (j, i) for pair k = (i, j), for
+        transposed gathers (built on first use, kept until the next build).
+        Raises RuntimeError if the relation is not symmetric (other query points)."""
+        if self._reverse is None:
+            reverse = ti.ndarray(ti.i32, shape=(max(self.n_pairs, 1),))
+            missing = ti.ndarray(ti.i32, shape=(1,))
+            missing.fill(-1)
+            _reverse_pairs(self.n_queries, self.offsets, self.neighbours, reverse, missing)
+            if int(missing.to_numpy()[0]) >= 0:
+                raise RuntimeError("neighbour relation is not symmetric: cannot transpose")
+            self._reverse = reverse
+        return self._reverse
 
     def to_numpy(self):
         """(offsets, neighbours) as numpy arrays (for tests and inspection)."""

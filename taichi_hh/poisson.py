@@ -150,29 +150,6 @@ def _copy_diagonal(n: ti.i32, D: ti.types.ndarray(), out: ti.types.ndarray(), bo
         out[n] = c
 
 
-@ti.kernel
-def _reverse_pairs(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
-                   reverse: ti.types.ndarray(), missing: ti.types.ndarray()):
-    # rows are sorted by neighbour index (cells are scanned in increasing order
-    # and slots are sorted by cell), so the reverse pair is found by bisection
-    for i in range(n):
-        for k in range(offsets[i], offsets[i + 1]):
-            j = nbrs[k]
-            lo = offsets[j]
-            hi = offsets[j + 1]
-            while lo < hi:
-                mid = (lo + hi) // 2
-                if nbrs[mid] < i:
-                    lo = mid + 1
-                else:
-                    hi = mid
-            if lo < offsets[j + 1] and nbrs[lo] == i:
-                reverse[k] = lo
-            else:
-                reverse[k] = -1
-                ti.atomic_max(missing[0], k)
-
-
 #: from this many particles on, ``preconditioner="auto"`` picks the multilevel
 #: cycle (measured: it needs 10-25 BiCGSTAB iterations where Jacobi needs
 #: 130-1000 from 1.6k to 50k particles, and is faster from about a thousand on)
@@ -254,7 +231,6 @@ class PoissonMatrix:
         self.border_w = ti.ndarray(real, shape=(size,))
         self.border_w.from_numpy(np.resize(fluid * vol, size))
         self.border_c = float((fluid * vol).sum())
-        self._reverse = None
 
     def _border(self):
         return int(self.bordered), self.border_e, self.border_w, self.border_c
@@ -269,15 +245,7 @@ class PoissonMatrix:
         _copy_diagonal(self.n_particles, self.D, d, int(self.bordered), self.border_c)
 
     def _reverse_index(self):
-        if self._reverse is None:
-            pr = self.ops.pairs
-            self._reverse = ti.ndarray(ti.i32, shape=(max(pr.n_pairs, 1),))
-            missing = ti.ndarray(ti.i32, shape=(1,))
-            missing.fill(-1)
-            _reverse_pairs(self.n_particles, pr.offsets, pr.neighbours, self._reverse, missing)
-            if int(missing.to_numpy()[0]) >= 0:
-                raise RuntimeError("neighbour relation is not symmetric: cannot transpose")
-        return self._reverse
+        return self.ops.pairs.reverse_index()
 
     def apply_transpose(self, x, y) -> None:
         pr = self.ops.pairs

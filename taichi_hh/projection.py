@@ -95,7 +95,7 @@ from .errors import InputError, SolverError
 from .hhd import _validate, options_for
 from .particles import BOUNDARY, FLUID
 from .pointset import PointSet
-from .poisson import PoissonMatrix, _reverse_pairs
+from .poisson import PoissonMatrix
 
 SCHEMES = ("neumann", "orthogonal", "poisson")
 
@@ -189,13 +189,7 @@ class _NormalOperator:
     def __init__(self, ps: PointSet, st):
         self.ps, self.st = ps, st
         self.n = ps.n_total
-        pr = ps.pairs
-        self.reverse = ti.ndarray(ti.i32, shape=(max(pr.n_pairs, 1),))
-        missing = ti.ndarray(ti.i32, shape=(1,))
-        missing.fill(-1)
-        _reverse_pairs(self.n, pr.offsets, pr.neighbours, self.reverse, missing)
-        if int(missing.to_numpy()[0]) >= 0:
-            raise RuntimeError("neighbour relation is not symmetric: cannot transpose")
+        self.reverse = ps.pairs.reverse_index()
         self.tmp = ps.new_array(2)
 
     def correction(self, lam, out) -> None:
