@@ -74,10 +74,11 @@ def test_coarser_levels_are_galerkin_operators(square48):
         assert np.abs(got - want).max() < 1e-12 * np.abs(fine).sum(), k
 
 
-def test_cycle_is_a_fixed_linear_operator(square48):
+@pytest.mark.parametrize("cycle", ["V", "W"])
+def test_cycle_is_a_fixed_linear_operator(square48, cycle):
     """BiCGSTAB needs M^-1 linear and the same at every call."""
     ps, A, b = square48
-    M = A.multilevel()
+    M = A.multilevel(cycle=cycle)
     rng = np.random.default_rng(0)
     r1, r2 = rng.standard_normal(A.n), rng.standard_normal(A.n)
     z1, z2 = _apply(M, r1), _apply(M, r2)
@@ -101,8 +102,9 @@ def test_same_answer_as_jacobi_and_direct_with_far_fewer_iterations():
 
 def test_iterations_stay_flat_under_refinement():
     """4x the particles: Jacobi-BiCGSTAB iterations roughly double (sqrt N),
-    the multilevel ones barely grow (measured 14, 16, 18 at 2.5k, 9.6k,
-    37k; Jacobi 303, 541, then stagnation)."""
+    the multilevel ones barely grow (measured 14, 18, 18 at 2.5k, 9.6k,
+    37k with the default W-cycle, 14, 16, 18 with the V-cycle; Jacobi 303,
+    541, then stagnation)."""
     its = []
     for m in (48, 96, 192):
         ps, A, b = _matrix(m, seed=m)
@@ -110,6 +112,27 @@ def test_iterations_stay_flat_under_refinement():
         assert res.converged
         its.append(res.iterations)
     assert max(its) <= 1.5 * min(its) + 2, its
+
+
+def test_w_cycle_keeps_the_answer_and_saves_the_iterations_the_v_cycle_loses():
+    """Petronetto's systems (Brookshaw Laplacian, fake particles; 18k particles,
+    seven levels): the V-cycle's error compounds over the levels, the W-cycle
+    solves each structured level's coarse problem twice.  Measured: V 16 and 15
+    iterations for the two potentials, W 12 and 12 (at 1M particles V 30/32,
+    W 15/15: benchmarks/solver.py)."""
+    from taichi_hh import fields
+    from taichi_hh.hhd import poisson_problems
+    F = fields.get("gaussian")
+    pts = F.sample(18221, "poisson", seed=18221)
+    P = poisson_problems(pts, F.evaluate(pts).v, F.domain, method="petronetto2010",
+                         kappa=1e-2, remove_mean=True)
+    A = P.A
+    for name in ("phi", "psi"):
+        v = A.solve(P.rhs[name], tol=1e-10, preconditioner=MultilevelPreconditioner(A, cycle="V"))
+        w = A.solve(P.rhs[name], tol=1e-10, preconditioner=MultilevelPreconditioner(A, cycle="W"))
+        assert v.converged and w.converged
+        assert np.abs(w.x - v.x).max() < 1e-7 * np.abs(v.x).max()
+        assert w.iterations < v.iterations, (name, w.iterations, v.iterations)
 
 
 def test_domain_with_a_hole():
@@ -133,6 +156,8 @@ def test_bad_options_and_solvers_are_refused(square48):
         MultilevelPreconditioner(A, omega=2.5)
     with pytest.raises(InputError, match="post"):
         MultilevelPreconditioner(A, post=0)
+    with pytest.raises(InputError, match="cycle"):
+        MultilevelPreconditioner(A, cycle="F")
     with pytest.raises(InputError, match="bicgstab"):
         A.solve(b, method="cg", preconditioner="multilevel")
     with pytest.raises(InputError, match="bicgstab"):
