@@ -81,12 +81,16 @@ def _assemble(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
 def _apply_rows(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
                 K: ti.types.ndarray(), D: ti.types.ndarray(), x: ti.types.ndarray(),
                 y: ti.types.ndarray(), bordered: ti.i32, e: ti.types.ndarray(),
-                w: ti.types.ndarray(), c: float):
-    """y = A x; bordered: y[:n] += e x[n], y[n] = w . x[:n] + c x[n]."""
+                w: ti.types.ndarray(), c: float, a: ti.types.ndarray()) -> (float, float):
+    """y = A x; bordered: y[:n] += e x[n], y[n] = w . x[:n] + c x[n].  Returns
+    (<a, y>, <y, y>), reduced in the same loop (BiCGSTAB's dot products
+    without another pass over y)."""
     lam = 0.0
     if bordered:
         lam = x[n]
     border = 0.0
+    ay = 0.0
+    yy = 0.0
     for i in range(n):
         xi = x[i]
         acc = D[i] * xi
@@ -96,8 +100,14 @@ def _apply_rows(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray()
             acc += e[i] * lam
             border += w[i] * xi      # a thread-local reduction in Taichi
         y[i] = acc
+        ay += a[i] * acc
+        yy += acc * acc
     if bordered:
-        y[n] = border + c * lam
+        yn = border + c * lam
+        y[n] = yn
+        ay += a[n] * yn
+        yy += yn * yn
+    return ay, yy
 
 
 @ti.kernel
@@ -237,9 +247,13 @@ class PoissonMatrix:
 
     # ---- linear operator protocol (see taichi_hh.solvers) ------------------------
     def apply(self, x, y) -> None:
+        self.apply_dot(x, y, y)
+
+    def apply_dot(self, x, y, a) -> tuple:
+        """y = A x; returns (<a, y>, <y, y>) (see :mod:`taichi_hh.solvers`)."""
         pr = self.ops.pairs
-        _apply_rows(self.n_particles, pr.offsets, pr.neighbours, self.K, self.D, x, y,
-                    *self._border())
+        return _apply_rows(self.n_particles, pr.offsets, pr.neighbours, self.K, self.D, x, y,
+                           *self._border(), a)
 
     def diagonal(self, d) -> None:
         _copy_diagonal(self.n_particles, self.D, d, int(self.bordered), self.border_c)

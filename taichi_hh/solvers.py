@@ -16,6 +16,11 @@ The solvers never see a matrix, only an object ``A`` with
 ``A.diagonal(d)``
     Writes the diagonal ``A[i, i]`` into ``d[:n]`` (needed for the Jacobi
     preconditioner of BiCGSTAB and CG).
+``A.apply_dot(x, y, a)`` (optional)
+    Writes ``y = A x`` like ``apply`` and returns ``(<a, y>, <y, y>)`` over the
+    ``m`` rows, reduced in the apply's own loop: BiCGSTAB needs both dot
+    products of each new vector, and this saves it a pass over memory per
+    apply.  Without it the solver computes them after ``apply``.
 ``A.apply_transpose(x, y)`` (optional)
     Writes ``y[:n] = A.T @ x[:m]``; needed by :func:`cgnr`.
 ``A.normal_diagonal(d)`` (optional)
@@ -71,8 +76,9 @@ A kernel launch costs ~0.1 ms of Python-side argument handling (more with
 more ndarray arguments), plus ~0.1 ms per parallel loop to wake the CPU
 thread pool.  So each iteration is a few fused kernels, each a sequence of
 loops with the scalar algebra between them done in the kernel, returning its
-reductions as a tuple: BiCGSTAB uses 2 operator applies + 2 kernels, CG 1 + 1,
-CGNR 2 + 2.  Below ``PARALLEL_MIN_SIZE`` unknowns the vector loops (and
+reductions as a tuple: BiCGSTAB uses 2 operator applies + 2 kernels (3
+passes over the vectors besides the applies, whose dot products come from
+``apply_dot``), CG 1 + 1, CGNR 2 + 2.  Below ``PARALLEL_MIN_SIZE`` unknowns the vector loops (and
 :class:`CSRMatrix`'s) run serially, which is faster there than waking the
 thread pool.
 """
@@ -166,6 +172,33 @@ def _build_kernels(precision: str, serial: bool) -> SimpleNamespace:
             y[i] = acc
 
     @ti.kernel
+    def csr_matvec_dot(indptr: ivec, indices: ivec, data: vec, x: vec, y: vec, a: vec,
+                       nrows: ti.i32) -> (real, real):
+        """y = A x; returns (<a, y>, <y, y>)."""
+        ay = 0.0
+        yy = 0.0
+        ti.loop_config(serialize=serial)
+        for i in range(nrows):
+            acc = 0.0
+            for k in range(indptr[i], indptr[i + 1]):
+                acc += data[k] * x[indices[k]]
+            y[i] = acc
+            ay += a[i] * acc
+            yy += acc * acc
+        return ay, yy
+
+    @ti.kernel
+    def dot2(a: vec, y: vec, n: ti.i32) -> (real, real):
+        """(<a, y>, <y, y>)."""
+        ay = 0.0
+        yy = 0.0
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            ay += a[i] * y[i]
+            yy += y[i] * y[i]
+        return ay, yy
+
+    @ti.kernel
     def csr_diagonal(indptr: ivec, indices: ivec, data: vec, d: vec, nrows: ti.i32):
         ti.loop_config(serialize=serial)
         for i in range(nrows):
@@ -238,45 +271,35 @@ def _build_kernels(precision: str, serial: bool) -> SimpleNamespace:
         return rr
 
     @ti.kernel
-    def bicg_half(x: vec, r: vec, r_hat: vec, v: vec, z: vec, dinv: vec,
-                  rho: real, rhat2: real, btol: real, n: ti.i32) -> (real, real):
-        """v = A phat: alpha = rho / <r_hat, v>; x += alpha phat; s = r - alpha v
-        (into r); z = shat = M^-1 s.  Returns (alpha, breakdown flag); on
+    def bicg_half(x: vec, r: vec, v: vec, z: vec, dinv: vec, rv: real, vv: real,
+                  rho: real, rhat2: real, btol: real, n: ti.i32) -> (real, real, real):
+        """Given v = A phat and its dots rv = <r_hat, v>, vv = <v, v> (from the
+        apply): alpha = rho / rv; x += alpha phat; s = r - alpha v (into r);
+        z = shat = M^-1 s.  Returns (||s||^2, alpha, breakdown flag); on
         breakdown alpha = 0 and x, r are unchanged."""
-        rv = 0.0
-        vv = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            rv += r_hat[i] * v[i]
-            vv += v[i] * v[i]
         alpha = 0.0
         flag = 1.0
         if not negligible(rv, rhat2, vv, btol):
             alpha = rho / rv
             flag = 0.0
+        ss = 0.0
         ti.loop_config(serialize=serial)
         for i in range(n):
             x[i] += alpha * z[i]
             si = r[i] - alpha * v[i]
             r[i] = si
             z[i] = dinv[i] * si
-        return alpha, flag
+            ss += si * si
+        return ss, alpha, flag
 
     @ti.kernel
     def bicg_full(x: vec, r: vec, r_hat: vec, p: vec, v: vec, t: vec, z: vec, dinv: vec,
-                  alpha: real, rho: real, rhat2: real, btol: real,
-                  n: ti.i32) -> (real, real, real, real):
-        """t = A shat: omega = <t, s>/<t, t>; x += omega shat; r = s - omega t;
+                  ts: real, tt: real, ss: real, alpha: real, rho: real, rhat2: real,
+                  btol: real, n: ti.i32) -> (real, real, real, real):
+        """Given t = A shat and its dots ts = <s, t>, tt = <t, t> (from the apply)
+        and ss = ||s||^2: omega = ts / tt; x += omega shat; r = s - omega t;
         then the next direction p = r + beta (p - omega v), z = phat = M^-1 p.
         Returns (||r||^2, rho_new, omega flag, rho flag)."""
-        ts = 0.0
-        tt = 0.0
-        ss = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            ts += t[i] * r[i]
-            tt += t[i] * t[i]
-            ss += r[i] * r[i]
         omega = 0.0
         if tt > 0.0:
             omega = ts / tt
@@ -414,7 +437,8 @@ def _build_kernels(precision: str, serial: bool) -> SimpleNamespace:
         return rr, flag
 
     return SimpleNamespace(
-        csr_matvec=csr_matvec, csr_diagonal=csr_diagonal, csr_row_sq_norms=csr_row_sq_norms,
+        csr_matvec=csr_matvec, csr_matvec_dot=csr_matvec_dot, dot2=dot2,
+        csr_diagonal=csr_diagonal, csr_row_sq_norms=csr_row_sq_norms,
         invert_diagonal=invert_diagonal, fill=fill, copy=copy, norm2=norm2,
         bicg_restart=bicg_restart, bicg_half=bicg_half, bicg_full=bicg_full,
         cg_restart=cg_restart, cg_step=cg_step,
@@ -469,6 +493,12 @@ class CSRMatrix:
         runtime.check_generation(self._generation, "CSRMatrix")
         indptr, indices, data = self._rows
         self._row_kernels.csr_matvec(indptr, indices, data, x, y, self.m)
+
+    def apply_dot(self, x, y, a) -> tuple[float, float]:
+        """y[:m] = A @ x[:n]; returns (<a, y>, <y, y>) over the m rows."""
+        runtime.check_generation(self._generation, "CSRMatrix")
+        indptr, indices, data = self._rows
+        return self._row_kernels.csr_matvec_dot(indptr, indices, data, x, y, a, self.m)
 
     def apply_transpose(self, x, y) -> None:
         """y[:n] = A.T @ x[:m]."""
@@ -783,10 +813,20 @@ class _Method:
         self.btol = float(np.finfo(runtime.np_real()).eps)
         self.applies = 0
         self.normal_residual = None
+        self._fused = callable(getattr(A, "apply_dot", None))
 
     def _apply(self, x, y) -> None:
         self.A.apply(x, y)
         self.applies += 1
+
+    def _apply_dot(self, x, y, a) -> tuple[float, float]:
+        """y = A x and (<a, y>, <y, y>): in the apply's own loop when the
+        operator offers ``apply_dot`` (one pass over y fewer), else after it."""
+        self.applies += 1
+        if self._fused:
+            return self.A.apply_dot(x, y, a)
+        self.A.apply(x, y)
+        return self.k.dot2(a, y, self.n)
 
     def _relres(self, rr: float) -> float:
         return math.sqrt(rr) / self.bnorm if rr >= 0.0 else math.nan
@@ -818,17 +858,17 @@ class _BiCGSTAB(_Method):
         return relres, relres, None
 
     def step(self):
-        self._apply(self.z, self.v)
-        alpha, half_flag = self.k.bicg_half(self.x, self.r, self.r_hat, self.v, self.z,
-                                            self.dinv, self.rho, self.rhat2, self.btol, self.n)
+        rv, vv = self._apply_dot(self.z, self.v, self.r_hat)
+        ss, alpha, half_flag = self.k.bicg_half(self.x, self.r, self.v, self.z, self.dinv, rv, vv,
+                                         self.rho, self.rhat2, self.btol, self.n)
         if half_flag:   # x and r untouched
             relres = self._relres(self.rr)
             return relres, relres, "<r_hat, A M^-1 p> vanished"
         self._precondition(self.r)      # r holds s
-        self._apply(self.z, self.t)
+        ts, tt = self._apply_dot(self.z, self.t, self.r)
         rr, rho, omega_flag, rho_flag = self.k.bicg_full(
             self.x, self.r, self.r_hat, self.p, self.v, self.t, self.z, self.dinv,
-            alpha, self.rho, self.rhat2, self.btol, self.n)
+            ts, tt, ss, alpha, self.rho, self.rhat2, self.btol, self.n)
         self.rr, self.rho = rr, rho
         self._precondition(self.p)
         relres = self._relres(rr)
