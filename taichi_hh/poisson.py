@@ -302,11 +302,13 @@ class PoissonMatrix:
             self._multilevel = (dict(options), MultilevelPreconditioner(self, **options))
         return self._multilevel[1]
 
-    def preconditioner_for(self, preconditioner, method: str = "bicgstab"):
+    def preconditioner_for(self, preconditioner, method: str = "bicgstab",
+                           multilevel_options: dict | None = None):
         """Resolve a preconditioner name: ``"auto"`` is the multilevel cycle for
         BiCGSTAB from ``MULTILEVEL_MIN_N`` unknowns on (fewer: Jacobi, which is
         as fast there), Jacobi otherwise; ``"multilevel"`` builds (or reuses) the
-        cycle; ``"jacobi"``, None and preconditioner objects pass through."""
+        cycle (with ``multilevel_options``, e.g. ``{"cycle": "V"}``); ``"jacobi"``,
+        None and preconditioner objects pass through."""
         if preconditioner == "auto":
             preconditioner = ("multilevel" if method == "bicgstab"
                               and self.n_particles >= MULTILEVEL_MIN_N else "jacobi")
@@ -314,11 +316,12 @@ class PoissonMatrix:
             if method != "bicgstab":
                 raise InputError(f"the multilevel preconditioner works with bicgstab, not "
                                  f"{method!r}")
-            return self.multilevel()
+            return self.multilevel(**(multilevel_options or {}))
         return preconditioner
 
     def solve(self, b, x0=None, *, method: str = "bicgstab", tol: float = 1e-8,
-              border0: float = 0.0, preconditioner="auto", **kwargs):
+              border0: float = 0.0, preconditioner="auto",
+              multilevel_options: dict | None = None, **kwargs):
         """Solve for particle-slot values ``b`` (length n_particles); returns a
         :class:`solvers.SolveResult` whose ``x`` has the particle values (and, when
         bordered, ``result.border`` = lambda, the right-hand side's incompatibility).
@@ -328,7 +331,8 @@ class PoissonMatrix:
         solve = {"bicgstab": solvers.bicgstab, "cg": solvers.cg, "cgnr": solvers.cgnr}
         if method not in solve:
             raise ValueError(f"unknown solver {method!r}; choose one of {tuple(solve)}")
-        kwargs["preconditioner"] = self.preconditioner_for(preconditioner, method)
+        kwargs["preconditioner"] = self.preconditioner_for(preconditioner, method,
+                                                           multilevel_options)
         b = np.asarray(b, dtype=np.float64)
         if b.shape != (self.n_particles,):
             raise InputError(f"right-hand side must have shape ({self.n_particles},), "
