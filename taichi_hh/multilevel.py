@@ -420,18 +420,21 @@ class MultilevelPreconditioner:
         cnx, cny = shapes[-1]
         M = _stencil_to_dense(S_np[offs[-2]:], cnx, cny)
         U, sv, Vt = np.linalg.svd(M)
+        self._bordered = bool(getattr(A, "bordered", False))
+        self._border_c = float(getattr(A, "border_c", 1.0)) if self._bordered else 1.0
+        self._constant_mode_setup(A, n)
         keep = sv > noise
-        if getattr(A, "bordered", False) and len(sv):
-            # a bordered system fixes the constant through its border unknown:
-            # the coarse level must not (inverting a small ridge kappa there
-            # produced corrections of order 1/kappa and BiCGSTAB diverged)
+        if (self._bordered or self._constant_mode) and len(sv):
+            # the constant is fixed elsewhere: by the border unknown of a
+            # bordered system, or by the exact rank-one correction below; the
+            # coarse level must not invert its round-off-level image (inverting a
+            # small ridge kappa there produced corrections of order 1/kappa:
+            # BiCGSTAB diverged on bordered systems, and on a ridge system with a
+            # 4 x 4 coarsest level it took twice the iterations)
             keep &= sv > 1e-3 * sv[0]
         Minv = (Vt[keep].T / sv[keep]) @ U[:, keep].T
         self.coarse_inverse = ti.ndarray(real, shape=M.shape)
         self.coarse_inverse.from_numpy(Minv.astype(runtime.np_real()))
-        self._bordered = bool(getattr(A, "bordered", False))
-        self._border_c = float(getattr(A, "border_c", 1.0)) if self._bordered else 1.0
-        self._constant_mode_setup(A, n)
 
     def _constant_mode_setup(self, A, n: int) -> None:
         """A ridge system ``(L + kappa I)`` with a small kappa and no border is
