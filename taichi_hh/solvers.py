@@ -163,18 +163,10 @@ def _build_kernels(precision: str, serial: bool) -> SimpleNamespace:
 
     # --- CSR matrix --------------------------------------------------------
     @ti.kernel
-    def csr_matvec(indptr: ivec, indices: ivec, data: vec, x: vec, y: vec, nrows: ti.i32):
-        ti.loop_config(serialize=serial)
-        for i in range(nrows):
-            acc = 0.0
-            for k in range(indptr[i], indptr[i + 1]):
-                acc += data[k] * x[indices[k]]
-            y[i] = acc
-
-    @ti.kernel
     def csr_matvec_dot(indptr: ivec, indices: ivec, data: vec, x: vec, y: vec, a: vec,
                        nrows: ti.i32) -> (real, real):
-        """y = A x; returns (<a, y>, <y, y>)."""
+        """y = A x; returns (<a, y>, <y, y>) (plain applies pass a = y and ignore
+        them: two multiply-adds a row)."""
         ay = 0.0
         yy = 0.0
         ti.loop_config(serialize=serial)
@@ -437,7 +429,7 @@ def _build_kernels(precision: str, serial: bool) -> SimpleNamespace:
         return rr, flag
 
     return SimpleNamespace(
-        csr_matvec=csr_matvec, csr_matvec_dot=csr_matvec_dot, dot2=dot2,
+        csr_matvec_dot=csr_matvec_dot, dot2=dot2,
         csr_diagonal=csr_diagonal, csr_row_sq_norms=csr_row_sq_norms,
         invert_diagonal=invert_diagonal, fill=fill, copy=copy, norm2=norm2,
         bicg_restart=bicg_restart, bicg_half=bicg_half, bicg_full=bicg_full,
@@ -490,9 +482,7 @@ class CSRMatrix:
 
     def apply(self, x, y) -> None:
         """y[:m] = A @ x[:n]."""
-        runtime.check_generation(self._generation, "CSRMatrix")
-        indptr, indices, data = self._rows
-        self._row_kernels.csr_matvec(indptr, indices, data, x, y, self.m)
+        self.apply_dot(x, y, y)
 
     def apply_dot(self, x, y, a) -> tuple[float, float]:
         """y[:m] = A @ x[:n]; returns (<a, y>, <y, y>) over the m rows."""
@@ -503,7 +493,7 @@ class CSRMatrix:
     def apply_transpose(self, x, y) -> None:
         """y[:n] = A.T @ x[:m]."""
         indptr, indices, data = self._transpose()
-        self._col_kernels.csr_matvec(indptr, indices, data, x, y, self.n)
+        self._col_kernels.csr_matvec_dot(indptr, indices, data, x, y, y, self.n)
 
     def diagonal(self, d) -> None:
         """d[:min(m, n)] = diag(A)."""
