@@ -466,10 +466,10 @@ class MultilevelPreconditioner:
         A.apply_transpose(ones, self.colsum)
         colsum = self.colsum.to_numpy()[:n]
         total = float(colsum.sum())                     # 1 . A 1
-        K = np.abs(A.K.to_numpy())
-        off = A.ops.pairs.offsets.to_numpy()[: n + 1]
-        row_abs = np.add.reduceat(K, off[:-1]) if len(K) else np.zeros(n)
-        row_abs = np.where(np.diff(off) > 0, row_abs, 0.0) + np.abs(A.D.to_numpy()[:n])
+        off = A.ops.pairs.offsets.to_numpy()[: n + 1].astype(np.int64)
+        K = np.abs(A.K.to_numpy()[: off[-1]])
+        rows = np.repeat(np.arange(n), np.diff(off))
+        row_abs = np.bincount(rows, weights=K, minlength=n) + np.abs(A.D.to_numpy()[:n])
         eps = float(np.finfo(runtime.np_real()).eps)
         noise = 100.0 * eps * math.sqrt(n) * float(row_abs.max())
         if abs(total) > noise:
