@@ -63,6 +63,13 @@ from .neighbors import CellGrid, GridSpec, _CELL_PAD
 #: cells of the coarsest level at most, solved by a dense pseudo-inverse
 COARSEST = 16
 
+#: below this many particles every loop of the cycle runs on one thread: a
+#: cycle has about 15 loops, and waking the thread pool for each costs more
+#: than the second core saves on small levels (measured on Petronetto's
+#: systems, both potentials, one process: 18k 0.18 s serial against 0.28 s
+#: parallel, 40k 0.41 against 0.51, 100k 0.87 against 0.75)
+SERIAL_MAX_N = 64_000
+
 # ---------------------------------------------------------------------------
 # Level 0 (particles) <-> level 1 (cells)
 
@@ -192,7 +199,7 @@ def _smooth_level(S: ti.template(), cdinv: ti.template(), cr: ti.template(),
 
 
 @ti.kernel
-def _cycle(post: ti.template(), omega: ti.template(), correction: ti.template(),
+def _cycle(serial: ti.template(), post: ti.template(), omega: ti.template(), correction: ti.template(),
            bordered: ti.template(), gamma: ti.template(), L: ti.i32, n: ti.i32,
            start: ti.types.ndarray(), order: ti.types.ndarray(), cell_of: ti.types.ndarray(),
            offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), K: ti.types.ndarray(),
@@ -212,8 +219,10 @@ def _cycle(post: ti.template(), omega: ti.template(), correction: ti.template(),
     # particles: pre-smoothing from zero x = omega D^-1 r, stored so that the
     # gather below reads one value per neighbour; the scaled residual
     # D^-1 (r - A x) summed per cell
+    ti.loop_config(serialize=serial)
     for i in range(n):
         fx[i] = omega * dinv[i] * r[i]
+    ti.loop_config(serialize=serial)
     for c in range(lvl[0, 1] * lvl[0, 2]):
         acc = 0.0
         for s in range(start[c], start[c + 1]):
@@ -224,9 +233,11 @@ def _cycle(post: ti.template(), omega: ti.template(), correction: ti.template(),
             acc += dinv[i] * (r[i] - ax)
         cr[c] = acc
     # cell level 0: pre-smoothing from zero
+    ti.loop_config(serialize=serial)
     for c in range(lvl[0, 1] * lvl[0, 2]):
         cx[c] = omega * cdinv[c] * cr[c]
     # restriction of the residual to cell level 1
+    ti.loop_config(serialize=serial)
     for c in range(lvl[1, 1] * lvl[1, 2]):
         _restrict_level(S, cr, cx, 0, lvl[0, 1], lvl[0, 2], lvl[1, 0], c, lvl[1, 1])
     # levels 1 .. L-1, serially, as a state machine (no recursion in kernels)
@@ -273,17 +284,22 @@ def _cycle(post: ti.template(), omega: ti.template(), correction: ti.template(),
                         break
                     k -= 1
     # cell level 0: prolongation of the correction
+    ti.loop_config(serialize=serial)
     for c in range(lvl[0, 1] * lvl[0, 2]):
         cx[c] += correction * cx[lvl[1, 0] + _parent(c, lvl[0, 1], lvl[1, 1])]
     for _s in ti.static(range(post)):
+        ti.loop_config(serialize=serial)
         for c in range(lvl[0, 1] * lvl[0, 2]):
             ctmp[c] = cx[c] + omega * cdinv[c] * (
                 cr[c] - _stencil_apply(S, cx, 0, c, lvl[0, 1], lvl[0, 2]))
+        ti.loop_config(serialize=serial)
         for c in range(lvl[0, 1] * lvl[0, 2]):
             cx[c] = ctmp[c]
     # particles, up: x += correction P x_0, then post-smoothing
+    ti.loop_config(serialize=serial)
     for i in range(n):
         fx[i] += correction * cx[cell_of[i]]
+    ti.loop_config(serialize=serial)
     for i in range(n):
         xi = fx[i]
         ax = D[i] * xi
@@ -295,12 +311,14 @@ def _cycle(post: ti.template(), omega: ti.template(), correction: ti.template(),
         else:
             z[i] = zi
     for _s in ti.static(range(post - 1)):
+        ti.loop_config(serialize=serial)
         for i in range(n):
             ax = D[i] * ftmp[i]
             for k in range(offsets[i], offsets[i + 1]):
                 ax += K[k] * ftmp[nbrs[k]]
             z[i] = ftmp[i] + omega * dinv[i] * (r[i] - ax)
         if ti.static(post > 2):
+            ti.loop_config(serialize=serial)
             for i in range(n):
                 ftmp[i] = z[i]
     if ti.static(bordered):
@@ -310,10 +328,12 @@ def _cycle(post: ti.template(), omega: ti.template(), correction: ti.template(),
         # of L + kappa I): z += 1 (1.(r - A z)) / (1.A 1), with 1.A z = colsum.z
         rsum = 0.0
         azsum = 0.0
+        ti.loop_config(serialize=serial)
         for i in range(n):
             rsum += r[i]
             azsum += colsum[i] * z[i]
         shift = (rsum - azsum) / const_c
+        ti.loop_config(serialize=serial)
         for i in range(n):
             z[i] += shift
 
@@ -374,6 +394,8 @@ class MultilevelPreconditioner:
             raise InputError("multilevel: need 1 <= post <= 3, 0 < omega < 2, "
                              "correction > 0")
         self.post, self.omega, self.correction = int(post), float(omega), float(correction)
+        # below SERIAL_MAX_N particles the cycle's loops run on one thread
+        self.serial = n < SERIAL_MAX_N
         self.A = A
         ops = A.ops
         p = ops.particles
@@ -488,7 +510,7 @@ class MultilevelPreconditioner:
     def apply(self, r, z) -> None:
         """z = M^-1 r (one cycle from zero)."""
         A, pr, g = self.A, self.A.ops.pairs, self.grid
-        _cycle(self.post, self.omega, self.correction, self._bordered, self.gamma,
+        _cycle(self.serial, self.post, self.omega, self.correction, self._bordered, self.gamma,
                len(self.shapes), self.n, g.cell_start, g.order, g.cell_of, pr.offsets,
                pr.neighbours, A.K, A.D, self.dinv, self.lvl, self.visits, self.S, self.cdinv, self.cr, self.cx, self.ctmp,
                self.coarse_inverse, self.fx, self.ftmp, self._border_c, self._constant_mode,
