@@ -395,7 +395,7 @@ class MultilevelPreconditioner:
                              "correction > 0")
         self.post, self.omega, self.correction = int(post), float(omega), float(correction)
         # below SERIAL_MAX_N particles the cycle's loops run on one thread
-        self.serial = n < SERIAL_MAX_N
+        self.serial = A.n_particles < SERIAL_MAX_N
         self.A = A
         ops = A.ops
         p = ops.particles
