@@ -56,3 +56,25 @@ def test_droplet_resume_continues_the_run(tmp_path):
     yb = float(b[-1]["centroid_y"])
     assert abs(ya - yb) < 1e-6                       # same trajectory after the resume
     assert ya > float(a[0]["centroid_y"])            # the droplet rose
+
+
+def test_exact_projection_option_takes_every_step_to_solver_tolerance(tmp_path):
+    """``--exact-projection``: every diagnostics row shows the clean-up at work
+    and max |div v| after the projection within solver_tol sqrt(N) of its value
+    before (the bound of tests/test_flow.py); without it the rows show no
+    clean-up and a divergence far above that bound."""
+    mod = load("rising_droplet")
+    common = ["--particles", "800", "--end-time", "0.2", "--output-interval", "0.05",
+              "--quiet", "--frame-width", "100"]
+    assert mod.main(mod.SCENE, common + ["--out", str(tmp_path / "exact"),
+                                         "--exact-projection"]) == 0
+    assert mod.main(mod.SCENE, common + ["--out", str(tmp_path / "default")]) == 0
+    bound = 1e-6 * np.sqrt(800)                 # FlowParams.solver_tol, fluid rows
+    exact = rows(tmp_path / "exact" / "diagnostics.csv")[1:]
+    default = rows(tmp_path / "default" / "diagnostics.csv")[1:]
+    assert len(exact) == len(default) == 4
+    for e, d in zip(exact, default):
+        assert int(e["cleanup_iterations"]) > 0
+        assert float(e["max_div"]) <= bound * float(e["max_div_before"])
+        assert int(d["cleanup_iterations"]) == 0
+        assert float(d["max_div"]) > 100 * bound * float(d["max_div_before"])
