@@ -102,3 +102,13 @@ def format_table(header: list[str], rows: list[list[str]], align: str | None = N
     out = [line(header), "  ".join("-" * w for w in widths)]
     out += [line(r) for r in rows]
     return "\n".join(out)
+
+
+def scene_module(name: str):
+    """The module of the scene script ``scenes/<name>.py`` (its ``SCENE``,
+    ``build``, ``add_arguments``, ...), loaded from its file."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location(f"scene_{name}", REPO_ROOT / "scenes" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod

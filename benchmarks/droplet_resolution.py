@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import importlib.util
 import json
 import sys
 import time
@@ -39,20 +38,12 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from _common import (REPO_ROOT, add_repo_to_path, format_table,  # noqa: E402
+from _common import (REPO_ROOT, add_repo_to_path, format_table, scene_module,  # noqa: E402
                      save_figure_atomic, write_csv_atomic)
 
 add_repo_to_path()
 
 TARGET = 0.05
-
-
-def load_scene():
-    spec = importlib.util.spec_from_file_location("scene_rising_droplet",
-                                                  REPO_ROOT / "scenes" / "rising_droplet.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.SCENE
 
 
 def read_diagnostics(path: Path) -> list[dict]:
@@ -79,7 +70,7 @@ def run_resolution(n: int, end: float, out: Path, frame_width: int, progress: bo
     if not progress:
         argv.append("--quiet")
     t0 = time.perf_counter()
-    res = run_scene(load_scene(), argv)
+    res = run_scene(scene_module("rising_droplet").SCENE, argv)
     info = {"wall_s": time.perf_counter() - t0, "loop_s": res.loop, "steps_run": res.steps,
             "resumed": resumed, "seconds": res.seconds,
             "median_iterations": sorted(res.iterations)[len(res.iterations) // 2]

@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import importlib.util
 import math
 import os
 import statistics
@@ -59,7 +58,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from _common import (REPO_ROOT, add_repo_to_path, format_table,  # noqa: E402
+from _common import (REPO_ROOT, add_repo_to_path, format_table, scene_module,  # noqa: E402
                      save_figure_atomic, write_csv_atomic)
 
 add_repo_to_path()
@@ -78,13 +77,6 @@ CASES = {
 PARTS = ("neighbours", "operators", "solve", "rendering", "other")
 COLORS = {"neighbours": "#4c72b0", "operators": "#55a868", "solve": "#c44e52",
           "rendering": "#8172b2", "other": "#bbbbbb"}
-
-
-def load_scene(name: str):
-    spec = importlib.util.spec_from_file_location(f"scene_{name}", REPO_ROOT / "scenes" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.SCENE
 
 
 class PrecondSetupTimer:
@@ -120,7 +112,7 @@ def run_case(case: str, end: float, out_dir: Path, frame_width: int, quiet: bool
              extra=()) -> dict:
     from taichi_hh.scene import run_scene
     scene_name, options = CASES[case.replace("_full", "")]
-    scene = load_scene(scene_name)
+    scene = scene_module(scene_name).SCENE
     out = out_dir / "scenes_runs" / case
     argv = list(options) + ["--end-time", repr(end), "--out", str(out), "--montage", "",
                             "--frame-width", str(frame_width)] + list(extra)
@@ -237,7 +229,7 @@ def main(argv=None) -> int:
         from taichi_hh.scene import run_scene
         for name in sorted({CASES[c.replace("_full", "")][0] for c, _ in runs}):
             t0 = time.perf_counter()
-            run_scene(load_scene(name), ["--particles", "1250", "--end-time", "0.06",
+            run_scene(scene_module(name).SCENE, ["--particles", "1250", "--end-time", "0.06",
                                          "--output-interval", "0.03", "--montage", "",
                                          "--frame-width", "200", "--quiet", "--out",
                                          str(out_dir / "scenes_runs" / f"warmup_{name}")])

@@ -53,16 +53,41 @@ Cost of the clean-up, measured on the droplet scene (10 368 particles, 30 steps
 from t = 1, on and off back to back in one process): Jacobi-CG takes a median
 1170 iterations per step with warm start (874-1658; 1690 without), 450 at 800
 particles, and a step 29 times as long as without it (4.9 s against 0.17 s,
-machine noisy), where the default 6 s run allows 0.08 s per step more.  The
-residual the Poisson step leaves is what its Laplacian and ``D M^-1 D^T``
-disagree on, the shortest wavelengths, presumably where ``D M^-1 D^T`` is
-nearly singular (the near-checkerboard modes), hence the slow convergence.
-Remedies tried: warm start (-30% iterations), BiCGSTAB preconditioned by the
-pressure matrix's multilevel cycle (worse: 700 iterations of two applies each
-at 800 particles), a looser tolerance (1e-2 ||D w*|| would still take about 90
-iterations at 10k).  Over the 30 steps the clean-up changed the kinetic energy
-by -0.07% and the volume error from 0.33% mean / 4.6% max to 0.38% / 5.1%.
-Hence off by default; the tests switch it on.
+machine noisy), where the default 6 s run allows 0.08 s per step more.  Over
+the 30 steps the clean-up changed the kinetic energy by -0.07% and the volume
+error from 0.33% mean / 4.6% max to 0.38% / 5.1%.  Remedies tried: warm start
+(-30% iterations), BiCGSTAB preconditioned by the pressure matrix's multilevel
+cycle (worse: 700 iterations of two applies each at 800 particles).  Hence off
+by default (the scenes' ``--exact-projection`` turns it on); the tests switch
+it on.
+
+Why it is slow (``benchmarks/projection_conditioning.py``: the droplet at t = 1,
+10 368 particles, ``S`` assembled from the flow's coefficients): ``S`` is the
+square of a smoothing operator.  The Wendland gradient of support 3 dx answers
+a wave of wavenumber k about like k W^(k) (W^ the kernel's transform): small
+over the whole upper part of the resolved band, and zero at the three odd-even
+carriers (pi/dx, 0), (0, pi/dx), (pi/dx, pi/dx) of a lattice.  The
+Jacobi-scaled ``S`` has condition number 5e5 and a broad band of small
+eigenvalues (``--spectrum``: 837 of the 10 368 below 1e-3 of the largest,
+2581 below 1e-2); its lowest eigenvectors are smooth envelopes times
+a checkerboard carrier, where the particles still sit on the initial lattice.
+No local smoother reaches that band, so Jacobi-CG needs 90 / 914 / 1778
+iterations for 1e-2 / 1e-4 / 1e-6 of ||D w*||, and aggregation-CG (pyamg, plain
+aggregation on geometric cells, Gauss-Seidel) 364 with the constants as
+candidates and 174 with the three carriers added.  With the kernel support
+2 dx the band shrinks to the carriers' neighbourhood (condition 5e3, 162
+eigenvalues below 1e-2; Jacobi-CG 215, aggregation with the carriers 26), but
+the flow is much less accurate there (the droplet at 10k particles run to t = 1
+with each support: volume error 2.0% mean / 17% max against 0.24% / 2.8%), and
+26 clean-up iterations at 1.7 ms would still add 0.044 s to its 0.13 s step
+before any preconditioner; at 2.5 dx (volume error 0.68% / 8.0%) aggregation
+with the carriers takes 78, 0.19 s.  So at the scenes' support the exact
+projection costs at least 174 x 2.3 ms = 0.39 s a step, twice the step itself,
+where the droplet's 3-minute budget leaves 0.08 s; at 2 dx it might fit, at
+ten times the volume error.  The lever would be a gradient whose response
+stays near k up to the carriers at no loss of accuracy (then ``S`` is four
+Laplacians, one per carrier, and carrier-aware aggregation solves it in tens
+of iterations).
 
 Time step: dt = min(cfl dx / max|v|, viscous_cfl dx^2 / nu, force_cfl sqrt(dx / |g|),
 dt_max): the advective, viscous and body-force limits (Monaghan 1992; Morris et
