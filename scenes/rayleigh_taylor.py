@@ -3,7 +3,8 @@ interface perturbation (Petronetto et al. 2010, Fig. 19: 12500 particles,
 heavy 1.2 x light).
 
 Physics used: gravity, viscosity (equal kinematic viscosity), incompressibility
-by the density-weighted SPH projection, no-slip walls.  No surface tension.
+by the density-weighted SPH projection, no-slip walls (``--walls free-slip``:
+the linear theory's setting, see benchmarks/rt_growth.py).  No surface tension.
 Defaults: box 1 x 2, interface y = 1 + a cos(2 pi x / wavelength) with a = 0.05,
 wavelength 1, densities 1 and 1.2, g = 1, nu = 2e-3.  The common SPH benchmark
 (Grenier et al. 2009; PySPH): --density-ratio 1.8 --amplitude 0.15
@@ -36,6 +37,10 @@ def add_arguments(ap):
     ap.add_argument("--viscosity", type=float, default=2e-3, help="kinematic viscosity")
     ap.add_argument("--width", type=float, default=1.0, help="box width")
     ap.add_argument("--height", type=float, default=2.0, help="box height")
+    ap.add_argument("--walls", choices=("no-slip", "free-slip"), default="no-slip",
+                    help="viscous wall condition: no-slip (the common SPH benchmark), or "
+                         "free-slip (the setting of the linear theory: side walls at whole "
+                         "wavelengths then act as periodic boundaries for the mode)")
     ap.add_argument("--shifting", type=float, default=2.0,
                     help="particle-shifting coefficient (0 = off).  Without it the particles "
                          "line up in streaks behind the interface (measured at 2.6k particles, "
@@ -52,7 +57,8 @@ def build(args):
     pts, dx = lattice_in_box(args.particles, box)
     phases = np.where(pts[:, 1] > interface(pts[:, 0], args), HEAVY, LIGHT)
     params = FlowParams(box=box, gravity=(0.0, -args.gravity), nu=args.viscosity,
-                        densities=(1.0, args.density_ratio), shifting=args.shifting)
+                        densities=(1.0, args.density_ratio), shifting=args.shifting,
+                        walls=args.walls)
     measures.wavelength = args.wavelength
     return pts, phases, dx, params
 
@@ -83,7 +89,7 @@ SCENE = Scene(
               "output_interval": 0.1, "montage": "0,4,8,10"},
     add_arguments=add_arguments, build=build, measures=measures,
     measure_columns=["bubble_tip", "spike_tip", "amplitude", "mode_amplitude"],
-    terms="gravity, viscosity, density-weighted pressure projection, no-slip walls, "
+    terms="gravity, viscosity, density-weighted pressure projection, no-slip walls (--walls free-slip: free-slip), "
           "particle shifting (--shifting 0 turns it off)")
 
 if __name__ == "__main__":

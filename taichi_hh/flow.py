@@ -26,7 +26,8 @@ Hu & Adams 2012):  p_w = sum_f S_wf (p_f + rho_f g . (x_w - x_f)),  so that a
 fluid at rest under gravity stays at rest.  In the pressure equation's right-hand
 side the walls carry the Shepard-extrapolated fluid velocity and their rows add
 the normal-velocity term (no penetration); in the viscous term they carry minus
-the Shepard-extrapolated fluid velocity (no slip).
+the Shepard-extrapolated fluid velocity (no slip), or with ``walls="free-slip"``
+its mirror image (the normal component reversed: no shear stress).
 
 Measured divergence and the exact projection: ``D`` is the corrected divergence
 (the pressure gradient's stencil, ``gradient``) of the fluid rows with the wall
@@ -120,6 +121,9 @@ from . import solvers
 from .runloop import BlowUp
 
 
+#: The viscous wall conditions (``FlowParams.walls``).
+WALL_CONDITIONS = ("no-slip", "free-slip")
+
 #: The stages of a time step whose wall time :attr:`TwoPhaseFlow.timings` accumulates.
 STAGES = ("neighbours", "operators", "solve", "other")
 
@@ -212,6 +216,9 @@ class FlowParams:
     gradient: str = "corrected"
     viscous_laplacian: str = "corrected"
     shifting: float = 0.0                       # particle-shifting coefficient (0 = off)
+    # viscous wall condition: "no-slip" (the scenes), or "free-slip" (the setting of
+    # the linear Rayleigh-Taylor theory, benchmarks/rt_growth.py)
+    walls: str = "no-slip"
     pair_density_gradient: bool = True          # grad q / rho with pair-mean densities
     # orthogonal clean-up after the passes: max |div| to solver_tol (module doc);
     # off by default, it costs 29x the step at 10k particles (Jacobi-CG, ~1200 iterations)
@@ -253,8 +260,11 @@ def _wall_rhs(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
 def _wall_velocity(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
                    nbrs: ti.types.ndarray(), pos: ti.types.ndarray(), vol: ti.types.ndarray(),
                    kind: ti.types.ndarray(), H: float, v: ti.types.ndarray(), sign: float,
-                   out: ti.types.ndarray()):
-    """out = v on fluid, sign * Shepard(v over fluid) on walls."""
+                   free_slip: ti.i32, normal: ti.types.ndarray(), out: ti.types.ndarray()):
+    """out = v on fluid, sign * Shepard(v over fluid) on walls; with ``free_slip``
+    the Shepard value mirrored instead: its component normal to each wall the
+    particle lies beyond reversed (both components in a corner), ``sign``
+    unused."""
     for i in range(n):
         if kind[i] == FLUID:
             out[i] = v[i]
@@ -269,7 +279,12 @@ def _wall_velocity(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
                     den += vol[j] * W
             out[i] = ti.Vector.zero(float, 2)
             if den > 0.0:
-                out[i] = sign * num / den
+                factor = ti.Vector([sign, sign])
+                if free_slip:
+                    nrm = normal[i]
+                    factor = ti.Vector([-1.0 if ti.abs(nrm[0]) > 0.1 else 1.0,
+                                        -1.0 if ti.abs(nrm[1]) > 0.1 else 1.0])
+                out[i] = factor * num / den
 
 
 @ti.kernel
@@ -308,6 +323,8 @@ class TwoPhaseFlow:
             raise InputError(f"phases must have shape ({len(pts)},), got {phases.shape}")
         if phases.min() < 0 or phases.max() >= len(params.densities):
             raise InputError(f"phase indices must be in [0, {len(params.densities)})")
+        if params.walls not in WALL_CONDITIONS:
+            raise InputError(f"walls must be one of {WALL_CONDITIONS}, got {params.walls!r}")
         x0, y0, x1, y1 = params.box
         if not np.all((pts[:, 0] > x0) & (pts[:, 0] < x1) & (pts[:, 1] > y0) & (pts[:, 1] < y1)):
             raise InputError("every fluid particle must lie strictly inside the box")
@@ -452,12 +469,13 @@ class TwoPhaseFlow:
         dt = self.time_step(vmax) if dt is None else float(dt)
         self.clock.lap("other", "setup")
 
-        # 1. predict: gravity and viscosity (no-slip walls: mirrored velocity)
+        # 1. predict: gravity and viscosity (walls: the mirrored velocity, ``walls``)
         real = runtime.np_real()
         v_nd = p.velocity
         ext = _ndarray_like(p, 2)
         _wall_velocity(ops._kid, p.n, self.pairs.offsets, self.pairs.neighbours, p.position,
-                       p.volume, p.kind, self.support, v_nd, -1.0, ext)
+                       p.volume, p.kind, self.support, v_nd, -1.0,
+                       int(pr.walls == "free-slip"), p.normal, ext)
         lap_v = _ndarray_like(p, 2)
         if pr.nu > 0:
             self.clock.lap("operators", "predict")
@@ -514,7 +532,7 @@ class TwoPhaseFlow:
         def divergence_and_walls(w, gdt):
             w_nd.from_numpy(w.astype(real))
             _wall_velocity(ops._kid, p.n, pr_.offsets, pr_.neighbours, p.position, p.volume,
-                           p.kind, self.support, w_nd, 1.0, wext_nd)
+                           p.kind, self.support, w_nd, 1.0, 0, p.normal, wext_nd)
             ops.divergence(st_grad, wext_nd, div_nd)
             _wall_rhs(ops._kid, p.n, pr_.offsets, pr_.neighbours, p.position, p.volume,
                       p.density, p.kind, p.normal, w_nd, gdt[0], gdt[1], self.support, wall_b)
