@@ -44,9 +44,10 @@ density-weighted projection: ``M^-1 D^T lam`` is ``-grad lam / rho`` up to the
 volume), the walls are not unknowns (their velocity stays zero, their rows are
 not constraints, lam = 0 there), and ``w - M^-1 D^T lam`` is the field closest
 to ``w`` in ``sum_i m_i |u_i|^2`` with ``D u = 0``.  Jacobi-CG stops at
-``||D w|| <= solver_tol * ||D w*||`` (2-norms over the fluid rows, w* = v*;
+``||D w|| <= cleanup_tol * ||D w*||`` (2-norms over the fluid rows, w* = v*;
+``cleanup_tol`` defaults to ``solver_tol``;
 never below 1e3 machine epsilons of ||w|| / dx, and skipped when already
-there), so max |div| after <= solver_tol sqrt(N) max |div| before; a failed
+there), so max |div| after <= cleanup_tol sqrt(N) max |div| before; a failed
 solve raises :class:`BlowUpError`.  ``cleanup_warm_start`` starts it from the
 previous step's lam (on by default when the clean-up is on).
 
@@ -223,6 +224,7 @@ class FlowParams:
     # orthogonal clean-up after the passes: max |div| to solver_tol (module doc);
     # off by default, it costs 29x the step at 10k particles (Jacobi-CG, ~1200 iterations)
     exact_projection: bool = False
+    cleanup_tol: float | None = None            # of the clean-up; None: solver_tol
     cleanup_warm_start: bool = True             # start the clean-up CG from last step's lam
 
 
@@ -325,6 +327,8 @@ class TwoPhaseFlow:
             raise InputError(f"phase indices must be in [0, {len(params.densities)})")
         if params.walls not in WALL_CONDITIONS:
             raise InputError(f"walls must be one of {WALL_CONDITIONS}, got {params.walls!r}")
+        if params.cleanup_tol is not None and not 0 < params.cleanup_tol < 1:
+            raise InputError(f"cleanup_tol must be in (0, 1), got {params.cleanup_tol!r}")
         x0, y0, x1, y1 = params.box
         if not np.all((pts[:, 0] > x0) & (pts[:, 0] < x1) & (pts[:, 1] > y0) & (pts[:, 1] < y1)):
             raise InputError("every fluid particle must lie strictly inside the box")
@@ -630,7 +634,7 @@ class TwoPhaseFlow:
         """The orthogonal clean-up step (module doc): the mass-weighted projection of
         ``w`` onto ``D u = 0`` over the fluid, walls at rest.  ``d = D w`` (fluid rows,
         0 on walls); ``norm_before``: ||D w*|| of the predicted field.  Solves
-        (D M^-1 D^T) lam = D w by Jacobi-CG to ||D w_final|| <= solver_tol *
+        (D M^-1 D^T) lam = D w by Jacobi-CG to ||D w_final|| <= cleanup_tol *
         ||D w*|| (2-norms over the fluid rows; skipped when already there) and
         returns (w - M^-1 D^T lam, CG iterations); (w, 0) when skipped."""
         pr, p = self.params, self.particles
@@ -642,7 +646,8 @@ class TwoPhaseFlow:
         # over one spacing, times 1e3 machine epsilons
         eps = float(np.finfo(real).eps)
         floor = 1e3 * eps * math.sqrt(float((w[fluid] ** 2).sum())) / self.dx
-        target = max(pr.solver_tol * norm_before, floor)
+        tol = pr.solver_tol if pr.cleanup_tol is None else pr.cleanup_tol
+        target = max(tol * norm_before, floor)
         if norm <= target:
             return w, 0
         S = _NormalOperator(self.ops, self.pairs, st, p.mass, p.n, rows=(FLUID,), cols=(FLUID,))

@@ -97,6 +97,21 @@ def test_exact_projection_drives_the_divergence_to_solver_tolerance():
         assert b["max_div"] > 100 * bound * b["max_div_before"], b
 
 
+def test_clean_up_tolerance_is_its_own_and_a_looser_one_is_cheaper():
+    """``cleanup_tol`` replaces solver_tol as the clean-up's stopping rule; the
+    looser rule is met every step with fewer iterations (same steps, same
+    pressure solves)."""
+    loose = _droplet(exact_projection=True, cleanup_tol=1e-3)
+    strict = _droplet(exact_projection=True)
+    for _ in range(3):
+        a, b = loose.step(), strict.step()
+        assert a["div_norm"] <= (1 + 1e-6) * 1e-3 * a["div_norm_before"], a
+        assert a["div_norm"] > 1e-6 * a["div_norm_before"]        # not the strict rule
+        assert 0 < a["cleanup_iterations"] < b["cleanup_iterations"], (a, b)
+    with pytest.raises(Exception, match="cleanup_tol"):
+        _droplet(exact_projection=True, cleanup_tol=0.0)
+
+
 def test_clean_up_is_an_idempotent_projection():
     """The clean-up maps a field to a divergence-free one (walls untouched) by a
     mass-orthogonal correction, and a field it returned comes back unchanged."""

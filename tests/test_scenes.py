@@ -78,3 +78,12 @@ def test_exact_projection_option_takes_every_step_to_solver_tolerance(tmp_path):
         assert float(e["max_div"]) <= bound * float(e["max_div_before"])
         assert int(d["cleanup_iterations"]) == 0
         assert float(d["max_div"]) > 100 * bound * float(d["max_div_before"])
+
+
+def test_cleanup_tol_without_exact_projection_is_refused(tmp_path, capsys):
+    mod = load("rising_droplet")
+    with pytest.raises(SystemExit) as exc:
+        mod.main(mod.SCENE, ["--particles", "800", "--end-time", "0.01", "--quiet",
+                             "--out", str(tmp_path), "--cleanup-tol", "1e-3"])
+    assert exc.value.code == 2
+    assert "--cleanup-tol needs --exact-projection" in capsys.readouterr().err
