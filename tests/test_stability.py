@@ -141,8 +141,9 @@ def _run_until_blowup(flow, steps, dt=None):
 
 def test_flow_time_step_far_past_the_limit_is_reported():
     f = 64
-    flow = _rt_flow(800, densities=(1.0, 2.0), cfl=0.25 * f, viscous_cfl=0.125 * f,
-                    force_cfl=0.25 * f, dt_max=0.02 * f)
+    d = FlowParams()                    # every step limit 64x its default
+    flow = _rt_flow(800, densities=(1.0, 2.0), cfl=d.cfl * f, viscous_cfl=d.viscous_cfl * f,
+                    force_cfl=d.force_cfl * f, dt_max=d.dt_max * f)
     exc = _run_until_blowup(flow, 40)
     assert exc is not None, "a time step 64x past the stable limit ran on silently"
     assert isinstance(exc, BlowUp) and exc.cause in BlowUp.CAUSES
