@@ -144,6 +144,28 @@ def test_incompatible_pure_neumann_without_ridge_is_flagged():
     assert resb.converged and abs(resb.border) > 1.0
 
 
+@pytest.mark.parametrize("kappa", [0.0, 0.5, 1.0, 2.0])
+def test_bordered_system_is_regular_for_every_ridge(kappa):
+    """The border row sum V phi - c lambda = 0 (corner -c): with the fluid rows'
+    A 1 = kappa e the candidate null vector (1, lambda) needs lambda = -kappa and
+    W + c kappa = 0, impossible for kappa >= 0.  (With a corner +c it was
+    W - c kappa = 0, i.e. kappa = 1 since c = W: the bordered matrix was
+    singular there and every solve stagnated.)  The multilevel solve matches
+    SuperLU on the assembled bordered matrix."""
+    import scipy.sparse.linalg as spl
+    ps, phi, b, kind = neumann_square(24, seed=5)
+    A = PoissonMatrix(ps.ops, kappa=kappa, bordered=True)
+    M = A.to_scipy().tocsc()
+    lu = spl.splu(M)
+    rhs = np.r_[b, 0.0]
+    ref = lu.solve(rhs)
+    assert np.linalg.norm(M @ ref - rhs) <= 1e-10 * np.linalg.norm(rhs)
+    res = A.solve(b, tol=1e-10, preconditioner="multilevel")
+    assert res.converged
+    x = np.r_[res.x, res.border]
+    assert np.abs(x - ref).max() <= 1e-7 * np.abs(ref).max()
+
+
 def test_non_finite_and_iteration_cap_are_reported(neumann_runs):
     ps, A, res, phi, b, kind = neumann_runs[24]
     bad = b.copy()
