@@ -146,12 +146,12 @@ def test_incompatible_pure_neumann_without_ridge_is_flagged():
 
 @pytest.mark.parametrize("kappa", [0.0, 0.5, 1.0, 2.0])
 def test_bordered_system_is_regular_for_every_ridge(kappa):
-    """The border row sum V phi - c lambda = 0 (corner -c): with the fluid rows'
-    A 1 = kappa e the candidate null vector (1, lambda) needs lambda = -kappa and
-    W + c kappa = 0, impossible for kappa >= 0.  (With a corner +c it was
-    W - c kappa = 0, i.e. kappa = 1 since c = W: the bordered matrix was
-    singular there and every solve stagnated.)  The multilevel solve matches
-    SuperLU on the assembled bordered matrix."""
+    """The border row sum V phi + c lambda = 0: with the fluid rows' A 1 =
+    kappa e the candidate null vector (1, -kappa) needs W - c kappa = 0, W =
+    sum V.  With c = +W (kept for kappa = 0) that is kappa = 1: the bordered
+    matrix was singular there and every solve stagnated; with a ridge the
+    corner is now c = -W, regular for every kappa > 0.  The multilevel solve
+    matches SuperLU on the assembled bordered matrix."""
     import scipy.sparse.linalg as spl
     ps, phi, b, kind = neumann_square(24, seed=5)
     A = PoissonMatrix(ps.ops, kappa=kappa, bordered=True)
