@@ -124,6 +124,9 @@ from .runloop import BlowUp
 
 #: The viscous wall conditions (``FlowParams.walls``).
 WALL_CONDITIONS = ("no-slip", "free-slip")
+#: What the wall particles carry (``_wall_velocity``): the fluid's extrapolated
+#: velocity (pressure right-hand side), minus it (no slip), its mirror (free slip).
+WALL_COPY, WALL_NO_SLIP, WALL_FREE_SLIP = 0, 1, 2
 
 #: The stages of a time step whose wall time :attr:`TwoPhaseFlow.timings` accumulates.
 STAGES = ("neighbours", "operators", "solve", "other")
@@ -221,7 +224,7 @@ class FlowParams:
     # the linear Rayleigh-Taylor theory, benchmarks/rt_growth.py)
     walls: str = "no-slip"
     pair_density_gradient: bool = True          # grad q / rho with pair-mean densities
-    # orthogonal clean-up after the passes: max |div| to solver_tol (module doc);
+    # orthogonal clean-up after the passes: ||div|| to cleanup_tol (module doc);
     # off by default, it costs 29x the step at 10k particles (Jacobi-CG, ~1200 iterations)
     exact_projection: bool = False
     cleanup_tol: float | None = None            # of the clean-up; None: solver_tol
@@ -261,12 +264,12 @@ def _wall_rhs(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
 @ti.kernel
 def _wall_velocity(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
                    nbrs: ti.types.ndarray(), pos: ti.types.ndarray(), vol: ti.types.ndarray(),
-                   kind: ti.types.ndarray(), H: float, v: ti.types.ndarray(), sign: float,
-                   free_slip: ti.i32, normal: ti.types.ndarray(), out: ti.types.ndarray()):
-    """out = v on fluid, sign * Shepard(v over fluid) on walls; with ``free_slip``
-    the Shepard value mirrored instead: its component normal to each wall the
-    particle lies beyond reversed (both components in a corner), ``sign``
-    unused."""
+                   kind: ti.types.ndarray(), H: float, v: ti.types.ndarray(), mode: ti.i32,
+                   normal: ti.types.ndarray(), out: ti.types.ndarray()):
+    """out = v on fluid; on walls the Shepard value s of v over the fluid, as
+    ``mode``: WALL_COPY s, WALL_NO_SLIP -s, WALL_FREE_SLIP s mirrored (its
+    component normal to each wall the particle lies beyond reversed; both in a
+    corner)."""
     for i in range(n):
         if kind[i] == FLUID:
             out[i] = v[i]
@@ -281,8 +284,10 @@ def _wall_velocity(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
                     den += vol[j] * W
             out[i] = ti.Vector.zero(float, 2)
             if den > 0.0:
-                factor = ti.Vector([sign, sign])
-                if free_slip:
+                factor = ti.Vector([1.0, 1.0])
+                if mode == WALL_NO_SLIP:
+                    factor = ti.Vector([-1.0, -1.0])
+                elif mode == WALL_FREE_SLIP:
                     nrm = normal[i]
                     factor = ti.Vector([-1.0 if ti.abs(nrm[0]) > 0.1 else 1.0,
                                         -1.0 if ti.abs(nrm[1]) > 0.1 else 1.0])
@@ -478,8 +483,9 @@ class TwoPhaseFlow:
         v_nd = p.velocity
         ext = _ndarray_like(p, 2)
         _wall_velocity(ops._kid, p.n, self.pairs.offsets, self.pairs.neighbours, p.position,
-                       p.volume, p.kind, self.support, v_nd, -1.0,
-                       int(pr.walls == "free-slip"), p.normal, ext)
+                       p.volume, p.kind, self.support, v_nd,
+                       WALL_FREE_SLIP if pr.walls == "free-slip" else WALL_NO_SLIP,
+                       p.normal, ext)
         lap_v = _ndarray_like(p, 2)
         if pr.nu > 0:
             self.clock.lap("operators", "predict")
@@ -536,7 +542,7 @@ class TwoPhaseFlow:
         def divergence_and_walls(w, gdt):
             w_nd.from_numpy(w.astype(real))
             _wall_velocity(ops._kid, p.n, pr_.offsets, pr_.neighbours, p.position, p.volume,
-                           p.kind, self.support, w_nd, 1.0, 0, p.normal, wext_nd)
+                           p.kind, self.support, w_nd, WALL_COPY, p.normal, wext_nd)
             ops.divergence(st_grad, wext_nd, div_nd)
             _wall_rhs(ops._kid, p.n, pr_.offsets, pr_.neighbours, p.position, p.volume,
                       p.density, p.kind, p.normal, w_nd, gdt[0], gdt[1], self.support, wall_b)
