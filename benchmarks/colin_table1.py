@@ -4,7 +4,7 @@ side by side with the published numbers.
 
     python benchmarks/colin_table1.py [--passes 5] [--out-dir outputs/benchmarks]
 
-Setups: :mod:`taichi_hh.colin_examples` (unit square; example 1: 45 x 45
+Setups: :mod:`taichi_hh.validation.colin_examples` (unit square; example 1: 45 x 45
 points, support h = 1/9; examples 2-5: 19 x 19 points, h = 1/5).  colin2006
 uses the published support (``support_ratio = h sqrt(N)``); the default its own
 (Wendland C2, 2.5 spacings).
@@ -43,9 +43,9 @@ add_repo_to_path()
 def run(passes: int):
     import numpy as np
     import taichi_hh as thh
-    from taichi_hh.colin_examples import TABLE1, colin_divergence, example
-    from taichi_hh.pointset import PointSet
-    from taichi_hh.projection import project
+    from taichi_hh.validation.colin_examples import TABLE1, colin_divergence, example
+    from taichi_hh.sph.pointset import PointSet
+    from taichi_hh.hhd.project import project
 
     dom = thh.Box((0.0, 0.0), (1.0, 1.0))
     rows = []

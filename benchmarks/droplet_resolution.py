@@ -61,7 +61,7 @@ def reaches(rows, end: float) -> bool:
 
 def run_resolution(n: int, end: float, out: Path, frame_width: int, progress: bool) -> dict:
     """Run (or resume) the droplet at n particles to ``end``; returns timing info."""
-    from taichi_hh.scene import run_scene
+    from taichi_hh.app.scene import run_scene
     argv = ["--particles", str(n), "--end-time", repr(end), "--out", str(out),
             "--frame-width", str(frame_width), "--montage", "0,2,4,6" if end >= 6 else ""]
     resumed = (out / "checkpoint.npz").exists() and bool(read_diagnostics(out / "diagnostics.csv"))

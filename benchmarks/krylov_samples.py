@@ -66,8 +66,9 @@ def main(argv=None) -> int:
     ap.add_argument("--tol", type=float, default=1e-6)
     ap.add_argument("--out-dir", default=str(REPO_ROOT / "outputs" / "benchmarks"))
     args = ap.parse_args(argv)
-    from taichi_hh import fields, runtime
-    from taichi_hh.hhd import poisson_problems
+    from taichi_hh import runtime
+    from taichi_hh.validation import fields
+    from taichi_hh.hhd.decompose import poisson_problems
     runtime.init("cpu", "f64")
     F = fields.get("gaussian")
     rows = []

@@ -7,7 +7,7 @@ Points: a lattice of m x m points in the unit square (m = round(sqrt(N)), so
 N = 100000 gives 316^2 = 99856 points), every coordinate displaced by a
 uniform random amount in [-0.3, 0.3] lattice spacings, then shuffled (seeded)
 so that binning starts from an arbitrary order.  Support ratio and kernel are
-the :class:`~taichi_hh.pointset.PointSet` defaults.
+the :class:`~taichi_hh.sph.pointset.PointSet` defaults.
 
 Each precision runs in its own subprocess (Taichi's precision is runtime-wide).
 Every number is the median of ``--repeats`` timed calls made after one
@@ -108,9 +108,9 @@ def run_worker(precision: str, sizes, repeats: int, threads: int | None, result_
     taichi_hh.init(arch="cpu", precision=precision, threads=threads)
     import taichi as ti
     from taichi_hh import runtime
-    from taichi_hh.neighbors import CellGrid, PairList, bin_particles
-    from taichi_hh.particles import FLUID, Particles
-    from taichi_hh.pointset import DUPLICATE_FRACTION, PointSet
+    from taichi_hh.sph.neighbors import CellGrid, PairList, bin_particles
+    from taichi_hh.sph.particles import FLUID, Particles
+    from taichi_hh.sph.pointset import DUPLICATE_FRACTION, PointSet
 
     nthreads = ti.lang.impl.current_cfg().cpu_max_num_threads
     real = np.dtype(runtime.np_real()).itemsize

@@ -7,7 +7,7 @@ Every analysis runs twice on the same points: the paper configuration
 (``method="petronetto2010"``: quartic kernel, difference gradient, Brookshaw
 Laplacian, fake particles, ridge kappa 1e-3, Jacobi BiCGSTAB to 1e-6) and our
 default (``method="default"``).  Points are blue noise (Poisson disk) in the
-unit square from ``taichi_hh.fields``; errors are against the fields' exact
+unit square from ``taichi_hh.validation.fields``; errors are against the fields' exact
 components.
 
 (a) Fig. 10  div r and curl d, computed at the data points with each
@@ -577,7 +577,7 @@ def main(argv=None) -> int:
     t_start = time.perf_counter()
     add_repo_to_path()
     import taichi_hh as thh
-    from taichi_hh import fields
+    from taichi_hh.validation import fields
     thh.init(arch="cpu", precision="f64", threads=args.threads,
              offline_cache_dir=os.environ.get("TAICHI_HH_CACHE",
                                               str(REPO_ROOT / ".taichi_cache")))

@@ -4,7 +4,7 @@
                                                  [--supports 3,2.5,2] [--out-dir outputs/benchmarks]
 
 The flow's optional clean-up (``FlowParams.exact_projection``, module doc of
-:mod:`taichi_hh.flow`) solves ``S lam = D w`` with ``S = D M^-1 D^T``, ``D`` the
+:mod:`taichi_hh.flow.twophase`) solves ``S lam = D w`` with ``S = D M^-1 D^T``, ``D`` the
 corrected SPH divergence of the fluid rows (walls at rest), ``w`` the velocity
 the Poisson step left.  This script takes the rising-droplet scene (its
 defaults) to ``--time``, then, on those very particle positions and with the
@@ -56,7 +56,7 @@ def droplet_run(particles: int, t_end: float, support_ratio: float | None = None
     """The droplet scene (defaults; optionally another kernel support ratio)
     advanced to ``t_end``: (state, params, volume error (mean, max) at the end,
     median step seconds over the steps after the first)."""
-    from taichi_hh.flow import TwoPhaseFlow
+    from taichi_hh.flow.twophase import TwoPhaseFlow
     mod = scene_module("rising_droplet")
     ap = argparse.ArgumentParser()
     mod.add_arguments(ap)
@@ -78,7 +78,7 @@ def capture_step(state, params):
     """One step with the clean-up on (cold start); returns what the clean-up saw
     (velocity, D w, ||D w*||, coefficients, pairs, particles), its CG iterations
     and seconds."""
-    from taichi_hh.flow import TwoPhaseFlow
+    from taichi_hh.flow.twophase import TwoPhaseFlow
 
     class Spy(TwoPhaseFlow):
         def _clean_up(self, w, d, norm_before, st):
@@ -105,7 +105,7 @@ def assemble(seen):
     """D (fluid rows x 2 fluid velocities) and S = D M^-1 D^T as scipy matrices,
     with the fluid positions, masses and right-hand side."""
     import scipy.sparse as sp
-    from taichi_hh.particles import FLUID
+    from taichi_hh.sph.particles import FLUID
     kind, off = seen["kind"], seen["offsets"]
     n = len(kind)
     fluid = kind == FLUID

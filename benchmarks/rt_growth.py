@@ -63,8 +63,8 @@ def fit_rate(t, a, a0):
 
 
 def run_case(ratio, n, args, walls="no-slip"):
-    from taichi_hh.flow import FlowParams, TwoPhaseFlow
-    from taichi_hh.scene import lattice_in_box
+    from taichi_hh.flow.twophase import FlowParams, TwoPhaseFlow
+    from taichi_hh.app.scene import lattice_in_box
     W, H, lam, g, nu = 1.0, 2.0, 1.0, 1.0, args.viscosity
     a0 = 0.01 * lam
     box = (0.0, 0.0, W, H)
@@ -120,7 +120,7 @@ def main(argv=None):
     ap.add_argument("--out-dir", default=os.path.join(HERE, "..", "outputs", "benchmarks"))
     args = ap.parse_args(argv)
     import taichi_hh as thh
-    from taichi_hh.io import atomic_savefig, atomic_write_csv
+    from taichi_hh.app.io import atomic_savefig, atomic_write_csv
     thh.init(arch="cpu", precision="f64")
     ratios = [float(r) for r in args.ratios.split(",")]
     sizes = [int(n) for n in args.particles.split(",")]

@@ -4,7 +4,7 @@
                                 [--out-dir outputs/benchmarks] [--no-warmup]
 
 Cases (each runs the scene script's own set-up through the library,
-:func:`taichi_hh.scene.run_scene`, frames, diagnostics and checkpoints included,
+:func:`taichi_hh.app.scene.run_scene`, frames, diagnostics and checkpoints included,
 writing into OUT/scenes_runs/<case>/):
 
 ``droplet``      scenes/rising_droplet.py at its defaults (10500 particles).
@@ -88,7 +88,7 @@ class PrecondSetupTimer:
         self._orig = None
 
     def __enter__(self):
-        from taichi_hh import poisson
+        from taichi_hh.linalg import poisson
         self._cls = poisson.PoissonMatrix
         self._orig = getattr(self._cls, "multilevel", None)
         if self._orig is not None:
@@ -110,7 +110,7 @@ class PrecondSetupTimer:
 
 def run_case(case: str, end: float, out_dir: Path, frame_width: int, quiet: bool,
              extra=()) -> dict:
-    from taichi_hh.scene import run_scene
+    from taichi_hh.app.scene import run_scene
     scene_name, options = CASES[case.replace("_full", "")]
     scene = scene_module(scene_name).SCENE
     out = out_dir / "scenes_runs" / case
@@ -226,7 +226,7 @@ def main(argv=None) -> int:
 
     compile_s = {}
     if not args.no_warmup:
-        from taichi_hh.scene import run_scene
+        from taichi_hh.app.scene import run_scene
         for name in sorted({CASES[c.replace("_full", "")][0] for c, _ in runs}):
             t0 = time.perf_counter()
             run_scene(scene_module(name).SCENE, ["--particles", "1250", "--end-time", "0.06",

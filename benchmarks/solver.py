@@ -4,7 +4,7 @@
                                 [--kappas 1e-8,1e-2] [--tol 1e-6] [--repeats 3]
                                 [--quick] [--out-dir DIR] [--docs] [--keep-mean]
 
-The systems are those of :func:`taichi_hh.hhd.poisson_problems` with the
+The systems are those of :func:`taichi_hh.hhd.decompose.poisson_problems` with the
 paper's configuration (``method="petronetto2010"``: quartic kernel, Brookshaw
 Laplacian, fake particles with Shepard rows, the Neumann term near the
 boundary, ridge ``kappa``) on the ``gaussian`` analytic field (two sources and
@@ -27,7 +27,7 @@ lattices.  Both potentials
 ``--tol`` (the paper's 1e-6), from zero, by
 
 ``jacobi``        BiCGSTAB with the Jacobi preconditioner (the paper's solver);
-``multilevel``    BiCGSTAB with the multilevel cycle (:mod:`taichi_hh.multilevel`);
+``multilevel``    BiCGSTAB with the multilevel cycle (:mod:`taichi_hh.linalg.multilevel`);
                   ``setup_s`` is building the hierarchy;
 ``scipy_direct``  SuperLU on the assembled matrix (``A.to_scipy()``): one
                   factorisation (``setup_s``) and two triangular solves;
@@ -77,8 +77,8 @@ PYAMG_MAX_N = 1_000_000
 
 
 def problems_for(n: int, kappa: float, remove_mean: bool = True, jittered: bool = False):
-    from taichi_hh import fields
-    from taichi_hh.hhd import poisson_problems
+    from taichi_hh.validation import fields
+    from taichi_hh.hhd.decompose import poisson_problems
     F = fields.get("gaussian")
     blue = n <= POISSON_MAX_N and not jittered
     pts = F.sample(n, "poisson" if blue else "jittered", seed=n)
@@ -293,7 +293,7 @@ def plot(rows, path):
     ax2.legend(fontsize=7)
     ax1.set_title("Poisson solves (paper: whole decomposition, their machine)", fontsize=9)
     fig.tight_layout()
-    from taichi_hh.io import atomic_savefig
+    from taichi_hh.app.io import atomic_savefig
     atomic_savefig(fig, path, dpi=110)
     plt.close(fig)
 

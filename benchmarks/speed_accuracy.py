@@ -6,7 +6,7 @@ an exact answer.
                                         [--repeats 3] [--groups g1,g2,...]
 
 Decomposition (``thh.decompose``) on the analytic fields of
-:mod:`taichi_hh.fields`, whose exact d, r, h are known.  Starting from the
+:mod:`taichi_hh.validation.fields`, whose exact d, r, h are known.  Starting from the
 ``default`` bundle, one option is changed at a time:
 
 ``resolution``    N = 400 ... 25600 blue-noise points (quick: 400, 1600) for
@@ -189,7 +189,7 @@ def run_hhd(task: dict) -> dict:
     """One decomposition configuration: warm-up when new to this worker, then
     ``repeats`` timed runs.  Never raises: an exception becomes the row's status."""
     import taichi_hh as thh
-    from taichi_hh import fields
+    from taichi_hh.validation import fields
     F = fields.get(task["field"])
     pts = sample_points(F, task["n"], task.get("sampling", "poisson"), task.get("seed", 1))
     ex = F.evaluate(pts)
@@ -252,7 +252,7 @@ def run_project(task: dict) -> dict:
     """One null-divergence projection: error of the result against the exact
     divergence-free part r + h (relative to mean |v|) and the divergence left."""
     import taichi_hh as thh
-    from taichi_hh import fields
+    from taichi_hh.validation import fields
     F = fields.get(task["field"])
     pts = sample_points(F, task["n"], task.get("sampling", "poisson"), task.get("seed", 1))
     ex = F.evaluate(pts)
@@ -286,7 +286,7 @@ def run_rt(task: dict) -> dict:
     FlowParams (``task["params"]``, e.g. solver_tol, cfl) and a record of every
     step (max speed, iterations)."""
     import rt_growth
-    import taichi_hh.flow as fl
+    import taichi_hh.flow.twophase as fl
     record = {"max_speed": 0.0, "iterations": 0, "flow": None}
     orig_params, orig_flow = fl.FlowParams, fl.TwoPhaseFlow
     extra = dict(task.get("params", {}))
@@ -360,7 +360,7 @@ def run_pool(tasks: list[dict], workers: int = 2, threads: int = 1,
              progress: bool = True) -> list[dict]:
     """Run tasks in process pools (spawn), one pool per precision (Taichi's
     precision is process-wide), with a progress bar; rows in task order."""
-    from taichi_hh.runloop import ProgressBar
+    from taichi_hh.app.runloop import ProgressBar
     rows: list = [None] * len(tasks)
     bar = ProgressBar(len(tasks)) if progress else None
     done = 0
@@ -483,7 +483,7 @@ def make_charts(rows: list[dict], out: Path, quick: bool) -> dict:
     import matplotlib
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
-    from taichi_hh.io import atomic_savefig
+    from taichi_hh.app.io import atomic_savefig
     out.mkdir(parents=True, exist_ok=True)
     info = {}
     suffix = "_quick" if quick else ""
@@ -647,7 +647,7 @@ def _fmt(x, spec=".3g"):
 
 def _to_docs(chart: Path) -> None:
     """Copy a chart to docs/figures/ atomically (the README embeds it)."""
-    from taichi_hh.io import atomic_path
+    from taichi_hh.app.io import atomic_path
     dest = REPO_ROOT / "docs" / "figures" / chart.name.replace("_quick", "")
     with atomic_path(str(dest)) as tmp:
         Path(tmp).write_bytes(chart.read_bytes())

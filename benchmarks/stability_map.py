@@ -161,7 +161,7 @@ def build_tasks(quick: bool) -> list[dict]:
         base.update(kw)
         return base
 
-    from taichi_hh.flow import FlowParams
+    from taichi_hh.flow.twophase import FlowParams
     d = FlowParams()
     factors = [1, 16, 64] if quick else [1, 2, 4, 8, 16, 32, 64]
     for f in factors:
@@ -229,7 +229,7 @@ def make_chart(cells: list[dict], path: Path, quick: bool) -> None:
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
     from matplotlib.patches import Patch, Rectangle
-    from taichi_hh.io import atomic_savefig
+    from taichi_hh.app.io import atomic_savefig
     families = list(dict.fromkeys(c["family"] for c in cells))
     layout = {}
     for fam in families:

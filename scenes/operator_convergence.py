@@ -30,7 +30,7 @@ def main(argv=None):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import taichi_hh as thh
-    from taichi_hh.io import atomic_write_csv, atomic_savefig
+    from taichi_hh.app.io import atomic_write_csv, atomic_savefig
 
     thh.init(arch=args.arch)
     rng = np.random.default_rng(0)

@@ -23,8 +23,8 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from taichi_hh.flow import FlowParams  # noqa: E402
-from taichi_hh.scene import Scene, lattice_in_box, main  # noqa: E402
+from taichi_hh.flow.twophase import FlowParams  # noqa: E402
+from taichi_hh.app.scene import Scene, lattice_in_box, main  # noqa: E402
 
 LIGHT, HEAVY = 0, 1
 

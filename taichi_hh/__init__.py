@@ -4,7 +4,7 @@ Importing this package does not initialise Taichi; the first call that needs
 it does (CPU, f64), unless :func:`init` chose otherwise.
 """
 from .errors import AccuracyWarning, InputError, NeighbourError, SolverError, TaichiHHError
-from .domain import Box, Polygon, as_domain
+from .geometry.domain import Box, Polygon, as_domain
 from .runtime import init
 
 __version__ = "0.1.0"
@@ -13,13 +13,13 @@ __version__ = "0.1.0"
 def __getattr__(name):
     # Heavy submodules (they import taichi) load on first use.
     if name == "PointSet":
-        from .pointset import PointSet
+        from .sph.pointset import PointSet
         return PointSet
     if name in ("decompose", "HHDResult", "METHODS"):
-        from . import hhd
+        from .hhd import decompose as hhd
         return getattr(hhd, name)
     if name in ("project", "ProjectionResult"):
-        from . import projection
+        from .hhd import project as projection
         return getattr(projection, name)
     raise AttributeError(f"module 'taichi_hh' has no attribute {name!r}")
 

@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 
 import taichi_hh as thh
-from taichi_hh import cli, fields, figures
-from taichi_hh import io as thio
-
+from taichi_hh.app import cli
+from taichi_hh.validation import fields
+from taichi_hh.app import figures
+from taichi_hh.app import io as thio
 RUNTIME = ["--arch", "cpu", "--precision", "f64"]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -138,7 +139,7 @@ def test_csv_input_gives_the_same_components(decomposed, gaussian_files):
 
 
 def test_options_only_override_what_is_given():
-    from taichi_hh.hhd import METHODS, options_for
+    from taichi_hh.hhd.decompose import METHODS, options_for
     args = cli.build_parser().parse_args(["decompose", "f.npz", "--method", "petronetto2010",
                                           "--tol", "1e-5", "--no-bordered"])
     over = cli._numeric_overrides(args)
@@ -272,7 +273,7 @@ def test_python_dash_m_reports_errors(tmp_path):
 # --------------------------------------------------------------------------- help
 @pytest.mark.parametrize("command", ["decompose", "project"])
 def test_help_mentions_every_option(command):
-    from taichi_hh.hhd import HHDOptions
+    from taichi_hh.hhd.decompose import HHDOptions
     rc, out, _ = run([command, "--help"])
     assert rc == 0
     flags = ["--" + f.name.replace("_", "-") for f in dataclasses.fields(HHDOptions)]

@@ -1,4 +1,4 @@
-"""Domains (taichi_hh.domain): geometry, point queries and samplers against analytic
+"""Domains (taichi_hh.geometry.domain): geometry, point queries and samplers against analytic
 answers and brute force.  Pure numpy; no Taichi kernels run here."""
 import pickle
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from taichi_hh.domain import Box, Polygon, as_domain
+from taichi_hh.geometry.domain import Box, Polygon, as_domain
 from taichi_hh.errors import InputError
 
 UNIT = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]

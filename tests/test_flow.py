@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from taichi_hh.flow import BlowUpError, FlowParams, TwoPhaseFlow
+from taichi_hh.flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
 
 
 def tank(nx, ny, W=1.0, H=2.0):
@@ -115,7 +115,7 @@ def test_clean_up_tolerance_is_its_own_and_a_looser_one_is_cheaper():
 def test_clean_up_is_an_idempotent_projection():
     """The clean-up maps a field to a divergence-free one (walls untouched) by a
     mass-orthogonal correction, and a field it returned comes back unchanged."""
-    from taichi_hh.particles import FLUID
+    from taichi_hh.sph.particles import FLUID
     tol = 1e-9
     flow = _droplet(exact_projection=True, solver_tol=tol)
     flow.step()
@@ -159,7 +159,7 @@ def test_exact_projection_leaves_the_rest_state_alone():
 
 
 def test_failed_clean_up_is_a_blow_up(monkeypatch):
-    from taichi_hh import flow as flow_mod
+    from taichi_hh.flow import twophase as flow_mod
     from taichi_hh.errors import SolverError
 
     def broken(*a, **k):
@@ -216,9 +216,9 @@ def test_step_shortcuts_build_the_same_coefficients():
     gradient (the flow has no BOUNDARY rows): both must equal the long way."""
     import taichi as ti
     from taichi_hh import runtime
-    from taichi_hh.flow import _weight_gradient_by_mean_density
-    from taichi_hh.particles import FLUID
-    from taichi_hh.poisson import PoissonMatrix
+    from taichi_hh.flow.twophase import _weight_gradient_by_mean_density
+    from taichi_hh.sph.particles import FLUID
+    from taichi_hh.linalg.poisson import PoissonMatrix
     pts, dx = tank(8, 16)
     phases = np.where(np.linalg.norm(pts - [0.5, 0.5], axis=1) < 0.25, 0, 1)
     flow = TwoPhaseFlow(pts, phases, dx, FlowParams(box=(0, 0, 1, 2), densities=(1.0, 2.0)))

@@ -3,9 +3,7 @@ import numpy as np
 import pytest
 
 import taichi_hh as thh
-from taichi_hh import fields
-
-
+from taichi_hh.validation import fields
 def _errors(res, exact):
     vm = np.linalg.norm(exact.v, axis=1).mean()
     err = lambda a, b: np.linalg.norm(a - b, axis=1).mean() / vm   # noqa: E731

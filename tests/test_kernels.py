@@ -7,8 +7,8 @@ import pytest
 import taichi as ti
 from scipy import integrate
 
-from taichi_hh import kernels
-from taichi_hh.kernels import KERNELS, kernel_numpy
+from taichi_hh.sph import kernels
+from taichi_hh.sph.kernels import KERNELS, kernel_numpy
 
 # The quartic exactly as Petronetto et al. publish it (Sec. 3) is slightly negative
 # for r/H in (0.8479, 1) and increasing for r/H in (0.9, 1): w(q) = -5/32 (q-2)^2
@@ -308,7 +308,7 @@ def _lattice(m, jitter, seed):
 
 @pytest.mark.parametrize("jitter", [0.0, 0.3])
 def test_default_support_neighbour_count(jitter):
-    from taichi_hh.pointset import DEFAULT_SUPPORT_RATIO, PointSet
+    from taichi_hh.sph.pointset import DEFAULT_SUPPORT_RATIO, PointSet
 
     ratio = DEFAULT_SUPPORT_RATIO
     pts = _lattice(40, jitter, seed=2)

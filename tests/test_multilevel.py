@@ -10,9 +10,9 @@ import scipy.sparse.linalg as spl
 import taichi_hh as thh
 from taichi_hh import runtime
 from taichi_hh.errors import InputError
-from taichi_hh.multilevel import MultilevelPreconditioner, _stencil_to_dense
-from taichi_hh.particles import FLUID
-from taichi_hh.poisson import PoissonMatrix
+from taichi_hh.linalg.multilevel import MultilevelPreconditioner, _stencil_to_dense
+from taichi_hh.sph.particles import FLUID
+from taichi_hh.linalg.poisson import PoissonMatrix
 from test_poisson import neumann_square
 
 
@@ -121,8 +121,8 @@ def test_w_cycle_keeps_the_answer_and_saves_the_iterations_the_v_cycle_loses():
     with two post-smoothing sweeps: V 16 and 15 iterations for the two
     potentials, W 12 and 12 (at 1M particles V 30/32, W 15/15:
     benchmarks/solver.py)."""
-    from taichi_hh import fields
-    from taichi_hh.hhd import poisson_problems
+    from taichi_hh.validation import fields
+    from taichi_hh.hhd.decompose import poisson_problems
     F = fields.get("gaussian")
     pts = F.sample(18221, "poisson", seed=18221)
     P = poisson_problems(pts, F.evaluate(pts).v, F.domain, method="petronetto2010",
@@ -146,8 +146,8 @@ def test_small_ridge_kappa_costs_no_iterations():
     coarse levels cannot resolve; the cycle's exact rank-one correction along
     the constants does.  Measured at 18k particles: 13/13 iterations against
     12/12 at kappa = 1e-2 (13/36 without the correction)."""
-    from taichi_hh import fields
-    from taichi_hh.hhd import poisson_problems
+    from taichi_hh.validation import fields
+    from taichi_hh.hhd.decompose import poisson_problems
     F = fields.get("gaussian")
     pts = F.sample(18221, "poisson", seed=18221)
     its = {}
@@ -170,7 +170,7 @@ def test_small_ridge_kappa_costs_no_iterations():
 def test_domain_with_a_hole():
     """Empty cells (the hole) get no correction; the solve still converges to the
     Jacobi answer on a decomposition of the hole field."""
-    from taichi_hh import fields
+    from taichi_hh.validation import fields
     F = fields.get("hole")
     pts = F.sample(4000, "poisson", seed=4)
     v = F.evaluate(pts).v
@@ -203,7 +203,7 @@ def test_ridge_kappa_on_a_bordered_system():
     """The bordered unknown fixes the constant; a ridge term on top must not make
     the coarse level invert a near-null mode (kappa = 1e-8 diverged at the first
     iteration before).  Iterations stay the same for every kappa."""
-    from taichi_hh import fields
+    from taichi_hh.validation import fields
     F = fields.get("trig")
     pts = F.sample(1600, "poisson", seed=1)
     v = F.evaluate(pts).v

@@ -7,8 +7,8 @@ import taichi as ti
 from scipy.spatial import cKDTree
 
 import taichi_hh
-from taichi_hh.neighbors import CellGrid, GridSpec, PairList, bin_particles
-from taichi_hh.particles import BOUNDARY, FLUID, GHOST, QUANTITIES, Particles
+from taichi_hh.sph.neighbors import CellGrid, GridSpec, PairList, bin_particles
+from taichi_hh.sph.particles import BOUNDARY, FLUID, GHOST, QUANTITIES, Particles
 
 
 # ---------------------------------------------------------------------------
@@ -418,7 +418,7 @@ def test_self_query_without_exclusion_includes_self():
 # duplicates
 
 def test_pointset_rejects_exact_duplicate():
-    from taichi_hh.pointset import PointSet
+    from taichi_hh.sph.pointset import PointSet
 
     rng = np.random.default_rng(17)
     pts = rng.uniform(0, 1, (120, 2))
@@ -431,7 +431,7 @@ def test_pointset_rejects_exact_duplicate():
 
 
 def test_pointset_rejects_near_duplicate_and_accepts_distinct():
-    from taichi_hh.pointset import DUPLICATE_FRACTION, PointSet
+    from taichi_hh.sph.pointset import DUPLICATE_FRACTION, PointSet
 
     rng = np.random.default_rng(18)
     pts = rng.uniform(0, 1, (150, 2))

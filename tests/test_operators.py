@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 import taichi_hh as thh
-from taichi_hh.kernels import kernel_numpy
-from taichi_hh.operators import GRADIENT_VARIANTS, LAPLACIAN_VARIANTS
+from taichi_hh.sph.kernels import kernel_numpy
+from taichi_hh.sph.operators import GRADIENT_VARIANTS, LAPLACIAN_VARIANTS
 from fieldgen import interior, lattice
 
 DIFF_GRADIENTS = ("difference", "colin_difference", "corrected")

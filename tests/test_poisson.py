@@ -5,8 +5,8 @@ import pytest
 import scipy.sparse.linalg as spl
 
 import taichi_hh as thh
-from taichi_hh.particles import BOUNDARY, FLUID, GHOST
-from taichi_hh.poisson import PoissonMatrix
+from taichi_hh.sph.particles import BOUNDARY, FLUID, GHOST
+from taichi_hh.linalg.poisson import PoissonMatrix
 from fieldgen import lattice
 
 

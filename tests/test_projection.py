@@ -14,11 +14,11 @@ import pytest
 from taichi_hh.errors import SolverError
 
 import taichi_hh as thh
-from taichi_hh import fields
-from taichi_hh.colin_examples import TABLE1, colin_divergence, example
+from taichi_hh.validation import fields
+from taichi_hh.validation.colin_examples import TABLE1, colin_divergence, example
 from taichi_hh.errors import InputError
-from taichi_hh.pointset import PointSet
-from taichi_hh.projection import project  # also thh.project
+from taichi_hh.sph.pointset import PointSet
+from taichi_hh.hhd.project import project  # also thh.project
 
 UNIT = thh.Box((0.0, 0.0), (1.0, 1.0))
 

@@ -7,8 +7,8 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from taichi_hh import render
-from taichi_hh.particles import BOUNDARY, FLUID, GHOST
+from taichi_hh.app import render
+from taichi_hh.sph.particles import BOUNDARY, FLUID, GHOST
 
 
 def test_discs_land_on_the_right_pixels_with_the_right_colours():
@@ -102,7 +102,7 @@ def test_non_finite_and_far_positions_are_skipped():
 
 
 def test_render_particles_from_a_particle_set():
-    from taichi_hh.particles import Particles
+    from taichi_hh.sph.particles import Particles
     p = Particles.from_numpy(np.array([[0.25, 0.5], [0.75, 0.5]]), velocity=[[0, 0], [3, 4]],
                              phase=[0, 1])
     r = render.FrameRenderer(100, None, (0, 0), (1, 1), radius_px=4)

@@ -1,4 +1,4 @@
-"""Correctness of the Krylov solvers in taichi_hh.solvers (no timing assertions)."""
+"""Correctness of the Krylov solvers in taichi_hh.linalg.krylov (no timing assertions)."""
 import math
 import os
 
@@ -7,7 +7,9 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from taichi_hh import runtime, solvers
+from taichi_hh import runtime
+
+from taichi_hh.linalg import krylov as solvers
 from taichi_hh.errors import InputError, SolverError
 
 _HAS_CONFTEST = os.path.exists(os.path.join(os.path.dirname(__file__), "conftest.py"))

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 import taichi_hh as thh
-from taichi_hh import fields
-from taichi_hh.flow import BlowUpError, FlowParams, TwoPhaseFlow
-from taichi_hh.runloop import BlowUp
+from taichi_hh.validation import fields
+from taichi_hh.flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
+from taichi_hh.app.runloop import BlowUp
+from taichi_hh.hhd.decompose import options_for
 
 SOLVER_REASONS = {"breakdown", "stagnation", "divergence", "max_iterations", "non-finite"}
 
@@ -61,7 +62,7 @@ def test_kappa_zero_pure_neumann_without_bordering_is_reported(method, options):
     F = fields.get("gaussian")
     pts = F.sample(1640, "poisson", seed=3)
     ex = F.evaluate(pts)
-    opts = thh.hhd.options_for(method, **options)
+    opts = options_for(method, **options)
     try:
         res = thh.decompose(pts, ex.v, F.domain, method=method, **options)
     except thh.SolverError as exc:
@@ -101,7 +102,7 @@ def test_nan_input_is_refused(trig, where):
 
 
 def test_nan_flow_particles_refused():
-    from taichi_hh.scene import lattice_in_box
+    from taichi_hh.app.scene import lattice_in_box
     pts, dx = lattice_in_box(200, (0.0, 0.0, 1.0, 2.0))
     pts[5, 0] = np.nan
     with pytest.raises(thh.InputError):
@@ -111,7 +112,7 @@ def test_nan_flow_particles_refused():
 def _rt_flow(n, **params):
     """The Rayleigh-Taylor set-up of benchmarks/rt_growth.py (heavy over light,
     one mode of amplitude 1% of the wavelength)."""
-    from taichi_hh.scene import lattice_in_box
+    from taichi_hh.app.scene import lattice_in_box
     box = (0.0, 0.0, 1.0, 2.0)
     pts, dx = lattice_in_box(n, box)
     k, y0, a0 = 2 * math.pi, 1.0, 0.01

@@ -35,7 +35,7 @@ import time
 
 import numpy as np
 
-from .errors import SolverError
+from ..errors import SolverError
 from .io import atomic_path
 
 

@@ -70,10 +70,10 @@ def colin_divergence(points, vectors, support, domain=None, spacing=None):
     reports.  ``domain`` defaults to the unit square; ``spacing`` to
     ``sqrt(area / N)``."""
     import math
-    from .domain import Box
-    from .particles import BOUNDARY, FLUID
-    from .pointset import PointSet
-    from .projection import wall_layer
+    from ..geometry.domain import Box
+    from ..sph.particles import BOUNDARY, FLUID
+    from ..sph.pointset import PointSet
+    from ..hhd.project import wall_layer
     domain = domain or Box((0.0, 0.0), (1.0, 1.0))
     points = np.asarray(points, dtype=np.float64)
     spacing = spacing or math.sqrt(domain.area / len(points))

@@ -83,7 +83,7 @@ def read_field(path):
     missing arrays or columns, wrong shapes, and non-numeric or non-finite
     values.
     """
-    from .errors import InputError
+    from ..errors import InputError
     path = os.fspath(path)
     if not os.path.exists(path):
         raise InputError(f"{path}: no such file")
@@ -100,7 +100,7 @@ def read_field(path):
 
 def _read_field_npz(path):
     import numpy as np
-    from .errors import InputError
+    from ..errors import InputError
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
@@ -138,7 +138,7 @@ def _read_field_npz(path):
 def _read_field_csv(path):
     import math
     import numpy as np
-    from .errors import InputError
+    from ..errors import InputError
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
             lines = [(k + 1, row) for k, row in enumerate(csv.reader(fh))]
@@ -197,19 +197,19 @@ def _read_field_csv(path):
 
 def read_domain(spec):
     """A domain from a command-line string: ``"x0,y0,x1,y1"`` gives a
-    :class:`~taichi_hh.domain.Box`; a ``.json`` file ``{"outer": [[x, y], ...],
+    :class:`~taichi_hh.geometry.domain.Box`; a ``.json`` file ``{"outer": [[x, y], ...],
     "holes": [[[x, y], ...], ...]}`` (holes optional) gives a
-    :class:`~taichi_hh.domain.Polygon`.  ``None`` stays ``None`` (the library
+    :class:`~taichi_hh.geometry.domain.Polygon`.  ``None`` stays ``None`` (the library
     then uses the points' bounding box).  Raises
     :class:`~taichi_hh.errors.InputError`."""
     import json
     import math
-    from .domain import Box, Polygon
-    from .errors import InputError
+    from ..geometry.domain import Box, Polygon
+    from ..errors import InputError
     if spec is None:
         return None
     if not isinstance(spec, str):
-        from .domain import as_domain
+        from ..geometry.domain import as_domain
         return as_domain(spec)
     s = spec.strip()
     if s.lower().endswith(".json") or os.path.isfile(s):
@@ -271,7 +271,7 @@ def _savez(path, arrays) -> None:
 
 
 def write_components(path, result, critical_points=None, threshold: float = 0.1) -> None:
-    """Write a :class:`~taichi_hh.hhd.HHDResult` as a ``.npz`` file, atomically.
+    """Write a :class:`~taichi_hh.hhd.decompose.HHDResult` as a ``.npz`` file, atomically.
 
     Arrays: ``points``, ``v`` (the input), ``d`` (curl-free), ``r``
     (divergence-free), ``h`` (harmonic), ``phi``, ``psi``, ``divergence``,
@@ -300,7 +300,7 @@ def write_components(path, result, critical_points=None, threshold: float = 0.1)
 
 
 def write_projection(path, result) -> None:
-    """Write a :class:`~taichi_hh.projection.ProjectionResult` as ``.npz``,
+    """Write a :class:`~taichi_hh.hhd.project.ProjectionResult` as ``.npz``,
     atomically: ``points``, ``vectors`` (the projected field; the file is again
     a valid field for :func:`read_field`), ``initial``, ``divergence`` (of the
     result), ``max_divergence`` and ``sum_sq_divergence`` (per pass, index 0 =

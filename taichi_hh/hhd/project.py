@@ -15,7 +15,7 @@ Three schemes (``scheme``; each method has its own default):
     and with the smallest change.  One pass leaves ``D w`` at the solver
     tolerance, so further passes find nothing to do: repeated passes are
     bounded whatever the geometry.  Measured on the Gaussian field of
-    :mod:`taichi_hh.fields` on blue noise: the result differs from the exact
+    :mod:`taichi_hh.validation.fields` on blue noise: the result differs from the exact
     ``r + h`` by 1.8% (2k points) and 0.3% (13k points) of mean |v|, where the
     orthogonal scheme alone differs by 12% and 17% (it changes the normal
     flux), and the Poisson step repeated alone diverges at 2k points (max
@@ -90,17 +90,19 @@ from dataclasses import dataclass, field
 import numpy as np
 import taichi as ti
 
-from . import runtime, solvers
-from .errors import InputError, SolverError
-from .hhd import _validate, options_for
-from .particles import BOUNDARY, FLUID
-from .pointset import PointSet
-from .poisson import PoissonMatrix
+from .. import runtime
+
+from ..linalg import krylov as solvers
+from ..errors import InputError, SolverError
+from .decompose import _validate, options_for
+from ..sph.particles import BOUNDARY, FLUID
+from ..sph.pointset import PointSet
+from ..linalg.poisson import PoissonMatrix
 
 SCHEMES = ("neumann", "orthogonal", "poisson")
 
 #: per-method defaults of project() that differ from the decompose() bundles
-#: of :data:`taichi_hh.hhd.METHODS`: Colin solves the plain (not bordered)
+#: of :data:`taichi_hh.hhd.decompose.METHODS`: Colin solves the plain (not bordered)
 #: stacked system by CG on the normal equations, here to the least-squares
 #: solution with normal residual 1e-4 (measured: tighter tolerances stall, the
 #: scaled stacked matrix of examples 2-5 having a condition number of about
@@ -124,11 +126,11 @@ def wall_layer(domain, spacing: float, width: float, points=None, lattice: bool 
     """Wall particles outside ``domain`` within ``width`` of it and their outward
     normals (Colin Sec. 3.6: a boundary layer as wide as the support).
 
-    For a :class:`~taichi_hh.domain.Box` and ``lattice=True`` the layer continues
+    For a :class:`~taichi_hh.geometry.domain.Box` and ``lattice=True`` the layer continues
     the lattice of spacing ``spacing`` aligned with the box (Colin Fig. 4);
     otherwise it is a blue-noise band.  Corner normals point along the diagonal.
     """
-    from .domain import Box
+    from ..geometry.domain import Box
     if lattice and isinstance(domain, Box):
         lo, hi = np.asarray(domain.lo), np.asarray(domain.hi)
         k = int(math.ceil(width / spacing)) + 1
@@ -149,7 +151,7 @@ def wall_layer(domain, spacing: float, width: float, points=None, lattice: bool 
 
 # ---------------------------------------------------------------------------
 # the orthogonal scheme: S = D W^-1 D^T, matrix-free; shared with the flow's
-# clean-up step (taichi_hh.flow), where W is the particle mass and only the
+# clean-up step (taichi_hh.flow.twophase), where W is the particle mass and only the
 # fluid block is active
 
 @ti.kernel
@@ -206,7 +208,7 @@ def _adjoint_diagonal(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.nda
 
 
 class _NormalOperator:
-    """``S = D W^-1 D^T`` as a linear operator for :mod:`taichi_hh.solvers`.
+    """``S = D W^-1 D^T`` as a linear operator for :mod:`taichi_hh.linalg.krylov`.
 
     ``D`` is the divergence of the gradient stencil ``st`` (``ops.divergence``)
     restricted to the rows whose particle kind is in ``rows`` and the columns
@@ -216,7 +218,7 @@ class _NormalOperator:
     :func:`project`, masses for the flow's clean-up)."""
 
     def __init__(self, ops, pairs, st, weight, n: int, *, rows=None, cols=None):
-        from .operators import ALL_KINDS, _kind_bits
+        from ..sph.operators import ALL_KINDS, _kind_bits
         self.ops, self.pairs, self.st, self.weight = ops, pairs, st, weight
         self.n = n
         self.kind = ops.particles.kind
@@ -253,11 +255,11 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
             history: bool = False, **options) -> ProjectionResult:
     """Project ``vectors`` at ``points`` onto null divergence, ``iterations`` times.
 
-    points, vectors: (N, 2) arrays; domain: :class:`~taichi_hh.domain.Box` or
-    :class:`~taichi_hh.domain.Polygon` (default: the points' bounding box).
+    points, vectors: (N, 2) arrays; domain: :class:`~taichi_hh.geometry.domain.Box` or
+    :class:`~taichi_hh.geometry.domain.Polygon` (default: the points' bounding box).
     method: ``"default"`` or ``"colin2006"`` (or another bundle of
-    :data:`taichi_hh.hhd.METHODS`; keyword ``options`` override single fields of
-    :class:`~taichi_hh.hhd.HHDOptions`, e.g. ``support_ratio``, ``kernel``,
+    :data:`taichi_hh.hhd.decompose.METHODS`; keyword ``options`` override single fields of
+    :class:`~taichi_hh.hhd.decompose.HHDOptions`, e.g. ``support_ratio``, ``kernel``,
     ``divergence``, ``tol``).  scheme: ``"neumann"``, ``"orthogonal"`` or
     ``"poisson"`` (module doc; default: neumann for ``default``, poisson for
     any other method).  wall_velocity: velocity of the ``colin2006`` wall
@@ -304,7 +306,7 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
         if opts.boundary == "colin":
             boundary = wall_layer(domain, spacing, support, pts)
         elif opts.boundary == "collocation":
-            from .hhd import _far_from
+            from .decompose import _far_from
             bpts, bnrm, _ = domain.sample_boundary(spacing)
             keep = _far_from(bpts, pts, 0.25 * spacing, domain)
             boundary = (bpts[keep], bnrm[keep])

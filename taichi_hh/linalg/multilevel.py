@@ -47,7 +47,7 @@ post-smoothing sweep are another.  So a cycle costs ``1 + post`` passes over
 the pairs plus the (cheap) structured levels, which run in one serial loop
 driven as a state machine (kernels cannot recurse).
 
-Bordered systems (:class:`~taichi_hh.poisson.PoissonMatrix` with
+Bordered systems (:class:`~taichi_hh.linalg.poisson.PoissonMatrix` with
 ``bordered=True``): the border unknown is treated by Jacobi alone.
 """
 
@@ -56,9 +56,9 @@ import math
 import numpy as np
 import taichi as ti
 
-from . import runtime
-from .errors import InputError
-from .neighbors import CellGrid, GridSpec, _CELL_PAD
+from .. import runtime
+from ..errors import InputError
+from ..sph.neighbors import CellGrid, GridSpec, _CELL_PAD
 
 #: cells of the coarsest level at most, solved by a dense pseudo-inverse
 COARSEST = 16
@@ -353,7 +353,7 @@ def _stencil_to_dense(S: np.ndarray, nx: int, ny: int) -> np.ndarray:
 class MultilevelPreconditioner:
     """Aggregation-multigrid cycle approximating ``A^-1`` (module doc).
 
-    A: a :class:`~taichi_hh.poisson.PoissonMatrix` (rows assembled).
+    A: a :class:`~taichi_hh.linalg.poisson.PoissonMatrix` (rows assembled).
     cycle: ``"W"`` (default) or ``"V"``.  The W-cycle visits every structured
     level below the first cell level twice per visit of its parent (the
     particle level and the first cell level, which carry almost all the

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .domain import Box, Polygon
+from ..geometry.domain import Box, Polygon
 
 
 def J(v: np.ndarray) -> np.ndarray:

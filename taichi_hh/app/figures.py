@@ -3,7 +3,7 @@
 Only matplotlib's object API with the Agg canvas is used (``Figure`` +
 ``FigureCanvasAgg``): pyplot is never imported, so no interactive backend is
 ever selected and no figure is kept in pyplot's registry; every file is written
-atomically (:func:`taichi_hh.io.atomic_savefig`).
+atomically (:func:`taichi_hh.app.io.atomic_savefig`).
 
 Decomposition (:func:`decomposition_figures`):
 
@@ -67,7 +67,7 @@ def _save(fig, path):
 def _domain_of(points, domain):
     if domain is not None:
         return domain
-    from .domain import Box
+    from ..geometry.domain import Box
     lo, hi = points.min(axis=0), points.max(axis=0)
     return Box(lo, hi)
 

@@ -1,7 +1,7 @@
 """SPH differential operators in 2D as precomputed pair coefficients.
 
 One mechanism serves every variant.  For a particle ``i`` with neighbours
-``j`` (from a :class:`~taichi_hh.neighbors.PairList`), every operator is
+``j`` (from a :class:`~taichi_hh.sph.neighbors.PairList`), every operator is
 
     gradient   grad f_i = sum_j G_ij (f_j - f_i) + s_i f_i          (G_ij a 2-vector)
     divergence div v_i  = sum_j G_ij . (v_j - v_i) + s_i . v_i
@@ -53,8 +53,8 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from . import runtime
-from .errors import NeighbourError
+from .. import runtime
+from ..errors import NeighbourError
 from .kernels import kernel_id, kernel_wfl
 from .particles import BOUNDARY, FLUID, GHOST
 

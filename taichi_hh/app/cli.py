@@ -114,9 +114,9 @@ def _method_defaults(name, methods):
 
 # --------------------------------------------------------------------------- parser
 def _add_common(p, command):
-    from .hhd import BOUNDARY_METHODS, METHODS, PRECONDITIONERS, HHDOptions
-    from .kernels import KERNELS
-    from .operators import GRADIENT_VARIANTS, LAPLACIAN_VARIANTS
+    from ..hhd.decompose import BOUNDARY_METHODS, METHODS, PRECONDITIONERS, HHDOptions
+    from ..sph.kernels import KERNELS
+    from ..sph.operators import GRADIENT_VARIANTS, LAPLACIAN_VARIANTS
     io = p.add_argument_group("input and output")
     io.add_argument("field", metavar="FIELD",
                     help="the vector field: a .npz file with arrays 'points' (N,2) and "
@@ -257,7 +257,7 @@ class _Progress:
 
 
 def _numeric_overrides(args) -> dict:
-    from .hhd import HHDOptions
+    from ..hhd.decompose import HHDOptions
     return {f.name: getattr(args, f.name) for f in dataclasses.fields(HHDOptions)
             if getattr(args, f.name, None) is not None}
 
@@ -279,7 +279,7 @@ def _read_inputs(args, say):
 
 def _init(args, say):
     import contextlib
-    from . import runtime
+    from .. import runtime
     say(f"starting Taichi ({args.arch}, {args.precision})")
     # ti.init prints "[Taichi] Starting on arch=..." on stdout: keep stdout for the summary
     with contextlib.redirect_stdout(sys.stderr if not args.quiet else open(os.devnull, "w")) \
@@ -313,7 +313,7 @@ def _cmd_info(args) -> int:
 def _cmd_decompose(args) -> int:
     import numpy as np
     from . import io
-    from .hhd import decompose, options_for
+    from ..hhd.decompose import decompose, options_for
     say = _Progress("decompose", args.quiet)
     overrides = _numeric_overrides(args)
     options_for(args.method, **overrides)           # bad combinations fail before any work
@@ -356,8 +356,8 @@ def _cmd_decompose(args) -> int:
 
 def _cmd_project(args) -> int:
     from . import io
-    from .hhd import options_for
-    from .projection import project
+    from ..hhd.decompose import options_for
+    from ..hhd.project import project
     say = _Progress("project", args.quiet)
     overrides = _numeric_overrides(args)
     options_for(args.method, **overrides)
@@ -397,7 +397,7 @@ def main(argv=None) -> int:
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
     parser = build_parser()
     args = parser.parse_args(argv)
-    from .errors import SolverError, TaichiHHError
+    from ..errors import SolverError, TaichiHHError
     try:
         return args.func(args)
     except (TaichiHHError, ValueError, OSError) as exc:

@@ -9,7 +9,7 @@ One time step:
              Sec. 3.7; q = dt p is the pressure impulse)
 2b. clean up (``exact_projection``, off by default) solve (D M^-1 D^T) lam = D w,
              w <- w - M^-1 D^T lam: the orthogonal step of
-             :mod:`taichi_hh.projection` with the mass-weighted norm (below)
+             :mod:`taichi_hh.hhd.project` with the mass-weighted norm (below)
 3. advect    x <- x + dt v  (optionally plus a particle-shifting displacement)
 
 Density-weighted projection: with two densities the pressure equation is
@@ -36,7 +36,7 @@ fluid velocity into a wall is a divergence of the rows next to it.  The
 step's ``max_div_before`` and ``max_div`` are max |D w| over the fluid before
 (w = v*) and after the projection, ``div_norm_before`` and ``div_norm`` the
 2-norms.  The Poisson step alone cannot drive ``D w`` to the solver tolerance:
-its Laplacian is not ``D (1/rho) G`` (module doc of :mod:`taichi_hh.projection`),
+its Laplacian is not ``D (1/rho) G`` (module doc of :mod:`taichi_hh.hhd.project`),
 and it leaves max |D w| at 3-20% of its value before (0.07-0.10 at 10k
 particles and t = 1-1.3 of the droplet).  With ``exact_projection`` the clean-up
 step removes the rest: M = diag(particle mass) over the fluid particles (the
@@ -110,16 +110,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import taichi as ti
 
-from . import runtime
-from .errors import InputError, SolverError
-from .kernels import kernel_wfl
-from .neighbors import GridSpec, PairList, bin_particles
-from .operators import GradientStencil, Operators, _weight_gradient_by_mean_density
-from .particles import FLUID, GHOST, Particles
-from .poisson import PoissonMatrix
-from .projection import _NormalOperator
-from . import solvers
-from .runloop import BlowUp
+from .. import runtime
+from ..errors import InputError, SolverError
+from ..sph.kernels import kernel_wfl
+from ..sph.neighbors import GridSpec, PairList, bin_particles
+from ..sph.operators import GradientStencil, Operators, _weight_gradient_by_mean_density
+from ..sph.particles import FLUID, GHOST, Particles
+from ..linalg.poisson import PoissonMatrix
+from ..hhd.project import _NormalOperator
+from ..linalg import krylov as solvers
+from ..app.runloop import BlowUp
 
 
 #: The viscous wall conditions (``FlowParams.walls``).
@@ -436,7 +436,7 @@ class TwoPhaseFlow:
         real = runtime.real_dtype()
         c = ti.ndarray(real, shape=(max(p.capacity, 1),))
         scratch = ti.ndarray(real, shape=(max(p.capacity, 1),))
-        from .operators import _density
+        from ..sph.operators import _density
         _density(self.ops._kid, p.position, p.volume, p.n, self.pairs.offsets,
                  self.pairs.neighbours, self.support, c, scratch)
         C = c.to_numpy()[: p.n]
@@ -731,7 +731,7 @@ class TwoPhaseFlow:
 
 def _lattice_number_density(kernel: str, dx: float, support: float) -> float:
     """sum_j dx^2 W(|x_j|) over a full square lattice (self included)."""
-    from .kernels import kernel_numpy
+    from ..sph.kernels import kernel_numpy
     k = int(math.ceil(support / dx)) + 1
     g = np.arange(-k, k + 1) * dx
     X, Y = np.meshgrid(g, g)

@@ -43,7 +43,7 @@ from numbers import Integral, Real
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = ["Polygon", "Box", "as_domain"]
 

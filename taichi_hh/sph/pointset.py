@@ -12,8 +12,8 @@ import math
 import numpy as np
 import taichi as ti
 
-from . import runtime
-from .errors import InputError, NeighbourError
+from .. import runtime
+from ..errors import InputError, NeighbourError
 from .kernels import KERNELS
 from .neighbors import GridSpec, PairList, bin_particles
 from .operators import Operators
@@ -80,7 +80,7 @@ class PointSet:
 
     Boundary and ghost particles get the data points' mass, join the neighbour
     search and the density summation, and are what the Poisson rows of
-    :mod:`taichi_hh.poisson` use; the numpy operator methods below take values
+    :mod:`taichi_hh.linalg.poisson` use; the numpy operator methods below take values
     at the data points only and sum over data-point neighbours only.
     """
 

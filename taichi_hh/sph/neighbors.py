@@ -5,7 +5,7 @@ Two steps, kept apart:
 1. :class:`CellGrid` bins points into square cells of side = kernel support
    with a counting sort (count per cell, prefix sum, stable scatter) and gives
    the permutation that sorts points by cell.  :func:`bin_particles` applies it
-   to a :class:`~taichi_hh.particles.Particles` set, so that afterwards the
+   to a :class:`~taichi_hh.sph.particles.Particles` set, so that afterwards the
    particles of cell ``c`` occupy the contiguous slots
    ``cell_start[c] : cell_start[c+1]``.
 2. :class:`PairList` stores, for every query point, the indices of the source
@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from . import runtime
-from .errors import InputError
+from .. import runtime
+from ..errors import InputError
 
 # Cells are a hair larger than the support so that a pair closer than the
 # support can never land two cells apart through rounding of (x - lo) / size.

@@ -41,11 +41,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import runtime
-from .errors import InputError
-from .particles import BOUNDARY, FLUID, GHOST
-from .pointset import DUPLICATE_FRACTION, PointSet, check_points, check_values
-from .poisson import PoissonMatrix
+from .. import runtime
+from ..errors import InputError
+from ..sph.particles import BOUNDARY, FLUID, GHOST
+from ..sph.pointset import DUPLICATE_FRACTION, PointSet, check_points, check_values
+from ..linalg.poisson import PoissonMatrix
 
 
 @dataclass(frozen=True)
@@ -128,7 +128,7 @@ class HHDResult:
     def critical_points(self, threshold: float = 0.1, radius: float | None = None):
         """Sources, sinks and vortices: ``[(x, y, kind)]`` (Petronetto Sec. 6c).
 
-        See :func:`taichi_hh.critical.find_critical_points`."""
+        See :func:`taichi_hh.hhd.critical.find_critical_points`."""
         from .critical import find_critical_points
         return find_critical_points(self, threshold=threshold, radius=radius)
 
@@ -139,7 +139,7 @@ def _validate(points, vectors, domain):
     pts = check_points(points)
     vec = check_values(vectors, len(pts), 2, "vectors")
     if domain is None:
-        from .domain import Box
+        from ..geometry.domain import Box
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         if not np.all(hi > lo):
             raise InputError("the points span no area (all on one line or one point)")
@@ -279,8 +279,8 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
               **options) -> HHDResult:
     """Helmholtz-Hodge decomposition of ``vectors`` sampled at ``points``.
 
-    points, vectors: (N, 2) arrays.  domain: :class:`~taichi_hh.domain.Box` or
-    :class:`~taichi_hh.domain.Polygon` (holes allowed); default the points'
+    points, vectors: (N, 2) arrays.  domain: :class:`~taichi_hh.geometry.domain.Box` or
+    :class:`~taichi_hh.geometry.domain.Polygon` (holes allowed); default the points'
     bounding box.  method: a bundle of :data:`METHODS`; keyword ``options``
     override single fields of :class:`HHDOptions`.  progress: optional
     ``callable(stage: str)`` told as each stage starts.
@@ -348,7 +348,7 @@ def _check_energy(stats, v, d, r, h, vol, opts) -> None:
     these points (e.g. the symmetric gradient on random points).  Flagged in
     ``stats["flags"]`` and by an :class:`~taichi_hh.errors.AccuracyWarning`."""
     import warnings
-    from .errors import AccuracyWarning
+    from ..errors import AccuracyWarning
 
     def energy(x):
         return float((vol * (x * x).sum(axis=1)).sum())

@@ -17,8 +17,7 @@ so every new particle set of any size reuses the compiled code.
 import numpy as np
 import taichi as ti
 
-from . import runtime
-
+from .. import runtime
 FLUID, BOUNDARY, GHOST = 0, 1, 2
 KIND_NAMES = {FLUID: "fluid", BOUNDARY: "boundary", GHOST: "ghost"}
 

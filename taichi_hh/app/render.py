@@ -31,7 +31,7 @@ aspect ratio: with ``height=None`` the height follows from the width; with
 both given, the box is centred and letterboxed.
 
 Every file is written through a temporary name in the same directory and
-renamed (:func:`taichi_hh.io.atomic_path`), so an interrupted run never leaves
+renamed (:func:`taichi_hh.app.io.atomic_path`), so an interrupted run never leaves
 a half-written frame or movie.
 """
 
@@ -46,9 +46,9 @@ import zlib
 import numpy as np
 import taichi as ti
 
-from . import runtime
+from .. import runtime
 from .io import atomic_path
-from .particles import FLUID
+from ..sph.particles import FLUID
 
 # colour table layout (rows of RGB u8)
 _CMAP_ROWS = 256                    # rows 0..255: the scalar colormap
@@ -257,7 +257,7 @@ class FrameRenderer:
         return self.image.copy()
 
     def render_particles(self, particles, color: str = "phase", **kwargs) -> np.ndarray:
-        """Draw a :class:`~taichi_hh.particles.Particles` set, by ``"phase"`` or ``"speed"``."""
+        """Draw a :class:`~taichi_hh.sph.particles.Particles` set, by ``"phase"`` or ``"speed"``."""
         pos = particles.get("position")
         scalar = None
         if color == "speed":

@@ -2,7 +2,7 @@
 
 A scene supplies its initial particles, its parameters and its own measures;
 this module parses the common options, runs the time loop with progress,
-frames, diagnostics and checkpoints (:mod:`taichi_hh.runloop`), and resumes.
+frames, diagnostics and checkpoints (:mod:`taichi_hh.app.runloop`), and resumes.
 """
 import argparse
 import math
@@ -13,8 +13,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import runtime
-from .flow import BlowUpError, FlowParams, TwoPhaseFlow
+from .. import runtime
+from ..flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
 from .render import FrameRenderer, frame_path, write_movie, write_png
 from .runloop import Checkpoint, DiagnosticsWriter, add_common_arguments, run
 
@@ -77,7 +77,7 @@ class SceneRun:
     the wall seconds of the whole run (``wall``) and of the time loop alone
     (``loop``), the seconds by part (``seconds``: the flow's stages
     ``neighbours``, ``operators``, ``solve``, ``other`` (see
-    :attr:`~taichi_hh.flow.TwoPhaseFlow.timings`), then ``render`` (drawing and
+    :attr:`~taichi_hh.flow.twophase.TwoPhaseFlow.timings`), then ``render`` (drawing and
     writing frames), ``diagnostics`` (the CSV row's measures), ``checkpoint``
     and ``driver`` (the loop's own overhead: progress bar, time-step choice)),
     the solver iterations and dt of every step, and the steps taken."""
@@ -101,7 +101,7 @@ def main(scene: Scene, argv=None) -> int:
 def run_scene(scene: Scene, argv=None) -> SceneRun:
     """Parse ``argv`` like the scene script, run it and return a :class:`SceneRun`
     (blow-ups and Ctrl-C raise ``SystemExit`` as described in
-    :mod:`taichi_hh.runloop`)."""
+    :mod:`taichi_hh.app.runloop`)."""
     wall0 = time.perf_counter()
     ap = argparse.ArgumentParser(prog=f"{scene.name}.py", description=scene.description,
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)

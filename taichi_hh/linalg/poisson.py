@@ -3,7 +3,7 @@ assembled, matrix-free row system.
 
 Every particle owns one row, chosen by its kind (``particles.kind``):
 
-``FLUID``     Laplacian row (any variant of :mod:`taichi_hh.operators`) plus the
+``FLUID``     Laplacian row (any variant of :mod:`taichi_hh.sph.operators`) plus the
               ridge term ``kappa`` (Petronetto Sec. 6a: ``(L + kappa I) phi = b``),
               plus, for Petronetto's boundary treatment, ``-n . grad phi`` on the
               particles within ``sqrt(m/rho)/pi`` of the boundary (Sec. 4: the
@@ -25,11 +25,13 @@ pair (j, i) for pair k = (i, j).
 import numpy as np
 import taichi as ti
 
-from . import runtime, solvers
-from .kernels import kernel_wfl
-from .errors import InputError, NeighbourError
-from .operators import GradientStencil, LaplacianStencil
-from .particles import BOUNDARY, FLUID, GHOST
+from .. import runtime
+
+from . import krylov as solvers
+from ..sph.kernels import kernel_wfl
+from ..errors import InputError, NeighbourError
+from ..sph.operators import GradientStencil, LaplacianStencil
+from ..sph.particles import BOUNDARY, FLUID, GHOST
 
 
 @ti.kernel
@@ -169,7 +171,7 @@ MULTILEVEL_MIN_N = 1000
 class PoissonMatrix:
     """Assembled SPH Poisson rows over every particle; a solver linear operator.
 
-    ops: :class:`~taichi_hh.operators.Operators` on the particle set (with
+    ops: :class:`~taichi_hh.sph.operators.Operators` on the particle set (with
     densities computed); boundary rows use ``particles.normal``.
     laplacian, gradient: operator variants of the fluid rows and of the Neumann
     (boundary) rows, or stencils already computed with those rows (e.g. shared
@@ -253,12 +255,12 @@ class PoissonMatrix:
     def _border(self):
         return int(self.bordered), self.border_e, self.border_w, self.border_c
 
-    # ---- linear operator protocol (see taichi_hh.solvers) ------------------------
+    # ---- linear operator protocol (see taichi_hh.linalg.krylov) ------------------------
     def apply(self, x, y) -> None:
         self.apply_dot(x, y, y)
 
     def apply_dot(self, x, y, a) -> tuple:
-        """y = A x; returns (<a, y>, <y, y>) (see :mod:`taichi_hh.solvers`)."""
+        """y = A x; returns (<a, y>, <y, y>) (see :mod:`taichi_hh.linalg.krylov`)."""
         pr = self.ops.pairs
         return _apply_rows(self.n_particles, pr.offsets, pr.neighbours, self.K, self.D, x, y,
                            *self._border(), a)
@@ -302,7 +304,7 @@ class PoissonMatrix:
 
     # ---- solve ---------------------------------------------------------------------
     def multilevel(self, **options):
-        """The :class:`~taichi_hh.multilevel.MultilevelPreconditioner` of this
+        """The :class:`~taichi_hh.linalg.multilevel.MultilevelPreconditioner` of this
         matrix (built on first use, then cached; new ``options`` rebuild it)."""
         from .multilevel import MultilevelPreconditioner
         cached = getattr(self, "_multilevel", None)

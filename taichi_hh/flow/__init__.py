@@ -1,0 +1,1 @@
+"""Flow layer: two-phase incompressible SPH by projection (:mod:`.twophase`)."""

@@ -1,0 +1,3 @@
+"""Decomposition layer: the SPH Helmholtz-Hodge decomposition
+(:mod:`.decompose`), the null-divergence projection (:mod:`.project`) and
+critical points (:mod:`.critical`)."""

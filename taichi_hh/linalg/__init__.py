@@ -1,0 +1,3 @@
+"""Linear-algebra layer: matrix-free Krylov solvers and CSR matrices in Taichi
+(:mod:`.krylov`), the Poisson rows of the decomposition and the flow
+(:mod:`.poisson`), the multilevel preconditioner (:mod:`.multilevel`)."""
