@@ -31,3 +31,17 @@ class AccuracyWarning(UserWarning):
     passes (e.g. a decomposition whose components carry far more energy than the
     field): the operators are not consistent on these points.  The result's
     ``stats["flags"]`` lists the same findings."""
+
+
+class BlowUp(RuntimeError):
+    """The simulation cannot go on.  ``cause``: ``"non-finite"`` (NaN/inf
+    values), ``"left-box"`` (particles outside the domain), ``"solver"`` (a
+    solver broke down) or ``"time-step"`` (time did not advance)."""
+
+    CAUSES = ("non-finite", "left-box", "solver", "time-step")
+
+    def __init__(self, message: str, *, cause: str = "solver"):
+        if cause not in self.CAUSES:
+            raise ValueError(f"cause must be one of {self.CAUSES}, got {cause!r}")
+        super().__init__(message)
+        self.cause = cause

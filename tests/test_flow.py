@@ -216,7 +216,7 @@ def test_step_shortcuts_build_the_same_coefficients():
     gradient (the flow has no BOUNDARY rows): both must equal the long way."""
     import taichi as ti
     from taichi_hh import runtime
-    from taichi_hh.flow.twophase import _weight_gradient_by_mean_density
+    from taichi_hh.sph.operators import weight_gradient_by_mean_density
     from taichi_hh.sph.particles import FLUID
     from taichi_hh.linalg.poisson import PoissonMatrix
     pts, dx = tank(8, 16)
@@ -229,7 +229,7 @@ def test_step_shortcuts_build_the_same_coefficients():
     st = ops.gradient_coefficients("corrected", row_kinds=(FLUID,))
     G = ti.Vector.ndarray(2, runtime.real_dtype(), shape=st.G.shape)
     G.copy_from(st.G)
-    _weight_gradient_by_mean_density(p.n, flow.pairs.offsets, flow.pairs.neighbours, p.density, G)
+    weight_gradient_by_mean_density(p.n, flow.pairs.offsets, flow.pairs.neighbours, p.density, G)
     assert np.array_equal(full.G.to_numpy(), G.to_numpy())
     A = PoissonMatrix(ops, laplacian="corrected", kappa=0.0, bordered=True, density_weighted=True)
     B = PoissonMatrix(ops, laplacian="corrected", gradient="basic", kappa=0.0, bordered=True,

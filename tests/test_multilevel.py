@@ -10,7 +10,7 @@ import scipy.sparse.linalg as spl
 import taichi_hh as thh
 from taichi_hh import runtime
 from taichi_hh.errors import InputError
-from taichi_hh.linalg.multilevel import MultilevelPreconditioner, _stencil_to_dense
+from taichi_hh.linalg.multilevel import MultilevelPreconditioner, stencil_to_dense
 from taichi_hh.sph.particles import FLUID
 from taichi_hh.linalg.poisson import PoissonMatrix
 from test_poisson import neumann_square
@@ -51,7 +51,7 @@ def test_level_one_is_the_galerkin_operator(square48):
     nx, ny = M.shapes[0]
     P = _aggregation(M.grid.cell_of.to_numpy()[:n], nx * ny)
     want = (P.T @ Dinv @ B @ P).toarray()
-    got = _stencil_to_dense(M.S.to_numpy()[: nx * ny], nx, ny)
+    got = stencil_to_dense(M.S.to_numpy()[: nx * ny], nx, ny)
     assert np.abs(got - want).max() < 1e-12 * np.abs(want).max()
 
 
@@ -63,12 +63,12 @@ def test_coarser_levels_are_galerkin_operators(square48):
     off = np.concatenate([[0], np.cumsum([nx * ny for nx, ny in M.shapes])])
     for k in range(len(M.shapes) - 1):
         (nx, ny), (cx, cy) = M.shapes[k], M.shapes[k + 1]
-        fine = _stencil_to_dense(S[off[k]:off[k + 1]], nx, ny)
+        fine = stencil_to_dense(S[off[k]:off[k + 1]], nx, ny)
         c = np.arange(nx * ny)
         parent = ((c // nx) // 2) * cx + (c % nx) // 2
         P = _aggregation(parent, cx * cy).toarray()
         want = P.T @ fine @ P
-        got = _stencil_to_dense(S[off[k + 1]:off[k + 2]], cx, cy)
+        got = stencil_to_dense(S[off[k + 1]:off[k + 2]], cx, cy)
         # the coarsest entries are sums that cancel (constants are near the null
         # space): compare with the round-off of the sum
         assert np.abs(got - want).max() < 1e-12 * np.abs(fine).sum(), k

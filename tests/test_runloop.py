@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from taichi_hh.errors import SolverError
-from taichi_hh.app.runloop import (BlowUp, Checkpoint, DiagnosticsWriter, ProgressBar,
+from taichi_hh.errors import BlowUp
+from taichi_hh.app.runloop import (Checkpoint, DiagnosticsWriter, ProgressBar,
                                add_common_arguments, check_finite, check_inside, run)
 
 COLUMNS = ["time", "step", "dt", "y", "error"]

@@ -11,7 +11,7 @@ import pytest
 import taichi_hh as thh
 from taichi_hh.validation import fields
 from taichi_hh.flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
-from taichi_hh.app.runloop import BlowUp
+from taichi_hh.errors import BlowUp
 from taichi_hh.hhd.decompose import options_for
 
 SOLVER_REASONS = {"breakdown", "stagnation", "divergence", "max_iterations", "non-finite"}

@@ -35,22 +35,8 @@ import time
 
 import numpy as np
 
-from ..errors import SolverError
+from ..errors import BlowUp, SolverError
 from .io import atomic_path
-
-
-class BlowUp(RuntimeError):
-    """The simulation cannot go on.  ``cause``: ``"non-finite"`` (NaN/inf
-    values), ``"left-box"`` (particles outside the domain), ``"solver"`` (a
-    solver broke down) or ``"time-step"`` (time did not advance)."""
-
-    CAUSES = ("non-finite", "left-box", "solver", "time-step")
-
-    def __init__(self, message: str, *, cause: str = "solver"):
-        if cause not in self.CAUSES:
-            raise ValueError(f"cause must be one of {self.CAUSES}, got {cause!r}")
-        super().__init__(message)
-        self.cause = cause
 
 
 def check_finite(**arrays) -> None:

@@ -111,15 +111,14 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
-from ..errors import InputError, SolverError
+from ..errors import BlowUp, InputError, SolverError
 from ..sph.kernels import kernel_wfl
 from ..sph.neighbors import GridSpec, PairList, bin_particles
-from ..sph.operators import GradientStencil, Operators, _weight_gradient_by_mean_density
+from ..sph.operators import GradientStencil, Operators, weight_gradient_by_mean_density
 from ..sph.particles import FLUID, GHOST, Particles
 from ..linalg.poisson import PoissonMatrix
-from ..hhd.project import _NormalOperator
+from ..sph.adjoint import NormalOperator
 from ..linalg import krylov as solvers
-from ..app.runloop import BlowUp
 
 
 #: The viscous wall conditions (``FlowParams.walls``).
@@ -436,8 +435,8 @@ class TwoPhaseFlow:
         real = runtime.real_dtype()
         c = ti.ndarray(real, shape=(max(p.capacity, 1),))
         scratch = ti.ndarray(real, shape=(max(p.capacity, 1),))
-        from ..sph.operators import _density
-        _density(self.ops._kid, p.position, p.volume, p.n, self.pairs.offsets,
+        from ..sph.operators import number_density
+        number_density(self.ops.kernel_id, p.position, p.volume, p.n, self.pairs.offsets,
                  self.pairs.neighbours, self.support, c, scratch)
         C = c.to_numpy()[: p.n]
         if not hasattr(self, "_c0"):
@@ -482,7 +481,7 @@ class TwoPhaseFlow:
         real = runtime.np_real()
         v_nd = p.velocity
         ext = _ndarray_like(p, 2)
-        _wall_velocity(ops._kid, p.n, self.pairs.offsets, self.pairs.neighbours, p.position,
+        _wall_velocity(ops.kernel_id, p.n, self.pairs.offsets, self.pairs.neighbours, p.position,
                        p.volume, p.kind, self.support, v_nd,
                        WALL_FREE_SLIP if pr.walls == "free-slip" else WALL_NO_SLIP,
                        p.normal, ext)
@@ -510,7 +509,7 @@ class TwoPhaseFlow:
             # building the (correction-matrix) coefficients a second time
             G = ti.Vector.ndarray(2, runtime.real_dtype(), shape=st_grad.G.shape)
             G.copy_from(st_grad.G)
-            _weight_gradient_by_mean_density(p.n, self.pairs.offsets, self.pairs.neighbours,
+            weight_gradient_by_mean_density(p.n, self.pairs.offsets, self.pairs.neighbours,
                                              p.density, G)
             st_pgrad = GradientStencil(G, st_grad.s, st_grad.variant, st_grad.row_kinds,
                                        st_grad.source_kinds)
@@ -541,10 +540,10 @@ class TwoPhaseFlow:
 
         def divergence_and_walls(w, gdt):
             w_nd.from_numpy(w.astype(real))
-            _wall_velocity(ops._kid, p.n, pr_.offsets, pr_.neighbours, p.position, p.volume,
+            _wall_velocity(ops.kernel_id, p.n, pr_.offsets, pr_.neighbours, p.position, p.volume,
                            p.kind, self.support, w_nd, WALL_COPY, p.normal, wext_nd)
             ops.divergence(st_grad, wext_nd, div_nd)
-            _wall_rhs(ops._kid, p.n, pr_.offsets, pr_.neighbours, p.position, p.volume,
+            _wall_rhs(ops.kernel_id, p.n, pr_.offsets, pr_.neighbours, p.position, p.volume,
                       p.density, p.kind, p.normal, w_nd, gdt[0], gdt[1], self.support, wall_b)
             div = div_nd.to_numpy()[: p.n].astype(np.float64)
             return np.where(fluid, div, wall_b.to_numpy()[: p.n].astype(np.float64))
@@ -656,7 +655,7 @@ class TwoPhaseFlow:
         target = max(tol * norm_before, floor)
         if norm <= target:
             return w, 0
-        S = _NormalOperator(self.ops, self.pairs, st, p.mass, p.n, rows=(FLUID,), cols=(FLUID,))
+        S = NormalOperator(self.ops, self.pairs, st, p.mass, p.n, rows=(FLUID,), cols=(FLUID,))
         x0 = self.lam_by_id[ids] if pr.cleanup_warm_start else None
         self.clock.lap("operators", "cleanup")
         try:
@@ -686,7 +685,7 @@ class TwoPhaseFlow:
         dr = -D grad C with D = shifting * support * vmax * dt."""
         ops, p = self.ops, self.particles
         g = _ndarray_like(p, 2)
-        _concentration_gradient(ops._kid, p.n, self.pairs.offsets, self.pairs.neighbours,
+        _concentration_gradient(ops.kernel_id, p.n, self.pairs.offsets, self.pairs.neighbours,
                                 p.position, p.mass, p.density, p.kind, self.support, g)
         gradC = g.to_numpy()[: p.n].astype(np.float64)
         D = self.params.shifting * self.support * max(vmax, 1e-12) * dt

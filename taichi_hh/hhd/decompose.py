@@ -135,7 +135,7 @@ class HHDResult:
 
 # ---------------------------------------------------------------------------
 
-def _validate(points, vectors, domain):
+def validate_input(points, vectors, domain):
     pts = check_points(points)
     vec = check_values(vectors, len(pts), 2, "vectors")
     if domain is None:
@@ -153,7 +153,7 @@ def _validate(points, vectors, domain):
     return pts, vec, domain
 
 
-def _far_from(candidates, points, radius, domain):
+def far_from(candidates, points, radius, domain):
     """Mask of candidates (boundary samples) farther than ``radius`` from every point.
     Only points within ``radius`` of the boundary can be that close."""
     keep = np.ones(len(candidates), dtype=bool)
@@ -172,7 +172,7 @@ def _extra_particles(domain, pts, opts: HHDOptions, spacing: float, support: flo
         return None, None
     if opts.boundary == "collocation":
         bpts, bnrm, _ = domain.sample_boundary(spacing)
-        keep = _far_from(bpts, pts, 0.25 * spacing, domain)   # data points on the boundary take over
+        keep = far_from(bpts, pts, 0.25 * spacing, domain)   # data points on the boundary take over
         return (bpts[keep], bnrm[keep]), None
     band = domain.sample_ghosts(spacing, support, seed=opts.seed, avoid=pts)
     if opts.boundary == "colin":
@@ -205,7 +205,7 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
     or fake particles, div v and curl v, the assembled Poisson matrix."""
     opts = options_for(method, **options)
     runtime.ensure_init()
-    pts, vec, domain = _validate(points, vectors, domain)
+    pts, vec, domain = validate_input(points, vectors, domain)
     say = progress or (lambda stage: None)
     seconds = {}
     n = len(pts)

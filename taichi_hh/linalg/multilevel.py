@@ -58,7 +58,7 @@ import taichi as ti
 
 from .. import runtime
 from ..errors import InputError
-from ..sph.neighbors import CellGrid, GridSpec, _CELL_PAD
+from ..sph.neighbors import CellGrid, GridSpec, CELL_PAD
 
 #: cells of the coarsest level at most, solved by a dense pseudo-inverse
 COARSEST = 16
@@ -338,7 +338,7 @@ def _cycle(serial: ti.template(), post: ti.template(), omega: ti.template(), cor
             z[i] += shift
 
 
-def _stencil_to_dense(S: np.ndarray, nx: int, ny: int) -> np.ndarray:
+def stencil_to_dense(S: np.ndarray, nx: int, ny: int) -> np.ndarray:
     m = nx * ny
     c = np.arange(m)
     cx, cy = c % nx, c // nx
@@ -404,7 +404,7 @@ class MultilevelPreconditioner:
         real = runtime.real_dtype()
         pos = p.position.to_numpy()[:n]
         lo, hi = pos.min(axis=0), pos.max(axis=0)
-        size = ops.support * _CELL_PAD
+        size = ops.support * CELL_PAD
         shapes = [(max(1, int(math.floor((hi[0] - lo[0]) / size)) + 1),
                    max(1, int(math.floor((hi[1] - lo[1]) / size)) + 1))]
         # at least two cell levels (the cycle's first two are fixed)
@@ -446,7 +446,7 @@ class MultilevelPreconditioner:
         self.ftmp = ti.ndarray(real, shape=(max(n, 1) if self.post > 1 else 1,))
         # coarsest level: pseudo-inverse (singular for a Neumann problem)
         cnx, cny = shapes[-1]
-        M = _stencil_to_dense(S_np[offs[-2]:], cnx, cny)
+        M = stencil_to_dense(S_np[offs[-2]:], cnx, cny)
         U, sv, Vt = np.linalg.svd(M)
         self._bordered = bool(getattr(A, "bordered", False))
         self._border_c = float(getattr(A, "border_c", 1.0)) if self._bordered else 1.0

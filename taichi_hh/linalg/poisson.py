@@ -233,7 +233,7 @@ class PoissonMatrix:
         orphan = ti.ndarray(ti.i32, shape=(1,))
         orphan.fill(-1)
         pr = ops.pairs
-        _assemble(ops._kid, p.n, pr.offsets, pr.neighbours, p.position, p.volume, p.kind,
+        _assemble(ops.kernel_id, p.n, pr.offsets, pr.neighbours, p.position, p.volume, p.kind,
                   p.normal, near, self.lap.C, self.lap.s, self.grad.G, self.grad.s, self.kappa,
                   ops.support, self.K, self.D, orphan)
         bad = int(orphan.to_numpy()[0])

@@ -28,7 +28,7 @@ from ..errors import InputError
 
 # Cells are a hair larger than the support so that a pair closer than the
 # support can never land two cells apart through rounding of (x - lo) / size.
-_CELL_PAD = 1.0 + 1e-9
+CELL_PAD = 1.0 + 1e-9
 
 
 @ti.func
@@ -117,7 +117,7 @@ class GridSpec:
         """A grid of cells of side ~support covering the box [lo, hi] (with a margin)."""
         if not (support > 0 and math.isfinite(support)):
             raise InputError(f"kernel support must be a positive finite number, got {support}")
-        size = support * _CELL_PAD
+        size = support * CELL_PAD
         lo = np.asarray(lo, float) - 0.5 * size
         hi = np.asarray(hi, float) + 0.5 * size
         nx = max(1, int(math.ceil((hi[0] - lo[0]) / size)))
@@ -158,6 +158,12 @@ class CellGrid:
             self._capacity = cap
             self._rank_nd = None
 
+    @property
+    def rank(self):
+        """The inverse of ``order`` (point i -> its slot) when the last
+        :meth:`sort` recorded it (input far from sorted), else None."""
+        return self._rank
+
     def sort(self, pos, n: int):
         """Bin ``pos[:n]``; returns ``order`` (slot k holds point ``order[k]``).
 
@@ -184,11 +190,11 @@ def bin_particles(particles, spec: GridSpec) -> CellGrid:
     """Sort ``particles`` physically by cell of ``spec``; returns the grid."""
     grid = CellGrid(spec)
     order = grid.sort(particles.position, particles.n)
-    if grid._rank is not None:
+    if grid.rank is not None:
         # input far from sorted: writing each particle to its slot (sequential
         # reads, scattered writes) was ~2x faster than gathering them
         # (scattered reads) at 1M particles; the result is the same
-        particles.permute(order, inverse=grid._rank)
+        particles.permute(order, inverse=grid.rank)
     else:
         particles.permute(order)
     return grid

@@ -61,7 +61,7 @@ from .particles import BOUNDARY, FLUID, GHOST
 ALL_KINDS = (FLUID, BOUNDARY, GHOST)
 
 
-def _kind_bits(kinds) -> int:
+def kind_bits(kinds) -> int:
     return sum(1 << int(k) for k in kinds)
 
 GRADIENT_VARIANTS = ("basic", "difference", "colin_difference", "symmetric", "corrected",
@@ -84,7 +84,7 @@ def _variant_id(name: str, table) -> int:
 # Taichi kernels
 
 @ti.kernel
-def _density(kid: ti.template(), pos: ti.types.ndarray(), mass: ti.types.ndarray(),
+def number_density(kid: ti.template(), pos: ti.types.ndarray(), mass: ti.types.ndarray(),
              n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
              rho: ti.types.ndarray(), vol: ti.types.ndarray()):
     """rho_i = sum_j m_j W_ij including j = i (Petronetto Sec. 5a); V_i = m_i / rho_i."""
@@ -388,7 +388,7 @@ def _weight_by_mean_density(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.typ
 
 
 @ti.kernel
-def _weight_gradient_by_mean_density(n: ti.i32, offsets: ti.types.ndarray(),
+def weight_gradient_by_mean_density(n: ti.i32, offsets: ti.types.ndarray(),
                                      nbrs: ti.types.ndarray(), rho: ti.types.ndarray(),
                                      G: ti.types.ndarray()):
     """G_ij *= 2 rho_i / (rho_i + rho_j): then (grad f)_i / rho_i pairs each difference
@@ -511,7 +511,7 @@ class Operators:
         self.pairs = pairs
         self.support = float(support)
         self.kernel = kernel
-        self._kid = kernel_id(kernel)
+        self.kernel_id = kernel_id(kernel)
         self._bad = ti.ndarray(ti.i32, shape=(1,))
 
     @property
@@ -523,7 +523,7 @@ class Operators:
 
     def compute_density(self) -> None:
         p = self.particles
-        _density(self._kid, p.position, p.mass, p.n, *self._pair_args(), self.support,
+        number_density(self.kernel_id, p.position, p.mass, p.n, *self._pair_args(), self.support,
                  p.density, p.volume)
 
     def _check_bad(self, what: str) -> None:
@@ -551,14 +551,14 @@ class Operators:
         G = ti.Vector.ndarray(2, real, shape=(max(self.pairs.n_pairs, 1),))
         s = ti.Vector.ndarray(2, real, shape=(max(p.n, 1),))
         self._bad.fill(-1)
-        _gradient_coeffs(self._kid, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
-                         self.support, G, s, self._bad, p.kind, _kind_bits(row_kinds),
-                         _kind_bits(source_kinds))
+        _gradient_coeffs(self.kernel_id, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
+                         self.support, G, s, self._bad, p.kind, kind_bits(row_kinds),
+                         kind_bits(source_kinds))
         self._check_bad(f"{variant} gradient")
         if density_weighted:
             if variant in ("basic", "symmetric"):
                 raise ValueError("density weighting needs a difference-form gradient")
-            _weight_gradient_by_mean_density(p.n, *self._pair_args(), p.density, G)
+            weight_gradient_by_mean_density(p.n, *self._pair_args(), p.density, G)
         return GradientStencil(G, s, variant, tuple(row_kinds), tuple(source_kinds))
 
     def laplacian_coefficients(self, variant: str = "corrected",
@@ -574,9 +574,9 @@ class Operators:
         C = ti.ndarray(real, shape=(max(self.pairs.n_pairs, 1),))
         s = ti.ndarray(real, shape=(max(p.n, 1),))
         self._bad.fill(-1)
-        _laplacian_coeffs(self._kid, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
-                          self.support, C, s, self._bad, p.kind, _kind_bits(row_kinds),
-                         _kind_bits(source_kinds))
+        _laplacian_coeffs(self.kernel_id, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
+                          self.support, C, s, self._bad, p.kind, kind_bits(row_kinds),
+                         kind_bits(source_kinds))
         self._check_bad(f"{variant} Laplacian")
         if density_weighted:
             if variant == "basic":
@@ -615,5 +615,5 @@ class Operators:
         """Shepard interpolation of f (scalar or vector) at every particle from the
         neighbours of the given kinds; 0 where there are none."""
         p = self.particles
-        _shepard(self._kid, p.position, p.volume, p.n, *self._pair_args(), self.support, f, out,
-                 p.kind, _kind_bits(source_kinds))
+        _shepard(self.kernel_id, p.position, p.volume, p.n, *self._pair_args(), self.support, f, out,
+                 p.kind, kind_bits(source_kinds))

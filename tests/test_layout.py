@@ -1,0 +1,156 @@
+"""The package's layering rules, checked on the source tree (no Taichi needed).
+
+* No file imports another module's private (underscore) name; outside the
+  tests, none reads a private attribute that its own module does not define.
+* Data flows one way: a subpackage imports only from the layers below it
+  (``LAYERS``), and nothing in the numerical core imports the application layer.
+"""
+import ast
+import pathlib
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+PACKAGE = ROOT / "taichi_hh"
+TREES = ("taichi_hh", "scenes", "benchmarks", "tests")
+
+#: each subpackage and the subpackages it may import from (top-level modules
+#: ``errors``, ``checks``, ``runtime`` are below everything)
+LAYERS = {
+    "sph": set(),
+    "geometry": set(),
+    "linalg": {"sph"},
+    "hhd": {"sph", "geometry", "linalg"},
+    "flow": {"sph", "geometry", "linalg"},
+    "validation": {"sph", "geometry", "linalg", "hhd", "flow"},
+    "app": {"sph", "geometry", "linalg", "hhd", "flow", "validation"},
+}
+
+
+def _sources():
+    for tree in TREES:
+        for path in sorted((ROOT / tree).rglob("*.py")):
+            if "__pycache__" not in path.parts:
+                yield path
+
+
+def _module_name(path: pathlib.Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _resolve(path: pathlib.Path, node: ast.ImportFrom) -> str:
+    """Absolute module name of an ``from X import ...`` statement."""
+    if node.level == 0:
+        return node.module or ""
+    package = _module_name(path).split(".")
+    if path.name != "__init__.py":
+        package = package[:-1]
+    base = package[: len(package) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def _is_private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def _own_private_names(tree: ast.AST) -> set:
+    """Private names a module defines: functions, classes, module globals,
+    attributes assigned anywhere in it (``self._x = ...``) and names it spells
+    out as strings (``__slots__``, ``setattr``)."""
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            names.add(node.id)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+            names.add(node.attr)
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            names.add(node.target.id)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str) \
+                and node.value.isidentifier():
+            names.add(node.value)     # __slots__ entries, setattr(self, "_x", ...)
+    return {n for n in names if _is_private(n)}
+
+
+def _violations():
+    found = []
+    for path in _sources():
+        tree = ast.parse(path.read_text(), filename=str(path))
+        rel = path.relative_to(ROOT)
+        own = _own_private_names(tree)
+        foreign_modules = set()        # local names bound to modules outside the package
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                module = _resolve(path, node)
+                ours = module == "taichi_hh" or module.startswith("taichi_hh.")
+                for alias in node.names:
+                    if ours and _is_private(alias.name):
+                        found.append(f"{rel}:{node.lineno} imports {module}.{alias.name}")
+                    if not ours:
+                        foreign_modules.add(alias.asname or alias.name)
+            elif isinstance(node, ast.Import):
+                for alias in node.names:
+                    if _is_private(alias.name.split(".")[-1]) and alias.name.startswith("taichi_hh"):
+                        found.append(f"{rel}:{node.lineno} imports {alias.name}")
+                    if not alias.name.startswith("taichi_hh"):
+                        foreign_modules.add((alias.asname or alias.name).split(".")[0])
+        if rel.parts[0] == "tests":
+            continue              # white-box tests may read their objects' private state
+        for node in ast.walk(tree):
+            if not (isinstance(node, ast.Attribute) and _is_private(node.attr)):
+                continue
+            base = node.value
+            if isinstance(base, ast.Name) and base.id in ("self", "cls"):
+                continue
+            if isinstance(base, ast.Name) and base.id in foreign_modules:
+                continue          # another library's business (checked where it matters)
+            if node.attr in own:
+                continue
+            found.append(f"{rel}:{node.lineno} reads {ast.unparse(node)}")
+    return found
+
+
+def test_no_private_names_cross_module_boundaries():
+    assert _violations() == []
+
+
+def _subpackage(module: str):
+    parts = module.split(".")
+    return parts[1] if len(parts) > 2 and parts[0] == "taichi_hh" else None
+
+
+def test_subpackages_import_only_layers_below():
+    bad = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if "__pycache__" in path.parts:
+            continue
+        me = _subpackage(_module_name(path)) if path.parent != PACKAGE else None
+        if me is None:
+            continue
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            targets = []
+            if isinstance(node, ast.ImportFrom):
+                module = _resolve(path, node)
+                targets = [module] + [f"{module}.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            for target in targets:
+                other = _subpackage(target)
+                if other and other != me and other in LAYERS and other not in LAYERS[me]:
+                    bad.append(f"{path.relative_to(ROOT)}:{node.lineno} ({me}) imports {target}")
+                    break
+    assert bad == []
+
+
+@pytest.mark.parametrize("name", ["errors", "runtime"])
+def test_bottom_modules_import_no_subpackage(name):
+    tree = ast.parse((PACKAGE / f"{name}.py").read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level > 0:
+            assert node.module in (None, "errors", "checks", "runtime"), ast.unparse(node)
