@@ -50,6 +50,8 @@ Operators evaluate at every particle of the set, taking all particles
 
 from dataclasses import dataclass
 
+from enum import IntEnum
+
 import numpy as np
 import taichi as ti
 
@@ -64,9 +66,27 @@ ALL_KINDS = (FLUID, BOUNDARY, GHOST)
 def kind_bits(kinds) -> int:
     return sum(1 << int(k) for k in kinds)
 
-GRADIENT_VARIANTS = ("basic", "difference", "colin_difference", "symmetric", "corrected",
-                     "quadratic")
-LAPLACIAN_VARIANTS = ("basic", "colin_difference", "brookshaw", "corrected")
+class GradientVariant(IntEnum):
+    """The gradient stencils (the value selects the kernel branch at compile time)."""
+    BASIC = 0               # Colin Eq. 8
+    DIFFERENCE = 1          # Petronetto Eq. 8
+    COLIN_DIFFERENCE = 2    # Colin Eq. 13 (DGAF)
+    SYMMETRIC = 3           # Colin Eq. 17 (SGAF)
+    CORRECTED = 4           # Bonet & Lok 1999: exact on linear fields
+    QUADRATIC = 5           # least-squares quadratic fit: exact on quadratics
+
+
+class LaplacianVariant(IntEnum):
+    """The Laplacian stencils (the value selects the kernel branch at compile time)."""
+    BASIC = 0               # Colin Eq. 9
+    COLIN_DIFFERENCE = 1    # Colin Eq. 21
+    BROOKSHAW = 2           # Petronetto Eq. 10
+    CORRECTED = 3           # renormalised (Fatehi & Manzari 2011): exact on quadratics
+
+
+#: the variants' option names, as ``decompose()`` and the CLI take them
+GRADIENT_VARIANTS = tuple(v.name.lower() for v in GradientVariant)
+LAPLACIAN_VARIANTS = tuple(v.name.lower() for v in LaplacianVariant)
 
 # A correction matrix whose smallest/largest eigenvalue ratio falls below this
 # is treated as singular: the neighbourhood is too small or degenerate
@@ -77,7 +97,7 @@ SINGULAR_RATIO = 1e-6
 def _variant_id(name: str, table) -> int:
     if name not in table:
         raise ValueError(f"unknown operator variant {name!r}; choose one of {table}")
-    return table.index(name)
+    return table.index(name)      # == the enum value: the tables list the enums in order
 
 
 # ---------------------------------------------------------------------------
@@ -207,7 +227,7 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
         L = ti.Matrix.identity(float, 2)
         Lf = ti.Matrix.identity(float, 5)
         linear = 0
-        if ti.static(variant == 5):
+        if ti.static(variant == GradientVariant.QUADRATIC):
             Lf, ok = _quadratic_fit_rows(kid, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
             if not ok:
                 # Too few neighbours for a quadratic fit (e.g. a corner): this
@@ -219,7 +239,7 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
                 else:
                     L = M.inverse()
                     linear = 1
-        if ti.static(variant == 4):
+        if ti.static(variant == GradientVariant.CORRECTED):
             M = _correction_matrix(kid, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
             if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
                 ti.atomic_max(bad[0], i)
@@ -233,15 +253,15 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
             _W, F, _L = kernel_wfl(kid, xij.norm(), H)
             gw = F * xij
             coef = ti.Vector.zero(float, 2)
-            if ti.static(variant == 0 or variant == 1):
+            if ti.static(variant == GradientVariant.BASIC or variant == GradientVariant.DIFFERENCE):
                 coef = (mj / rho[j]) * gw
-            elif ti.static(variant == 2):
+            elif ti.static(variant == GradientVariant.COLIN_DIFFERENCE):
                 coef = (mj / rho[i]) * gw
-            elif ti.static(variant == 3):
+            elif ti.static(variant == GradientVariant.SYMMETRIC):
                 coef = rho[i] * mj / (rho[j] * rho[j]) * gw
                 # f_i terms: rho_i m_j f_i / rho_i^2, plus sum_j G f_i from the difference form
                 gsum += (mj / rho[i]) * gw + coef
-            elif ti.static(variant == 4):
+            elif ti.static(variant == GradientVariant.CORRECTED):
                 coef = (mj / rho[j]) * (L @ gw)
             else:
                 if linear:
@@ -254,7 +274,7 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
                     z = _cholesky_solve5(Lf, (mj / rho[j]) * W * p)
                     coef = ti.Vector([z[0], z[1]]) / H
             G[k] = coef
-            if ti.static(variant == 0):
+            if ti.static(variant == GradientVariant.BASIC):
                 gsum += coef   # sum_j G f_j = sum_j G (f_j - f_i) + (sum_j G) f_i
         s[i] = gsum
 
@@ -272,7 +292,7 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
             s[i] = 0.0
             continue
         selfc = 0.0
-        if ti.static(variant == 0):          # Colin Eq. 9
+        if ti.static(variant == LaplacianVariant.BASIC):
             _W0, _F0, L0 = kernel_wfl(kid, 0.0, H)
             csum = 0.0
             for k in range(offsets[i], offsets[i + 1]):
@@ -283,7 +303,7 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
                 C[k] = c
                 csum += c
             selfc = csum + (mass[i] / rho[i]) * L0
-        elif ti.static(variant == 1):        # Colin Eq. 21
+        elif ti.static(variant == LaplacianVariant.COLIN_DIFFERENCE):
             grho = ti.Vector.zero(float, 2)
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
@@ -297,7 +317,7 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
                 xij = pos[i] - pos[j]
                 _W, F, Lw = kernel_wfl(kid, xij.norm(), H)
                 C[k] = (mj / rho[i]) * (Lw - 2.0 / rho[i] * F * xij.dot(grho))
-        elif ti.static(variant == 2):        # Petronetto Eq. 10 (Brookshaw)
+        elif ti.static(variant == LaplacianVariant.BROOKSHAW):
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
                 mj = _src_mass(mass, kind, j, src_kinds)

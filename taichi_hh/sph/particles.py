@@ -14,11 +14,33 @@ whereas a kernel taking ndarrays is compiled once per dtype and cached on disk,
 so every new particle set of any size reuses the compiled code.
 """
 
+from enum import IntEnum
+
 import numpy as np
 import taichi as ti
 
 from .. import runtime
-FLUID, BOUNDARY, GHOST = 0, 1, 2
+
+
+class Kind(IntEnum):
+    """What a particle is (the ``kind`` quantity; kernels compare against these).
+
+    ``FLUID``: a data point of a decomposition, a fluid particle of a flow.
+    ``BOUNDARY``: a particle on the domain's boundary carrying its outward
+    normal, whose row holds the boundary condition (collocation, Colin Eq. 37).
+    ``GHOST``: a particle outside the domain whose value continues the
+    interior's by a Shepard sum over its FLUID neighbours: Petronetto's fake
+    particles (Eq. 14) and the flow's wall particles, named ``WALL`` there
+    (the same role, so the same rows: the wall's pressure is the Shepard sum
+    of the fluid's plus the hydrostatic term).
+    """
+    FLUID = 0
+    BOUNDARY = 1
+    GHOST = 2
+    WALL = 2                # an alias of GHOST: the flow's wall particles
+
+
+FLUID, BOUNDARY, GHOST, WALL = Kind.FLUID, Kind.BOUNDARY, Kind.GHOST, Kind.WALL
 KIND_NAMES = {FLUID: "fluid", BOUNDARY: "boundary", GHOST: "ghost"}
 
 VECTOR_QUANTITIES = ("position", "velocity", "normal")
