@@ -27,16 +27,26 @@ r = 0) and ``L = W'' + W'/r`` (the 2D Laplacian of W, Colin Eq. 9).
 """
 
 import math
+from enum import IntEnum
 
 import numpy as np
 import taichi as ti
 
-KERNELS = ("quartic", "poly6", "wendland", "cubic")
-KERNEL_ID = {name: i for i, name in enumerate(KERNELS)}
+
+class KernelId(IntEnum):
+    """The kernels (the value selects the branch of :func:`kernel_wfl` at compile time)."""
+    QUARTIC = 0
+    POLY6 = 1
+    WENDLAND = 2
+    CUBIC = 3
+
+
+KERNELS = tuple(k.name.lower() for k in KernelId)
+KERNEL_ID = {name: KernelId[name.upper()] for name in KERNELS}
 SUPPORT_FACTOR = {"quartic": 2.0, "poly6": 1.0, "wendland": 2.0, "cubic": 2.0}
 
 
-def kernel_id(name: str) -> int:
+def kernel_id(name: str) -> KernelId:
     try:
         return KERNEL_ID[name]
     except KeyError:
@@ -49,7 +59,7 @@ def kernel_wfl(kid: ti.template(), r, H):
     W = 0.0
     F = 0.0
     L = 0.0
-    if ti.static(kid == 0):      # quartic, h = H/2
+    if ti.static(kid == KernelId.QUARTIC):      # quartic, h = H/2
         h = 0.5 * H
         q = r / h
         if q < 2.0:
@@ -60,7 +70,7 @@ def kernel_wfl(kid: ti.template(), r, H):
             d2w = -9.0 / 4.0 + 19.0 / 4.0 * q - 15.0 / 8.0 * q * q
             F = s * dwq / (h * h)
             L = s * (d2w + dwq) / (h * h)
-    elif ti.static(kid == 1):    # poly6, support H (Colin's h)
+    elif ti.static(kid == KernelId.POLY6):    # poly6, support H (Colin's h)
         if r < H:
             s = 4.0 / (math.pi * H ** 8)
             d = H * H - r * r
@@ -68,7 +78,7 @@ def kernel_wfl(kid: ti.template(), r, H):
             F = -6.0 * s * d * d
             # W'' = -6 s (d^2 - 4 r^2 d); L = W'' + W'/r
             L = -6.0 * s * (d * d - 4.0 * r * r * d) + F
-    elif ti.static(kid == 2):    # Wendland C2, h = H/2
+    elif ti.static(kid == KernelId.WENDLAND):    # Wendland C2, h = H/2
         h = 0.5 * H
         q = r / h
         if q < 2.0:
@@ -103,7 +113,7 @@ def kernel_numpy(name: str, r, H):
     W = np.zeros_like(r)
     F = np.zeros_like(r)
     L = np.zeros_like(r)
-    if kid == 0:
+    if kid == KernelId.QUARTIC:
         h = 0.5 * H
         q = r / h
         m = q < 2
@@ -113,14 +123,14 @@ def kernel_numpy(name: str, r, H):
         dwq = -9 / 4 + 19 / 8 * qm - 5 / 8 * qm**2
         F[m] = s * dwq / h**2
         L[m] = s * (-9 / 4 + 19 / 4 * qm - 15 / 8 * qm**2 + dwq) / h**2
-    elif kid == 1:
+    elif kid == KernelId.POLY6:
         m = r < H
         s = 4.0 / (np.pi * H**8)
         d = H * H - r[m] ** 2
         W[m] = s * d**3
         F[m] = -6 * s * d**2
         L[m] = -6 * s * (d**2 - 4 * r[m] ** 2 * d) + F[m]
-    elif kid == 2:
+    elif kid == KernelId.WENDLAND:
         h = 0.5 * H
         q = r / h
         m = q < 2

@@ -531,7 +531,7 @@ class Operators:
         self.pairs = pairs
         self.support = float(support)
         self.kernel = kernel
-        self.kernel_id = kernel_id(kernel)
+        self.kernel_id = int(kernel_id(kernel))    # a plain int: the kernels take it as a template
         self._bad = ti.ndarray(ti.i32, shape=(1,))
 
     @property
