@@ -419,14 +419,16 @@ def weight_gradient_by_mean_density(n: ti.i32, offsets: ti.types.ndarray(),
 
 
 @ti.kernel
-def _apply_gradient(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
-                    G: ti.types.ndarray(), s: ti.types.ndarray(), f: ti.types.ndarray(),
-                    out: ti.types.ndarray()):
+def _apply_difference_stencil(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                              coef: ti.types.ndarray(), s: ti.types.ndarray(),
+                              f: ti.types.ndarray(), out: ti.types.ndarray()):
+    """out_i = s_i f_i + sum_j coef_ij (f_j - f_i): the gradient (coef a 2-vector)
+    and the Laplacian (coef a scalar) of a scalar field, one kernel for both."""
     for i in range(n):
         fi = f[i]
         acc = s[i] * fi
         for k in range(offsets[i], offsets[i + 1]):
-            acc += G[k] * (f[nbrs[k]] - fi)
+            acc += coef[k] * (f[nbrs[k]] - fi)
         out[i] = acc
 
 
@@ -445,18 +447,6 @@ def _apply_divergence(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.nda
             if rotate:
                 vj = ti.Vector([vj[1], -vj[0]])
             acc += G[k].dot(vj - vi)
-        out[i] = acc
-
-
-@ti.kernel
-def _apply_laplacian(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
-                     C: ti.types.ndarray(), s: ti.types.ndarray(), f: ti.types.ndarray(),
-                     out: ti.types.ndarray()):
-    for i in range(n):
-        fi = f[i]
-        acc = s[i] * fi
-        for k in range(offsets[i], offsets[i + 1]):
-            acc += C[k] * (f[nbrs[k]] - fi)
         out[i] = acc
 
 
@@ -617,7 +607,7 @@ class Operators:
 
     # ---- applies (Taichi arrays in, Taichi arrays out) --------------------------
     def gradient(self, st: GradientStencil, f, out) -> None:
-        _apply_gradient(self.n, *self._pair_args(), st.G, st.s, f, out)
+        _apply_difference_stencil(self.n, *self._pair_args(), st.G, st.s, f, out)
 
     def divergence(self, st: GradientStencil, v, out) -> None:
         _apply_divergence(self.n, *self._pair_args(), st.G, st.s, v, 0, out)
@@ -626,7 +616,7 @@ class Operators:
         _apply_divergence(self.n, *self._pair_args(), st.G, st.s, v, 1, out)
 
     def laplacian(self, st: LaplacianStencil, f, out) -> None:
-        _apply_laplacian(self.n, *self._pair_args(), st.C, st.s, f, out)
+        _apply_difference_stencil(self.n, *self._pair_args(), st.C, st.s, f, out)
 
     def laplacian_diagonal(self, st: LaplacianStencil, out) -> None:
         _laplacian_diagonal(self.n, self.pairs.offsets, st.C, st.s, out)
