@@ -28,9 +28,8 @@ import taichi as ti
 from .. import runtime
 
 from . import krylov as solvers
-from ..sph.kernels import kernel_wfl
 from ..errors import InputError, NeighbourError
-from ..sph.operators import GradientStencil, LaplacianStencil
+from ..sph.operators import GradientStencil, LaplacianStencil, shepard_sums, shepard_weight
 from ..sph.particles import BOUNDARY, FLUID, GHOST
 
 
@@ -60,12 +59,9 @@ def _assemble(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
                 d -= c
             D[i] = d
         else:
-            den = 0.0
-            for k in range(offsets[i], offsets[i + 1]):
-                j = nbrs[k]
-                if kind[j] == FLUID:
-                    W, _F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
-                    den += vol[j] * W
+            # the Shepard row (Petronetto Eq. 14): phi_g - sum_k S_gk phi_k = 0
+            _num, den = shepard_sums(kid, i, offsets, nbrs, pos, vol, kind, H, 1 << FLUID,
+                                     vol, 0.0, 0.0)
             if den <= 0.0:
                 ti.atomic_max(orphan[0], i)
                 den = 1.0
@@ -73,8 +69,7 @@ def _assemble(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
                 j = nbrs[k]
                 c = 0.0
                 if kind[j] == FLUID:
-                    W, _F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
-                    c = -vol[j] * W / den
+                    c = -shepard_weight(kid, pos, vol, i, j, H) / den
                 K[k] = c
             D[i] = 1.0
 

@@ -460,6 +460,30 @@ def _laplacian_diagonal(n: ti.i32, offsets: ti.types.ndarray(), C: ti.types.ndar
         out[i] = d
 
 
+@ti.func
+def shepard_weight(kid: ti.template(), pos: ti.template(), vol: ti.template(), i, j, H):
+    """V_j W_ij: the weight of particle j in the Shepard sum at i (Petronetto Eq. 14)."""
+    W, _F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
+    return vol[j] * W
+
+
+@ti.func
+def shepard_sums(kid: ti.template(), i, offsets: ti.template(), nbrs: ti.template(),
+                 pos: ti.template(), vol: ti.template(), kind: ti.template(), H, src_kinds,
+                 f: ti.template(), num, den):
+    """(num + sum_j V_j W_ij f_j, den + sum_j V_j W_ij) over the neighbours j of i
+    whose kind is in the bit mask ``src_kinds``: the numerator and denominator of
+    the Shepard-normalised sum of ``f`` (scalar or vector), continued from
+    ``num``, ``den`` (the caller's own terms, added first)."""
+    for k in range(offsets[i], offsets[i + 1]):
+        j = nbrs[k]
+        if (src_kinds >> kind[j]) & 1:
+            w = shepard_weight(kid, pos, vol, i, j, H)
+            num += w * f[j]
+            den += w
+    return num, den
+
+
 @ti.kernel
 def _shepard(kid: ti.template(), pos: ti.types.ndarray(), vol: ti.types.ndarray(), n: ti.i32,
              offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
@@ -474,12 +498,7 @@ def _shepard(kid: ti.template(), pos: ti.types.ndarray(), vol: ti.types.ndarray(
         if (src_kinds >> kind[i]) & 1:
             num += vol[i] * W0 * f[i]
             den += vol[i] * W0
-        for k in range(offsets[i], offsets[i + 1]):
-            j = nbrs[k]
-            if (src_kinds >> kind[j]) & 1:
-                W, _F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
-                num += vol[j] * W * f[j]
-                den += vol[j] * W
+        num, den = shepard_sums(kid, i, offsets, nbrs, pos, vol, kind, H, src_kinds, f, num, den)
         if den > 0.0:
             out[i] = num / den
         else:
