@@ -99,16 +99,15 @@ __all__ = ["LinearOperator", "CSRMatrix", "SolveResult", "Workspace", "get_works
            "clear_workspace_cache", "bicgstab", "cg", "cgnr", "FAILURE_REASONS",
            "PARALLEL_MIN_SIZE"]
 
-# Vector sizes below which loops run on one thread: measured on a 2-core CPU,
-# a serial pass over 1e5 entries beats waking the thread pool.
+# Vector sizes below which loops run on one thread: a serial pass over 1e5
+# entries beats waking the thread pool (docs/notes/linalg.md).
 PARALLEL_MIN_SIZE = 200_000
 
 _MAX_RESIDUAL_REPLACEMENTS = 5
 _MAX_BREAKDOWN_RESTARTS = 10
-# Jacobi-BiCGSTAB plateaus for 100-250 iterations on the SPH Neumann systems
-# before converging (Petronetto's configuration at 18k particles: flat from
-# iteration 200 to 450, converged at 621); shorter windows called those
-# plateaus stagnation.
+# Jacobi-BiCGSTAB plateaus for hundreds of iterations on the SPH Neumann
+# systems before converging; shorter windows called those plateaus
+# stagnation (docs/notes/linalg.md).
 STAGNATION_WINDOW = 400
 _STAGNATION_RTOL = 1e-3
 FAILURE_REASONS = ("breakdown", "stagnation", "divergence", "non-finite", "max_iterations")

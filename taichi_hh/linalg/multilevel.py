@@ -65,9 +65,7 @@ COARSEST = 16
 
 #: below this many particles every loop of the cycle runs on one thread: a
 #: cycle has about 15 loops, and waking the thread pool for each costs more
-#: than the second core saves on small levels (measured on Petronetto's
-#: systems, both potentials, one process: 18k 0.18 s serial against 0.28 s
-#: parallel, 40k 0.41 against 0.51, 100k 0.87 against 0.75)
+#: than the second core saves on small levels (docs/notes/linalg.md)
 SERIAL_MAX_N = 64_000
 
 # ---------------------------------------------------------------------------
@@ -359,21 +357,17 @@ class MultilevelPreconditioner:
     particle level and the first cell level, which carry almost all the
     work, are visited once either way).  Plain aggregation's V-cycle loses
     accuracy with every level, so its iterations grow with N; the W-cycle's
-    do not (Petronetto's systems, BiCGSTAB to 1e-6, both potentials: V 16/15
-    iterations at 18k particles and 30/32 at 1M, W 12/12 and 15/15, same run).
+    stay nearly flat.
     post: damped-Jacobi sweeps after the coarse correction on every level (one
-    sweep before it, from zero, is always done); default 1 for W (measured on
-    Petronetto's systems at 18k: 14/12 iterations against 12/12 with 2, 19%
-    less time in the same run; one more iteration on the default
-    decomposition), 2 for V (the flow's pressure systems: 22 iterations per
-    step with 1 against 14); omega: Jacobi damping;
+    sweep before it, from zero, is always done); default 1 for W, 2 for V (the
+    fastest measured for each: the decomposition's and the flow's systems);
+    omega: Jacobi damping;
     correction: coarse-correction scale (default 1.4 for W, 1.5 for V: the
-    fastest measured; W with 1.0-1.25 needed 12-14 iterations at 18k);
-    l1: scale rows by
-    ``max(|a_ii|, sum_j |a_ij|)`` instead of ``a_ii`` (smaller Jacobi steps on
-    rows that are not diagonally dominant; measured with the V-cycle: 86 -> 48-63
-    iterations on the default decomposition at 53k particles, 49 -> 53-60 at
-    13k, so off by default).
+    fastest measured);
+    l1: scale rows by ``max(|a_ii|, sum_j |a_ij|)`` instead of ``a_ii``
+    (smaller Jacobi steps on rows that are not diagonally dominant; it helps
+    some systems and hurts others, so off by default).  The measurements
+    behind each default: docs/notes/linalg.md.
     """
 
     name = "multilevel"
@@ -472,9 +466,8 @@ class MultilevelPreconditioner:
         kappa from round-off (their constant-mode entries are sums that
         cancel).  So the cycle ends with an exact rank-one correction along
         the constants, computed from the fine matrix: ``1 . A 1`` is kappa times
-        the fluid count, resolved to round-off.  Measured on Petronetto's
-        systems with kappa = 1e-8: 13/36 iterations at 18k particles and
-        75/221 at 40k without it, see benchmarks/solver.py for with.  Skipped
+        the fluid count, resolved to round-off (without it a ridge of 1e-8
+        tripled the iterations: docs/notes/linalg.md).  Skipped
         for bordered systems (the border fixes the constant) and when
         ``1 . A 1`` is round-off (kappa = 0: a singular, pure-Neumann matrix)."""
         real = runtime.real_dtype()

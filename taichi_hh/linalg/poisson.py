@@ -158,8 +158,7 @@ def _copy_diagonal(n: ti.i32, D: ti.types.ndarray(), out: ti.types.ndarray(), bo
 
 
 #: from this many particles on, ``preconditioner="auto"`` picks the multilevel
-#: cycle (measured: it needs 10-25 BiCGSTAB iterations where Jacobi needs
-#: 130-1000 from 1.6k to 50k particles, and is faster from about a thousand on)
+#: cycle: faster than Jacobi from about a thousand on (docs/notes/linalg.md)
 MULTILEVEL_MIN_N = 1000
 
 
@@ -188,10 +187,9 @@ class PoissonMatrix:
     (and gives it a diagonal for Jacobi).  Its sign: the fluid rows give
     ``A 1 = kappa e``, so ``(1, -kappa)`` is a null vector when ``sum V - c
     kappa = 0``.  With kappa = 0 either sign is regular and ``c = +sum V``
-    takes fewer iterations (the two-phase flow's pressure solves, 10k
-    particles: 13.9 against 15.1 per step); with a ridge ``c = +sum V`` is
-    singular at exactly kappa = 1 (every solve stagnated there), so
-    ``c = -sum V``, regular for every kappa > 0.
+    takes fewer iterations; with a ridge ``c = +sum V`` is singular at
+    exactly kappa = 1, so ``c = -sum V``, regular for every kappa > 0
+    (docs/notes/linalg.md).
     """
 
     def __init__(self, ops, *, laplacian: str = "corrected", gradient: str = "quadratic",

@@ -192,8 +192,8 @@ def bin_particles(particles, spec: GridSpec) -> CellGrid:
     order = grid.sort(particles.position, particles.n)
     if grid.rank is not None:
         # input far from sorted: writing each particle to its slot (sequential
-        # reads, scattered writes) was ~2x faster than gathering them
-        # (scattered reads) at 1M particles; the result is the same
+        # reads, scattered writes) beats gathering them (scattered reads);
+        # the result is the same
         particles.permute(order, inverse=grid.rank)
     else:
         particles.permute(order)

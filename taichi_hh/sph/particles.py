@@ -6,11 +6,10 @@ the normal being the outward unit normal of boundary particles; ``mass``,
 capacity and used on their first ``n`` entries.  ``original_index`` records,
 for every slot, which input point lives there, because the neighbour grid
 physically reorders particles by cell (for memory locality: in random order
-the same kernels ran 5-13x slower at 1M particles).
+the same kernels run several times slower, docs/notes/sph.md).
 
 Why ndarrays and not ``ti.field``: a kernel taking fields is compiled once per
-field *object* (measured here: 70-300 ms per kernel per new particle set),
-whereas a kernel taking ndarrays is compiled once per dtype and cached on disk,
+field *object* (every new particle set would recompile), whereas a kernel taking ndarrays is compiled once per dtype and cached on disk,
 so every new particle set of any size reuses the compiled code.
 """
 
