@@ -428,7 +428,7 @@ def _positive(kind):
 
 
 def add_common_arguments(parser: argparse.ArgumentParser, defaults: dict | None = None):
-    """Add the options every scene shares (DESIGN.md section 2); ``defaults``
+    """Add the options every scene shares (the command line of README.md); ``defaults``
     overrides entries of :data:`DEFAULTS`.  Returns the parser."""
     d = dict(DEFAULTS)
     for key, value in (defaults or {}).items():
