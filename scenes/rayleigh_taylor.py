@@ -87,7 +87,7 @@ SCENE = Scene(
     description="Rayleigh-Taylor instability (two-phase projection SPH), headless PNG frames.",
     defaults={"particles": 12500, "end_time": 10.0, "out": "outputs/rayleigh_taylor",
               "output_interval": 0.1, "montage": "0,4,8,10"},
-    add_arguments=add_arguments, build=build, measures=measures,
+    add_arguments=add_arguments, build=build, measures=measures, phase_names=("light fluid", "heavy fluid"),
     measure_columns=["bubble_tip", "spike_tip", "amplitude", "mode_amplitude"],
     terms="gravity, viscosity, density-weighted pressure projection, no-slip walls (--walls free-slip: free-slip), "
           "particle shifting (--shifting 0 turns it off)")

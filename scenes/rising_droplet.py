@@ -63,7 +63,7 @@ SCENE = Scene(
                 "headless PNG frames.",
     defaults={"particles": 10500, "end_time": 6.0, "out": "outputs/rising_droplet",
               "output_interval": 0.1, "montage": "0,2,4,6"},
-    add_arguments=add_arguments, build=build, measures=measures,
+    add_arguments=add_arguments, build=build, measures=measures, phase_names=("droplet", "surrounding fluid"),
     measure_columns=["centroid_x", "centroid_y", "rise_speed"],
     terms="gravity, viscosity, density-weighted pressure projection, no-slip walls, "
           "particle shifting (--shifting 0 turns it off)")

@@ -207,3 +207,81 @@ def test_mp4_when_imageio_ffmpeg_is_installed(tmp_path):
     assert sum(1 for _ in reader) == 5
     reader.close()
     assert os.listdir(tmp_path) == ["movie.mp4"]
+
+
+# ---- the smooth style and the labels ---------------------------------------------------
+
+def _lattice(n_side, jitter=0.0, seed=0):
+    g = (np.arange(n_side) + 0.5) / n_side
+    pts = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    return pts + np.random.default_rng(seed).normal(0.0, jitter / n_side, pts.shape)
+
+
+def test_smooth_style_fills_the_fluid_without_gaps_and_keeps_each_phase_colour():
+    pts = _lattice(40, jitter=0.2)
+    phase = (pts[:, 0] > 0.5).astype(int)
+    smooth = render.FrameRenderer(200, None, (0, 0), (1, 1), style="smooth")
+    img = smooth.draw(pts, phase=phase)
+    inner = img[10:-10, 10:-10]
+    assert not (inner == 255).all(axis=2).any()          # no background speck inside
+    left, right = smooth.colour_of_phase(0), smooth.colour_of_phase(1)
+    assert tuple(img[100, 40]) == left and tuple(img[100, 160]) == right
+    # across the interface the colour blends over about two particle spacings (10 px)
+    row = img[100].astype(int)
+    mixed = [c for c in range(200) if tuple(row[c]) not in (left, right)]
+    assert mixed and max(mixed) - min(mixed) <= 12 and 88 <= np.mean(mixed) <= 112
+    # the disc style on the same points leaves gaps between the discs where jitter opens them
+    discs = render.FrameRenderer(200, None, (0, 0), (1, 1), radius_px=2.0)
+    assert (discs.draw(pts, phase=phase)[10:-10, 10:-10] == 255).all(axis=2).any()
+
+
+def test_smooth_style_fades_to_background_away_from_the_particles():
+    pts = _lattice(20)
+    pts = pts[pts[:, 1] < 0.5]                          # the lower half only
+    r = render.FrameRenderer(100, None, (0, 0), (1, 1), style="smooth", background=(0, 0, 0))
+    img = r.draw(pts)
+    assert (img[:40] == 0).all()                         # the empty upper part
+    assert tuple(img[80, 50]) == r.colour_of_phase(0)
+    # the speed colouring goes through the same interpolation
+    img = r.draw(pts, scalar=pts[:, 0], vmin=0.0, vmax=1.0)
+    lo, hi = _cmap_index(r, img[80, 10]), _cmap_index(r, img[80, 90])
+    assert lo < 40 and hi > 215
+
+
+def test_style_is_checked():
+    with pytest.raises(ValueError, match="style"):
+        render.FrameRenderer(10, style="blobs")
+
+
+def test_labelled_frame_has_walls_time_and_legend():
+    from taichi_hh.app.overlay import (FRAME_GREY, FrameLabels, header_height, label_frame,
+                                       text_bitmap)
+    image = np.full((100, 300, 3), 200, np.uint8)
+    legend = [("light", (10, 20, 30)), ("heavy", (200, 40, 40))]
+    out = label_frame(image, 1.5, FrameLabels(legend=legend, wall_px=3))
+    band = header_height(306)
+    assert out.shape == (band + 106, 306, 3)
+    assert (out[band + 3:-3, 3:-3] == 200).all()                  # the image, unchanged
+    assert (out[band:band + 3] == FRAME_GREY).all() and (out[band:, :3] == FRAME_GREY).all()
+    header = out[:band]
+    for _, colour in legend:                                       # legend swatches
+        assert (header == colour).all(axis=2).sum() > 50
+    # the time stamp is text: another time changes the band only where it is written
+    other = label_frame(image, 2.5, FrameLabels(legend=legend, wall_px=3))
+    diff = (other[:band] != out[:band]).any(axis=2)
+    text_width = text_bitmap("t = 2.50", max(10, int(band * 0.55))).shape[1]
+    assert diff.any() and np.nonzero(diff)[1].max() < 3 + 4 + text_width
+    assert (other[band:] == out[band:]).all()
+    # too narrow for the legend beside the time: the legend is left out, not overlapped
+    narrow = label_frame(image[:, :60], 1.5, FrameLabels(legend=legend, wall_px=3))
+    assert not (narrow == (200, 40, 40)).all(axis=2).any()
+
+
+def test_colorbar_shows_the_colormap_ramp():
+    from taichi_hh.app.overlay import FrameLabels, header_height, label_frame
+    table = render.colormap_table("viridis")
+    out = label_frame(np.zeros((50, 400, 3), np.uint8), 0.0,
+                      FrameLabels(colorbar=("speed", 0.0, 2.0, table), wall_px=0))
+    header = out[:header_height(400)].reshape(-1, 3)
+    for k in (0, 128, 255):
+        assert (np.abs(header.astype(int) - table[k].astype(int)).sum(axis=1) <= 6).any()

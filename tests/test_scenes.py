@@ -8,6 +8,8 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from taichi_hh.app.overlay import FRAME_GREY, header_height
+
 SCENES = pathlib.Path(__file__).resolve().parent.parent / "scenes"
 
 
@@ -33,8 +35,15 @@ def test_scene_writes_frames_and_diagnostics(tmp_path, name):
     frames = sorted(out.glob("frame_*.png"))
     assert [f.name for f in frames] == ["frame_00000.png", "frame_00001.png", "frame_00002.png"]
     img = iio.imread(frames[-1])
-    assert img.shape[1] == 200 and img.shape[0] == 400          # box 1 x 2, aspect kept
-    assert len(np.unique(img.reshape(-1, 3), axis=0)) >= 3      # two phases + background
+    # the frame is --frame-width wide: a label band, then the box (1 x 2, aspect
+    # kept) inside the walls' grey frame of 2 px
+    band = header_height(200)
+    assert img.shape[1] == 200 and img.shape[0] == band + 2 * 196 + 4
+    box = img[band + 2:-2, 2:-2]
+    assert (box.shape[0], box.shape[1]) == (392, 196)
+    assert (img[band:band + 2] == FRAME_GREY).all() and (img[-2:] == FRAME_GREY).all()
+    assert len(np.unique(box.reshape(-1, 3), axis=0)) >= 2      # both phases
+    assert (img[:band] != 255).any(axis=2).sum() > 50            # the time and legend text
     r = rows(out / "diagnostics.csv")
     assert [float(x["time"]) for x in r] == pytest.approx([0.0, 0.1, 0.2])
     assert all(np.isfinite(float(x["kinetic_energy"])) for x in r)

@@ -15,7 +15,8 @@ import numpy as np
 
 from .. import runtime
 from ..flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
-from .render import FrameRenderer, frame_path, write_movie, write_png
+from .overlay import FrameLabels, label_frame
+from .render import STYLES, FrameRenderer, frame_path, write_movie, write_png
 from .runloop import Checkpoint, DiagnosticsWriter, add_common_arguments, run
 
 BASE_COLUMNS = ["time", "step", "dt", "solver_iterations", "cleanup_iterations", "max_div",
@@ -33,6 +34,7 @@ class Scene:
     measures: callable                   # (flow) -> dict of scene measures
     measure_columns: list = field(default_factory=list)
     terms: str = ""                      # which physical terms the scene uses
+    phase_names: tuple = ()              # legend labels of phases 0, 1, ... in the frames
 
 
 def lattice_in_box(n_target: int, box):
@@ -112,6 +114,9 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     ap.add_argument("--montage", default=scene.defaults.get("montage", ""),
                     help="comma-separated output times whose frames are put side by side "
                          "into OUT/montage.png at the end (empty: none)")
+    ap.add_argument("--style", choices=STYLES, default=scene.defaults.get("style", "smooth"),
+                    help="frames: 'smooth' draws the interpolated colour field (no gaps between "
+                         "particles), 'discs' one disc per particle")
     ap.add_argument("--docs", action="store_true",
                     help="also copy the montage to docs/figures/<scene>.png (the README's figure)")
     ap.add_argument("--exact-projection", action="store_true",
@@ -143,7 +148,10 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     else:
         flow = TwoPhaseFlow(points, phases, spacing, params)
     x0, y0, x1, y1 = params.box
-    renderer = FrameRenderer(args.frame_width, None, (x0, y0), (x1, y1))
+    wall_px = max(2, args.frame_width // 200)       # the walls' grey frame around the box
+    renderer = FrameRenderer(max(args.frame_width - 2 * wall_px, 1), None, (x0, y0), (x1, y1),
+                             style=args.style)
+    legend = [(name, renderer.colour_of_phase(k)) for k, name in enumerate(scene.phase_names)]
     columns = BASE_COLUMNS + list(scene.measure_columns)
     writer = DiagnosticsWriter(os.path.join(args.out, "diagnostics.csv"), columns,
                                resume_time=flow.time if args.resume else None)
@@ -165,8 +173,16 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     def on_output(t, step, info):
         t0 = time.perf_counter()
         pos, vel, ph, _ = flow.fluid_state()
-        scalar = np.linalg.norm(vel, axis=1) if args.color == "speed" else None
-        image = renderer.draw(pos, phase=ph, scalar=scalar)
+        if args.color == "speed":
+            scalar = np.linalg.norm(vel, axis=1)
+            vmax = float(scalar.max()) if scalar.size else 1.0
+            labels = FrameLabels(colorbar=("speed", 0.0, vmax, renderer.table_np[:256]),
+                                 wall_px=wall_px)
+            image = renderer.draw(pos, phase=ph, scalar=scalar, vmin=0.0, vmax=vmax)
+        else:
+            labels = FrameLabels(legend=legend, wall_px=wall_px)
+            image = renderer.draw(pos, phase=ph)
+        image = label_frame(image, t, labels)
         write_png(frame_path(args.out, int(round(t / args.output_interval))), image)
         result.frames += 1
         t1 = time.perf_counter()
