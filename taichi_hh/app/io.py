@@ -136,6 +136,45 @@ def _read_field_npz(path):
 
 
 def _read_field_csv(path):
+    fast = _read_field_csv_fast(path)
+    if fast is not None:
+        return fast
+    return _read_field_csv_checked(path)
+
+
+def _read_field_csv_fast(path):
+    """The common case in one vectorised parse (numpy's C reader): a file whose
+    rows all parse as numbers with the columns found.  ``None`` for anything
+    else, which :func:`_read_field_csv_checked` reads line by line and reports
+    with the line's number."""
+    import numpy as np
+    try:
+        with open(path, encoding="utf-8-sig") as fh:
+            header_rows = 0
+            for line in fh:
+                if line.strip() and not line.lstrip().startswith("#"):
+                    break
+                header_rows += 1
+            else:
+                return None
+        cells = [c.strip().lower() for c in line.split(",")]
+        try:
+            [float(c) for c in cells]
+            cols, skip = None, header_rows
+        except ValueError:
+            if any(cells.count(c) != 1 for c in CSV_COLUMNS):
+                return None
+            cols, skip = [cells.index(c) for c in CSV_COLUMNS], header_rows + 1
+        data = np.loadtxt(path, delimiter=",", comments="#", skiprows=skip, usecols=cols,
+                          ndmin=2, encoding="utf-8-sig", quotechar='"')
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+    if data.ndim != 2 or data.shape[1] != 4 or len(data) == 0 or not np.isfinite(data).all():
+        return None
+    return np.ascontiguousarray(data[:, :2]), np.ascontiguousarray(data[:, 2:])
+
+
+def _read_field_csv_checked(path):
     import math
     import numpy as np
     from ..errors import InputError
