@@ -1,8 +1,12 @@
-"""Bad input is refused with an error that names the problem; nothing crashes."""
+"""Bad input is refused with an error that names the problem; nothing crashes.
+The shared validators of taichi_hh.checks are tested directly at the end."""
+import argparse
+
 import numpy as np
 import pytest
 
 import taichi_hh as thh
+from taichi_hh import checks
 from fieldgen import lattice
 
 
@@ -110,3 +114,103 @@ def test_bad_runtime_options():
         thh.init(arch="tpu")
     with pytest.raises(ValueError, match="precision"):
         thh.init(precision="f16")
+
+
+# ---- taichi_hh.checks: the shared validators -----------------------------------------
+
+@pytest.mark.parametrize("bad, match", [
+    (np.array([[0.0, 1.0], [np.nan, 2.0]]), r"pts contains 1 non-finite.*first at index 1"),
+    (np.array([[0.0, 1.0], [1.0, 2.0], [np.inf, -np.inf]]), r"pts contains 1 non-finite.*index 2"),
+    (np.zeros((4, 3)), r"pts must have shape \(N, 2\), got \(4, 3\)"),
+    (np.zeros(6), r"pts must have shape \(N, 2\), got \(6,\)"),
+    ([[1, 2], [3]], "pts must be a numeric"),
+    ("abc", "pts must be a numeric"),
+    (np.zeros((0, 2)), "pts is empty"),
+])
+def test_check_points_refuses(bad, match):
+    with pytest.raises(thh.InputError, match=match):
+        checks.check_points(bad, "pts")
+
+
+def test_check_points_accepts_and_converts():
+    out = checks.check_points([[1, 2], [3, 4]])
+    assert out.dtype == np.float64 and out.shape == (2, 2)
+    assert checks.check_points(np.zeros((0, 2)), allow_empty=True).shape == (0, 2)
+    with pytest.raises(thh.InputError, match="q contains 1 non-finite"):
+        checks.check_points([[np.nan, 0.0]], "q", allow_empty=True)
+
+
+def test_check_values_refuses():
+    with pytest.raises(thh.InputError, match=r"f must have shape \(3,\) \(one per point\)"):
+        checks.check_values(np.ones(4), 3, 1, "f")
+    with pytest.raises(thh.InputError, match=r"v must have shape \(3, 2\)"):
+        checks.check_values(np.ones(3), 3, 2, "v")
+    with pytest.raises(thh.InputError, match="v contains 1 non-finite.*first at point 2"):
+        checks.check_values([[0, 0], [1, 1], [np.nan, 0]], 3, 2, "v")
+    with pytest.raises(thh.InputError, match="f must be numeric"):
+        checks.check_values("abc", 3, 1, "f")
+    assert checks.check_values([1, 2, 3], 3, 1).dtype == np.float64
+
+
+@pytest.mark.parametrize("value, kwargs, match", [
+    (True, {}, "x must be a real number, got True"),
+    ("1", {}, "x must be a real number"),
+    (np.nan, {}, "x must be finite, got nan"),
+    (np.inf, {"positive": False}, "x must be finite"),
+    (0.0, {}, "x must be positive, got 0.0"),
+    (-1, {"allow_zero": True}, "x must be non-negative, got -1.0"),
+])
+def test_check_real_refuses(value, kwargs, match):
+    with pytest.raises(thh.InputError, match=match):
+        checks.check_real(value, "x", **kwargs)
+
+
+def test_check_real_and_seed_accept():
+    assert checks.check_real(2, "x") == 2.0
+    assert checks.check_real(0, "x", allow_zero=True) == 0.0
+    assert checks.check_real(-3.5, "x", positive=False) == -3.5
+    g = np.random.default_rng(1)
+    assert checks.check_seed(g) is g
+    assert checks.check_seed(7).random() == np.random.default_rng(7).random()
+    for bad in (-1, 1.5, True, "3"):
+        with pytest.raises(thh.InputError, match="seed must be a non-negative integer"):
+            checks.check_seed(bad)
+
+
+@pytest.mark.parametrize("parse, text, match", [
+    (checks.positive_float, "abc", "not a number"),
+    (checks.positive_float, "0", "must be a positive number"),
+    (checks.positive_float, "-2.5", "must be a positive number"),
+    (checks.positive_float, "nan", "must be a positive number"),
+    (checks.positive_float, "inf", "must be a positive number"),
+    (checks.nonnegative_float, "x1", "not a number"),
+    (checks.nonnegative_float, "-1e-9", "must be a non-negative number"),
+    (checks.nonnegative_float, "inf", "must be a non-negative number"),
+    (checks.positive_int, "1.5", "not an integer"),
+    (checks.positive_int, "0", "must be a positive integer"),
+    (checks.positive_int, "", "not an integer"),
+    (checks.nonnegative_int, "-1", "must be a non-negative integer"),
+    (checks.nonnegative_int, "two", "not an integer"),
+])
+def test_argparse_types_refuse(parse, text, match):
+    with pytest.raises(argparse.ArgumentTypeError, match=match):
+        parse(text)
+
+
+def test_argparse_types_accept_and_report_through_argparse(capsys):
+    assert checks.positive_float("2.5") == 2.5
+    assert checks.nonnegative_float("0") == 0.0
+    assert checks.positive_int("12") == 12
+    assert checks.nonnegative_int("0") == 0
+    parser = argparse.ArgumentParser(prog="t")
+    parser.add_argument("--n", type=checks.positive_int)
+    with pytest.raises(SystemExit) as exc:
+        parser.parse_args(["--n", "-3"])
+    assert exc.value.code == 2
+    assert "argument --n: must be a positive integer, got '-3'" in capsys.readouterr().err
+
+
+def test_pointset_keeps_exporting_the_checks():
+    from taichi_hh.sph import pointset
+    assert pointset.check_points is checks.check_points
+    assert pointset.check_values is checks.check_values

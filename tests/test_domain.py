@@ -390,6 +390,49 @@ def test_blue_noise_13k_unit_square():
     assert r >= 0.75 / np.sqrt(13000) and d[:, 1].mean() < 1.2 * r
 
 
+def test_import_paths_and_the_parts_agree(holed):
+    """The split modules are one implementation: every import path gives the same
+    classes, and the public pieces (segment table, locator, disc classification)
+    agree with the queries built on them."""
+    import taichi_hh
+    from taichi_hh import geometry
+    from taichi_hh.geometry import box, polygon
+    assert geometry.Box is Box is box.Box is taichi_hh.Box
+    assert geometry.Polygon is Polygon is polygon.Polygon is taichi_hh.Polygon
+    assert geometry.as_domain is as_domain
+    segs = holed.segment_table
+    assert len(segs) == 12 and list(segs.ring_start) == [0, 4, 8, 12]
+    with pytest.raises(ValueError):
+        segs.starts[0, 0] = 5.0                            # read-only
+    np.testing.assert_array_equal(segs.normal, holed.segment_normals())
+    p = np.random.default_rng(2).uniform(-0.2, 1.2, (2000, 2))
+    sd = holed.signed_distance(p)
+    st = holed.classify_discs(p, 0.05, -np.inf, 0.0)
+    assert (st == 1).sum() and (st == 0).sum() and (st == 2).sum()
+    assert np.all(sd[st == 1] <= -0.05) and np.all(sd[st == 0] >= 0.05)
+    np.testing.assert_array_equal(holed.classify_discs(p, 0.0, -np.inf, 0.0) == 1, sd <= 0)
+    loc = holed.locator()
+    assert loc.covers(*map(np.array, holed.bounds))
+    wide = holed.locator(np.array([-3.0, -3.0]), np.array([4.0, 4.0]))
+    assert wide.covers(np.array([-3.0, -3.0]), np.array([4.0, 4.0])) and holed.locator() is wide
+    np.testing.assert_allclose(holed.signed_distance(p), sd, rtol=0, atol=0)
+
+
+def test_poisson_disk_band_is_maximal():
+    """Every point of the band lies within 2 r of a sample (maximality) and no two
+    samples are closer than r."""
+    from taichi_hh.geometry.poisson_disk import poisson_disk
+    d = Polygon(UNIT, holes=[HOLE_B])
+    r = 0.03
+    pts = poisson_disk(d, r, -np.inf, -0.01, np.random.default_rng(5))
+    assert np.all(d.signed_distance(pts) <= -0.01)
+    dd, _ = cKDTree(pts).query(pts, k=2)
+    assert dd[:, 1].min() >= r
+    probe = d.sample_interior(0.005, "jittered", seed=1, margin=0.01)
+    far, _ = cKDTree(pts).query(probe)
+    assert far.max() < 2 * r
+
+
 def test_as_domain():
     assert as_domain((0, 0, 2, 1)) == Box((0, 0), (2, 1))
     assert as_domain(UNIT) == Polygon(UNIT)

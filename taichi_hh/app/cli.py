@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import os
 import sys
 import textwrap
 import time
+
+from ..checks import nonnegative_float, nonnegative_int, positive_float, positive_int
 
 #: HHDOptions fields exposed as --options: field -> (metavar/choices source, help)
 _OPTION_HELP = {
@@ -52,47 +53,6 @@ _OPTION_HELP = {
     "seed": "random seed of sampled boundary/fake particles",
 }
 _SOLVERS = ("bicgstab", "cgnr")
-
-
-# --------------------------------------------------------------------------- argument types
-def _positive_float(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return v
-
-
-def _nonnegative_float(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"must be a non-negative number, got {text!r}")
-    return v
-
-
-def _positive_int(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
-    return v
-
-
-def _nonnegative_int(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}")
-    return v
 
 
 def _fmt_default(value):
@@ -156,9 +116,9 @@ def _add_common(p, command):
                "gradient": GRADIENT_VARIANTS, "laplacian": LAPLACIAN_VARIANTS,
                "neumann_gradient": GRADIENT_VARIANTS, "boundary": BOUNDARY_METHODS,
                "solver": _SOLVERS, "preconditioner": PRECONDITIONERS}
-    types = {"support_ratio": (_positive_float, "R"), "kappa": (_nonnegative_float, "K"),
-             "tol": (_positive_float, "TOL"), "max_iterations": (_positive_int, "N"),
-             "seed": (_nonnegative_int, "SEED")}
+    types = {"support_ratio": (positive_float, "R"), "kappa": (nonnegative_float, "K"),
+             "tol": (positive_float, "TOL"), "max_iterations": (positive_int, "N"),
+             "seed": (nonnegative_int, "SEED")}
     for f in dataclasses.fields(HHDOptions):
         name = f.name
         flag = "--" + name.replace("_", "-")
@@ -202,7 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
             "figures DIR/arrows.png and DIR/magnitude.png."),
         epilog="Exit status: 0 on success, 2 on bad input, bad options or a failed solve.")
     _add_common(dec, "decompose")
-    dec.add_argument_group("analysis").add_argument("--critical-threshold", type=_nonnegative_float, default=0.1,
+    dec.add_argument_group("analysis").add_argument("--critical-threshold", type=nonnegative_float, default=0.1,
                      metavar="T",
                      help="critical points (sources, sinks, vortices: extrema of phi and "
                           "psi) are kept when their |div v| or |curl v| is at least T times "
@@ -224,7 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
             "collocation, colin and none boundary treatments apply."),
         epilog="Exit status: 0 on success, 2 on bad input, bad options or a failed solve.")
     _add_common(pro, "project")
-    pro.add_argument_group("projection").add_argument("--iterations", type=_positive_int, default=1, metavar="K",
+    pro.add_argument_group("projection").add_argument("--iterations", type=positive_int, default=1, metavar="K",
                      help="number of projection passes (default: 1)")
     pro.set_defaults(func=_cmd_project)
 

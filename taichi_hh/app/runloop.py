@@ -35,6 +35,7 @@ import time
 
 import numpy as np
 
+from ..checks import positive_float, positive_int
 from ..errors import BlowUp, SolverError
 from .io import atomic_path
 
@@ -414,19 +415,6 @@ DEFAULTS = {
 }
 
 
-def _positive(kind):
-    def parse(text):
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a positive {kind.__name__}, got {text!r}")
-        if not (value > 0 and math.isfinite(value)):
-            raise argparse.ArgumentTypeError(f"expected a positive {kind.__name__}, got {text!r}")
-        return value
-    parse.__name__ = kind.__name__
-    return parse
-
-
 def add_common_arguments(parser: argparse.ArgumentParser, defaults: dict | None = None):
     """Add the options every scene shares (the command line of README.md); ``defaults``
     overrides entries of :data:`DEFAULTS`.  Returns the parser."""
@@ -436,9 +424,9 @@ def add_common_arguments(parser: argparse.ArgumentParser, defaults: dict | None 
             raise ValueError(f"unknown default {key!r}; known: {sorted(d)}")
         d[key] = value
     dflt = " (default: %(default)s)"
-    parser.add_argument("--particles", type=_positive(int), default=d["particles"], metavar="N",
+    parser.add_argument("--particles", type=positive_int, default=d["particles"], metavar="N",
                         help="number of fluid particles" + dflt)
-    parser.add_argument("--end-time", type=_positive(float), default=d["end_time"], metavar="T",
+    parser.add_argument("--end-time", type=positive_float, default=d["end_time"], metavar="T",
                         help="simulated time to reach" + dflt)
     parser.add_argument("--out", default=d["out"], metavar="DIR",
                         help="output directory: frames, diagnostics.csv, checkpoint, movie" + dflt)
@@ -450,9 +438,9 @@ def add_common_arguments(parser: argparse.ArgumentParser, defaults: dict | None 
     parser.add_argument("--movie", choices=("none", "gif", "mp4"), default=d["movie"],
                         help="also write a movie of the frames (mp4 needs imageio-ffmpeg, "
                              "else a GIF is written)" + dflt)
-    parser.add_argument("--fps", type=_positive(float), default=d["fps"],
+    parser.add_argument("--fps", type=positive_float, default=d["fps"],
                         help="movie frames per second" + dflt)
-    parser.add_argument("--frame-width", type=_positive(int), default=d["frame_width"], metavar="PX",
+    parser.add_argument("--frame-width", type=positive_int, default=d["frame_width"], metavar="PX",
                         help="frame width in pixels; the height keeps the box's aspect ratio" + dflt)
     parser.add_argument("--color", choices=("phase", "speed"), default=d["color"],
                         help="colour particles by phase or by speed" + dflt)

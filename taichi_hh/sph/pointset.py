@@ -13,6 +13,7 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
+from ..checks import check_points, check_values
 from ..errors import InputError, NeighbourError
 from .kernels import KERNELS
 from .neighbors import GridSpec, PairList, bin_particles
@@ -27,41 +28,6 @@ DEFAULT_SUPPORT_RATIO = 3.0
 DEFAULT_KERNEL = "wendland"
 #: points closer than this fraction of the mean spacing count as duplicates
 DUPLICATE_FRACTION = 1e-6
-
-
-def check_points(points, name: str = "points") -> np.ndarray:
-    """Validate an (N, 2) array of finite coordinates; returns it as float64."""
-    try:
-        arr = np.asarray(points, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{name} must be a numeric (N, 2) array: {exc}") from None
-    if arr.ndim != 2 or arr.shape[1] != 2:
-        raise InputError(f"{name} must have shape (N, 2), got {arr.shape}")
-    if arr.shape[0] == 0:
-        raise InputError(f"{name} is empty: at least one point is needed")
-    bad = ~np.isfinite(arr).all(axis=1)
-    if bad.any():
-        idx = np.flatnonzero(bad)
-        raise InputError(f"{name} contains {idx.size} non-finite (NaN or inf) entries, "
-                         f"first at index {idx[0]}: {arr[idx[0]].tolist()}")
-    return arr
-
-
-def check_values(values, n: int, ncomp: int, name: str = "values") -> np.ndarray:
-    """Validate per-point values: shape (n,) for ncomp = 1 or (n, ncomp); finite."""
-    try:
-        arr = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{name} must be numeric: {exc}") from None
-    want = (n,) if ncomp == 1 else (n, ncomp)
-    if arr.shape != want:
-        raise InputError(f"{name} must have shape {want} (one per point), got {arr.shape}")
-    bad = ~np.isfinite(arr.reshape(n, -1)).all(axis=1)
-    if bad.any():
-        idx = np.flatnonzero(bad)
-        raise InputError(f"{name} contains {idx.size} non-finite (NaN or inf) entries, "
-                         f"first at point {idx[0]}")
-    return arr
 
 
 class PointSet:

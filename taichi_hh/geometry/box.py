@@ -1,0 +1,82 @@
+"""Axis-aligned rectangular domains: :class:`Box`, a :class:`Polygon` that keeps
+its exact corners and mirrors ghosts across its sides."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .polygon import Polygon
+from .sampling import mirror_points
+
+__all__ = ["Box"]
+
+
+def _corner(value, name):
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name} must be two coordinates (x, y): {exc}") from None
+    if arr.shape != (2,):
+        raise InputError(f"{name} must be two coordinates (x, y), got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise InputError(f"{name} must be finite, got {arr.tolist()}")
+    return arr
+
+
+class Box(Polygon):
+    """Axis-aligned rectangle ``[lo[0], hi[0]] x [lo[1], hi[1]]``.
+
+    A :class:`Polygon` with four counter-clockwise vertices starting at ``lo``
+    (same queries and samplers); ``lo`` and ``hi`` keep the exact corner
+    coordinates as tuples of floats."""
+
+    __slots__ = ("lo", "hi")
+
+    def __init__(self, lo, hi):
+        lo, hi = _corner(lo, "lo"), _corner(hi, "hi")
+        if not (lo < hi).all():
+            raise InputError(f"a Box needs lo < hi in both coordinates, got lo={lo.tolist()}, "
+                             f"hi={hi.tolist()}")
+        object.__setattr__(self, "lo", (float(lo[0]), float(lo[1])))
+        object.__setattr__(self, "hi", (float(hi[0]), float(hi[1])))
+        super().__init__(np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]],
+                                   [lo[0], hi[1]]]))
+
+    def __reduce__(self):
+        return (Box, (self.lo, self.hi))
+
+    def __repr__(self):
+        return f"Box(lo={self.lo!r}, hi={self.hi!r})"
+
+    def __eq__(self, other):
+        if type(other) is not Box:
+            return NotImplemented
+        return self.lo == other.lo and self.hi == other.hi
+
+    def __hash__(self):
+        return hash(("Box", self.lo, self.hi))
+
+    def sample_ghosts_mirror(self, points, width: float):
+        """``(ghosts, source)``: reflections of interior points across every side
+        within ``width`` (distance > 0), plus the corner image (reflection across
+        both sides) when a point is within ``width`` of two adjacent sides."""
+        p, width = mirror_points(self, points, width)
+        lo, hi = np.array(self.lo), np.array(self.hi)
+        dlo, dhi = p - lo, hi - p                            # (N, 2) distances to the sides
+        near_lo = (dlo <= width) & (dlo > 0)
+        near_hi = (dhi <= width) & (dhi > 0)
+        out, src = [], []
+        for axis in range(2):
+            for near, wall in ((near_lo, lo), (near_hi, hi)):
+                k = np.flatnonzero(near[:, axis])
+                g = p[k].copy()
+                g[:, axis] = 2.0 * wall[axis] - g[:, axis]
+                out.append(g)
+                src.append(k)
+        for nx_, wx in ((near_lo, lo), (near_hi, hi)):
+            for ny_, wy in ((near_lo, lo), (near_hi, hi)):
+                k = np.flatnonzero(nx_[:, 0] & ny_[:, 1])
+                g = np.stack([2.0 * wx[0] - p[k, 0], 2.0 * wy[1] - p[k, 1]], axis=1)
+                out.append(g)
+                src.append(k)
+        return np.concatenate(out), np.concatenate(src)
