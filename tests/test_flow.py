@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from taichi_hh.flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
+from taichi_hh.flow import BlowUpError, FlowParams, TwoPhaseFlow
 
 
 def tank(nx, ny, W=1.0, H=2.0):
