@@ -40,17 +40,29 @@ def _taichi():
     return ti
 
 
+_vector_free_done = False
+
+
 def _free_vector_ndarrays() -> None:
     """Make Taichi free vector and matrix ndarrays when Python collects them.
 
     Taichi 1.7 frees the memory of a ``ScalarNdarray`` in its ``__del__`` but
     ``VectorNdarray`` and ``MatrixNdarray`` have none, so every vector ndarray
     made and dropped stays allocated (taichi-dev/taichi issue #8763; the fix,
-    PR #8764, moves ``__del__`` to the base class).  A flow step makes several
-    (pair coefficients, scratch vectors): 19 MB leaked per step at 10k
-    particles, 12 GB over the 6 s droplet run.  Same deletion as the scalar
-    class; done once, and only where the class lacks its own ``__del__``.
+    PR #8764, moves ``__del__`` to the base class).  The flow keeps its own work
+    arrays (:mod:`taichi_hh.flow.buffers`), but the library still makes vector
+    ndarrays per call: :meth:`~taichi_hh.sph.operators.Operators.gradient_coefficients`
+    (the per-pair ``G`` and per-particle ``s``) every flow step and every
+    decomposition; without this the droplet at 2.5k particles grows by 1.2 MB a
+    step (benchmarks/flow_memory.py, docs/notes/flow.md).  Same deletion as the
+    scalar class; done once (a later removal, as the benchmark's
+    ``--without-vector-free`` does, sticks), and only where the class lacks its
+    own ``__del__``.
     """
+    global _vector_free_done
+    if _vector_free_done:
+        return
+    _vector_free_done = True
     try:
         from taichi.lang import _ndarray, matrix
     except ImportError:          # another Taichi layout: leave it alone

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from taichi_hh.flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
+from taichi_hh.flow import BlowUpError, FlowParams, TwoPhaseFlow
 
 
 def tank(nx, ny, W=1.0, H=2.0):
@@ -239,9 +239,10 @@ def test_step_shortcuts_build_the_same_coefficients():
 
 
 def test_dropped_vector_ndarrays_are_freed():
-    """A flow step makes and drops several vector ndarrays; Taichi 1.7 never
-    freed those (taichi-dev/taichi#8763), 19 MB a step at 10k particles.
-    taichi_hh.runtime makes them free like scalar ndarrays."""
+    """The library makes and drops vector ndarrays per call (the operators'
+    gradient coefficients, every flow step: 1.2 MB a step at 2.5k particles);
+    Taichi 1.7 never freed those (taichi-dev/taichi#8763).  taichi_hh.runtime
+    makes them free like scalar ndarrays."""
     import gc
     import os
     import taichi as ti
@@ -260,6 +261,50 @@ def test_dropped_vector_ndarrays_are_freed():
         del a
     gc.collect()
     assert rss_mb() - before < 60.0                            # 240 MB if leaked
+
+
+def test_a_step_allocates_no_ndarrays_in_the_flow():
+    """The flow's work arrays are allocated once (FlowBuffers) and reused: after the
+    first step no code in taichi_hh.flow makes a Taichi ndarray, and the buffers
+    are the same objects.  Counted at the constructors of Taichi's ndarray
+    classes, by the module that called them (the library below the flow, e.g. the
+    operators' coefficients, still allocates per step: not counted here)."""
+    import sys
+    from taichi.lang import _ndarray, matrix
+    pts, dx = tank(8, 16)
+    phases = np.where(np.linalg.norm(pts - [0.5, 0.5], axis=1) < 0.25, 0, 1)
+    flow = TwoPhaseFlow(pts, phases, dx, FlowParams(box=(0, 0, 1, 2), densities=(1.0, 2.0),
+                                                    shifting=1.0, exact_projection=True))
+    flow.step()
+    flow.volume_error()
+    buffers = {name: id(value) for name, value in vars(flow.buffers).items()}
+    made_by_flow = []
+    classes = (_ndarray.ScalarNdarray, matrix.VectorNdarray, matrix.MatrixNdarray)
+    originals = {cls: cls.__init__ for cls in classes}
+
+    def counting(cls):
+        def __init__(self, *args, **kwargs):
+            frame = sys._getframe(1)
+            while frame is not None and frame.f_globals.get("__name__", "").startswith("taichi."):
+                frame = frame.f_back
+            caller = frame.f_globals.get("__name__", "") if frame is not None else ""
+            if caller.startswith("taichi_hh.flow"):
+                made_by_flow.append((cls.__name__, caller, frame.f_lineno))
+            originals[cls](self, *args, **kwargs)
+        return __init__
+
+    try:
+        for cls in classes:
+            cls.__init__ = counting(cls)
+        for _ in range(3):
+            info = flow.step()
+        flow.volume_error()
+    finally:
+        for cls in classes:
+            cls.__init__ = originals[cls]
+    assert info["cleanup_iterations"] > 0          # the clean-up's arrays were used too
+    assert made_by_flow == []
+    assert {name: id(value) for name, value in vars(flow.buffers).items()} == buffers
 
 
 def test_clean_up_operator_and_its_conditioning_against_the_support():

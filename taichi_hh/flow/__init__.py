@@ -1,1 +1,12 @@
-"""Flow layer: two-phase incompressible SPH by projection (:mod:`.twophase`)."""
+"""Flow layer: two-phase incompressible SPH by projection.
+
+:mod:`.twophase` the time stepping (:class:`TwoPhaseFlow`), :mod:`.params` its
+settings, :mod:`.walls` the wall-particle conditions, :mod:`.shifting` particle
+shifting, :mod:`.buffers` the per-step work arrays, :mod:`.clock` the stage timing.
+"""
+from .clock import STAGES, StageClock
+from .params import WALL_CONDITIONS, FlowParams, WallVelocity
+from .twophase import BlowUpError, TwoPhaseFlow
+
+__all__ = ["TwoPhaseFlow", "FlowParams", "BlowUpError", "StageClock", "STAGES",
+           "WALL_CONDITIONS", "WallVelocity"]
