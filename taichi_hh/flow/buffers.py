@@ -47,7 +47,11 @@ class FlowBuffers:
     concentration_gradient: object
     number_density: object
     volume: object
-    # the density-weighted pressure-gradient coefficients, per pair
+    # the gradient's self coefficients (per particle) and pair coefficients, and
+    # the density-weighted pressure-gradient pair coefficients (per pair, grown
+    # on demand)
+    gradient_self: object
+    gradient_pairs: object = None
     pair_gradient: object = None
 
     @classmethod
@@ -55,15 +59,22 @@ class FlowBuffers:
         size = max(capacity, 1)
         vectors = {"wall_velocity", "velocity_laplacian", "velocity", "velocity_with_walls",
                    "pressure_gradient", "measured_velocity", "cleanup_correction",
-                   "concentration_gradient"}
+                   "concentration_gradient", "gradient_self"}
+        per_pair = {"gradient_pairs", "pair_gradient"}
         return cls(**{f.name: (_vectors if f.name in vectors else _scalars)(size)
-                      for f in fields(cls) if f.name != "pair_gradient"})
+                      for f in fields(cls) if f.name not in per_pair})
 
-    def copy_of_pair_vectors(self, G):
-        """A copy of the per-pair vectors ``G`` in ``pair_gradient`` (its first
-        ``len(G)`` entries), grown by a quarter when ``G`` outgrows it."""
-        m = G.shape[0]
+    def gradient_arrays(self, n_pairs: int):
+        """``(G, s)`` for :meth:`Operators.gradient_coefficients`: ``G`` grown by a
+        quarter when ``n_pairs`` outgrows it."""
+        if self.gradient_pairs is None or self.gradient_pairs.shape[0] < n_pairs:
+            self.gradient_pairs = _vectors(max(n_pairs + n_pairs // 4, 1))
+        return self.gradient_pairs, self.gradient_self
+
+    def copy_of_pair_vectors(self, G, m: int):
+        """A copy of the first ``m`` per-pair vectors of ``G`` in ``pair_gradient``,
+        grown by a quarter when ``m`` outgrows it."""
         if self.pair_gradient is None or self.pair_gradient.shape[0] < m:
-            self.pair_gradient = _vectors(m + m // 4)
+            self.pair_gradient = _vectors(max(m + m // 4, 1))
         _copy_vectors(m, G, self.pair_gradient)
         return self.pair_gradient

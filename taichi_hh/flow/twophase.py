@@ -294,13 +294,14 @@ class TwoPhaseFlow:
         divergence ``D``), the pressure gradient's (times 2 / (rho_i + rho_j) with
         ``pair_density_gradient``) and the bordered, density-weighted Poisson matrix."""
         params, p, ops = self.params, self.particles, self.ops
-        st_grad = ops.gradient_coefficients(params.gradient, row_kinds=(FLUID,))
+        st_grad = ops.gradient_coefficients(params.gradient, row_kinds=(FLUID,),
+                                            into=self.buffers.gradient_arrays(self.pairs.n_pairs))
         st_pressure_grad = st_grad
         if params.pair_density_gradient:
             # the same coefficients times 2 / (rho_i + rho_j): what
             # gradient_coefficients(..., density_weighted=True) computes, without
             # building the (correction-matrix) coefficients a second time
-            G = self.buffers.copy_of_pair_vectors(st_grad.G)
+            G = self.buffers.copy_of_pair_vectors(st_grad.G, self.pairs.n_pairs)
             weight_gradient_by_mean_density(p.n, self.pairs.offsets, self.pairs.neighbours,
                                             p.density, G)
             st_pressure_grad = GradientStencil(G, st_grad.s, st_grad.variant, st_grad.row_kinds,

@@ -570,15 +570,24 @@ class Operators:
 
     def gradient_coefficients(self, variant: str = "corrected",
                               row_kinds=ALL_KINDS, source_kinds=ALL_KINDS,
-                              density_weighted: bool = False) -> GradientStencil:
+                              density_weighted: bool = False, into=None) -> GradientStencil:
         """Coefficients of a gradient variant for the rows whose particle kind is in
         ``row_kinds`` (other rows get zeros: e.g. ghosts, which need no derivatives),
-        summing over the neighbours whose kind is in ``source_kinds``."""
+        summing over the neighbours whose kind is in ``source_kinds``.  into: the
+        arrays ``(G, s)`` to write (2-vector ndarrays of at least as many rows as
+        pairs and particles), for a caller that keeps them across particle
+        configurations; default new ones."""
         vid = _variant_id(variant, GRADIENT_VARIANTS)
         p = self.particles
         real = runtime.real_dtype()
-        G = ti.Vector.ndarray(2, real, shape=(max(self.pairs.n_pairs, 1),))
-        s = ti.Vector.ndarray(2, real, shape=(max(p.n, 1),))
+        if into is None:
+            G = ti.Vector.ndarray(2, real, shape=(max(self.pairs.n_pairs, 1),))
+            s = ti.Vector.ndarray(2, real, shape=(max(p.n, 1),))
+        else:
+            G, s = into
+            if G.shape[0] < self.pairs.n_pairs or s.shape[0] < p.n:
+                raise ValueError(f"gradient arrays too small: {G.shape[0]} pair and {s.shape[0]} "
+                                 f"particle rows for {self.pairs.n_pairs} pairs, {p.n} particles")
         self._bad.fill(-1)
         _gradient_coeffs(self.kernel_id, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
                          self.support, G, s, self._bad, p.kind, kind_bits(row_kinds),
