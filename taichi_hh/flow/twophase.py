@@ -67,7 +67,7 @@ from ..sph.kernels import kernel_numpy
 from ..sph.neighbors import GridSpec, PairList, bin_particles
 from ..sph.operators import GradientStencil, Operators, number_density, \
     weight_gradient_by_mean_density
-from ..sph.particles import FLUID, GHOST, Particles
+from ..sph.particles import FLUID, WALL, Particles
 from .buffers import FlowBuffers
 from .clock import STAGES, StageClock
 from .params import WALL_CONDITIONS, FlowParams, WallVelocity
@@ -121,7 +121,7 @@ class TwoPhaseFlow:
         p.append(pts, velocity=velocity, mass=rho0 * vol, kind=FLUID, phase=phases)
         q = np.clip(walls, [x0, y0], [x1, y1])
         wall_normal = (walls - q) / np.linalg.norm(walls - q, axis=1)[:, None]
-        p.append(walls, mass=rho0.mean() * vol, kind=GHOST, phase=-1, normal=wall_normal)
+        p.append(walls, mass=rho0.mean() * vol, kind=WALL, phase=-1, normal=wall_normal)
         p.set("density", np.r_[rho0, np.full(len(walls), rho0.mean())])
         p.set("volume", np.full(p.n, vol))
         lo = np.array([x0, y0]) - self.support
@@ -307,7 +307,7 @@ class TwoPhaseFlow:
             st_pressure_grad = GradientStencil(G, st_grad.s, st_grad.variant, st_grad.row_kinds,
                                                st_grad.source_kinds)
         self.clock.lap("operators", "gradient_coefficients")
-        # The flow has no BOUNDARY particles (its walls are GHOST rows) and no
+        # The flow has no BOUNDARY particles (its walls are Shepard rows) and no
         # near-boundary term, so the Neumann gradient of the Poisson rows is
         # multiplied by zero: any stencil at hand gives the identical matrix.  The
         # pressure Laplacian is the viscous one weighted by the pair densities

@@ -1,6 +1,6 @@
 """What the flow's wall particles carry: the kernels of its wall conditions.
 
-The walls are a lattice layer of GHOST particles at rest outside the box
+The walls are a lattice layer of WALL particles at rest outside the box
 (:func:`taichi_hh.geometry.walls.box_wall_lattice`).  Their pressure follows the
 fluid next to them by the Shepard sum plus the hydrostatic term, the generalised
 wall condition of Adami, Hu & Adams 2012 (:func:`wall_rhs`); in the divergence
@@ -9,8 +9,8 @@ it (no slip) or its mirror image (free slip) (:func:`wall_velocity`).
 """
 import taichi as ti
 
-from ..sph.kernels import kernel_wfl
-from ..sph.particles import FLUID, GHOST
+from ..sph.operators import shepard_sums, shepard_weight
+from ..sph.particles import FLUID, WALL
 from .params import WallVelocity
 
 
@@ -27,7 +27,7 @@ def wall_rhs(kernel_id: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
     the normal gradient rho w.n that stops what is left of the normal velocity
     (no penetration)."""
     for i in range(n):
-        if kind[i] == GHOST:
+        if kind[i] == WALL:
             num = 0.0
             den = 0.0
             nw = normal[i]
@@ -35,10 +35,10 @@ def wall_rhs(kernel_id: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
                 j = nbrs[k]
                 if kind[j] == FLUID:
                     d = pos[i] - pos[j]
-                    W, _F, _L = kernel_wfl(kernel_id, d.norm(), H)
+                    weight = shepard_weight(kernel_id, pos, vol, i, j, H)
                     gdt = ti.Vector([gdt_x, gdt_y])
-                    num += vol[j] * W * rho[j] * (gdt.dot(d) + (w[j] - gdt).dot(nw) * d.dot(nw))
-                    den += vol[j] * W
+                    num += weight * rho[j] * (gdt.dot(d) + (w[j] - gdt).dot(nw) * d.dot(nw))
+                    den += weight
             b[i] = 0.0
             if den > 0.0:
                 b[i] = num / den
@@ -57,14 +57,8 @@ def wall_velocity(kernel_id: ti.template(), n: ti.i32, offsets: ti.types.ndarray
         if kind[i] == FLUID:
             out[i] = v[i]
         else:
-            num = ti.Vector.zero(float, 2)
-            den = 0.0
-            for k in range(offsets[i], offsets[i + 1]):
-                j = nbrs[k]
-                if kind[j] == FLUID:
-                    W, _F, _L = kernel_wfl(kernel_id, (pos[i] - pos[j]).norm(), H)
-                    num += vol[j] * W * v[j]
-                    den += vol[j] * W
+            num, den = shepard_sums(kernel_id, i, offsets, nbrs, pos, vol, kind, H, 1 << FLUID, v,
+                                    ti.Vector.zero(float, 2), 0.0)
             out[i] = ti.Vector.zero(float, 2)
             if den > 0.0:
                 factor = ti.Vector([1.0, 1.0])
