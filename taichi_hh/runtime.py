@@ -49,14 +49,14 @@ def _free_vector_ndarrays() -> None:
     Taichi 1.7 frees the memory of a ``ScalarNdarray`` in its ``__del__`` but
     ``VectorNdarray`` and ``MatrixNdarray`` have none, so every vector ndarray
     made and dropped stays allocated (taichi-dev/taichi issue #8763; the fix,
-    PR #8764, moves ``__del__`` to the base class).  The flow keeps its own work
-    arrays (:mod:`taichi_hh.flow.buffers`), but the library still makes vector
-    ndarrays per call: :meth:`~taichi_hh.sph.operators.Operators.gradient_coefficients`
-    (the per-pair ``G`` and per-particle ``s``) every flow step and every
-    decomposition; without this the droplet at 2.5k particles grows by 1.2 MB a
-    step (benchmarks/flow_memory.py, docs/notes/flow.md).  Same deletion as the
-    scalar class; done once (a later removal, as the benchmark's
-    ``--without-vector-free`` does, sticks), and only where the class lacks its
+    PR #8764, moves ``__del__`` to the base class).  The flow keeps every
+    array it uses across steps and needs none of this (its memory is flat
+    without it: benchmarks/flow_memory.py); the one-shot calls
+    (``decompose``, ``project``, :class:`~taichi_hh.sph.pointset.PointSet`)
+    make vector ndarrays per call, which would otherwise never be freed
+    (docs/notes/flow.md).  Same deletion as the scalar class; done once (a
+    later removal, as the benchmark's ``--without-vector-free`` does,
+    sticks), and only where the class lacks its
     own ``__del__``.
     """
     global _vector_free_done
