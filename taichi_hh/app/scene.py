@@ -124,7 +124,7 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
                          "that takes max |div v| to the solver tolerance (FlowParams."
                          "exact_projection; about 30x the cost of a step at 10k particles, "
                          "hence off: the default projection leaves 3-20%% of the predicted "
-                         "divergence, see taichi_hh/flow.py)")
+                         "divergence, see docs/notes/flow.md)")
     ap.add_argument("--cleanup-tol", type=float, default=None, metavar="TOL",
                     help="with --exact-projection: stop the clean-up at ||div v|| <= TOL "
                          "||div v*|| (default: the pressure solver's tolerance, 1e-6; 1e-3 "
