@@ -96,3 +96,37 @@ def test_cleanup_tol_without_exact_projection_is_refused(tmp_path, capsys):
                              "--out", str(tmp_path), "--cleanup-tol", "1e-3"])
     assert exc.value.code == 2
     assert "--cleanup-tol needs --exact-projection" in capsys.readouterr().err
+
+
+def test_scene_writes_particle_data_per_frame_for_paraview(tmp_path):
+    import meshio
+    from taichi_hh.app.particle_files import read_pvd
+    mod = load("rising_droplet")
+    out = tmp_path / "run"
+    common = ["--particles", "800", "--output-interval", "0.1", "--quiet", "--frame-width", "100",
+              "--out", str(out)]
+    assert mod.main(mod.SCENE, common + ["--end-time", "0.1"]) == 0
+    assert mod.main(mod.SCENE, common + ["--end-time", "0.2", "--resume"]) == 0
+    entries = read_pvd(str(out / "particles.pvd"))
+    assert [t for t, _ in entries] == pytest.approx([0.0, 0.1, 0.2])
+    for k, (t, f) in enumerate(entries):
+        mesh = meshio.read(out / f)
+        with np.load(out / "particles" / f"particles_{k:05d}.npz") as npz:
+            n = len(npz["points"])
+            assert float(npz["time"]) == pytest.approx(t)
+            assert np.array_equal(mesh.points[:, :2], npz["points"])
+            for name in ("velocity", "phase", "id", "pressure", "volume_error"):
+                assert len(npz[name]) == n
+                got = mesh.point_data[name]
+                assert np.array_equal(got[:, :2] if got.ndim == 2 else got, npz[name])
+            assert sorted(npz["id"]) == list(range(n))
+            assert set(np.unique(npz["phase"])) == {0, 1}
+            assert np.abs(npz["volume_error"]).max() < 0.1
+            if k > 0:
+                assert np.abs(npz["pressure"]).max() > 0
+    # --no-vtk: the npz files only, no collection
+    plain = tmp_path / "plain"
+    assert mod.main(mod.SCENE, ["--particles", "800", "--end-time", "0.1", "--quiet",
+                                "--frame-width", "100", "--out", str(plain), "--no-vtk"]) == 0
+    assert not (plain / "particles.pvd").exists()
+    assert sorted(p.suffix for p in (plain / "particles").iterdir()) == [".npz", ".npz"]

@@ -16,6 +16,7 @@ import numpy as np
 from .. import runtime
 from ..flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
 from .overlay import FrameLabels, label_frame
+from .particle_files import PvdSeries, write_particles
 from .render import STYLES, FrameRenderer, frame_path, write_movie, write_png
 from .runloop import Checkpoint, DiagnosticsWriter, add_common_arguments, run
 
@@ -117,6 +118,10 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     ap.add_argument("--style", choices=STYLES, default=scene.defaults.get("style", "smooth"),
                     help="frames: 'smooth' draws the interpolated colour field (no gaps between "
                          "particles), 'discs' one disc per particle")
+    ap.add_argument("--vtk", action=argparse.BooleanOptionalAction, default=True,
+                    help="with every frame write the particles as VTU (ParaView) too, listed "
+                         "in OUT/particles.pvd; their .npz twins are always written to "
+                         "OUT/particles/")
     ap.add_argument("--docs", action="store_true",
                     help="also copy the montage to docs/figures/<scene>.png (the README's figure)")
     ap.add_argument("--exact-projection", action="store_true",
@@ -152,6 +157,8 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     renderer = FrameRenderer(max(args.frame_width - 2 * wall_px, 1), None, (x0, y0), (x1, y1),
                              style=args.style)
     legend = [(name, renderer.colour_of_phase(k)) for k, name in enumerate(scene.phase_names)]
+    series = PvdSeries(os.path.join(args.out, "particles.pvd"),
+                       resume_time=flow.time if args.resume else None) if args.vtk else None
     columns = BASE_COLUMNS + list(scene.measure_columns)
     writer = DiagnosticsWriter(os.path.join(args.out, "diagnostics.csv"), columns,
                                resume_time=flow.time if args.resume else None)
@@ -183,7 +190,11 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
             labels = FrameLabels(legend=legend, wall_px=wall_px)
             image = renderer.draw(pos, phase=ph)
         image = label_frame(image, t, labels)
-        write_png(frame_path(args.out, int(round(t / args.output_interval))), image)
+        index = int(round(t / args.output_interval))
+        write_png(frame_path(args.out, index), image)
+        data = flow.particle_data()
+        write_particles(os.path.join(args.out, "particles"), index, t, data.pop("position"), data,
+                        vtu=args.vtk, series=series)
         result.frames += 1
         t1 = time.perf_counter()
         spent["render"] += t1 - t0

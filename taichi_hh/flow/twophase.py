@@ -187,6 +187,12 @@ class TwoPhaseFlow:
         particle number density (volume fraction) and C_0 its value on the initial
         lattice: how far the particles are from filling space uniformly."""
         p = self.particles
+        err = np.abs(self._number_density_ratio()[p.get("kind") == FLUID] - 1.0)
+        return float(err.mean()), float(err.max())
+
+    def _number_density_ratio(self) -> np.ndarray:
+        """C_i / C_0 per particle slot (:meth:`volume_error`)."""
+        p = self.particles
         if not hasattr(self, "ops"):
             self._neighbours()
         c, scratch = self.buffers.number_density, self.buffers.volume
@@ -195,8 +201,7 @@ class TwoPhaseFlow:
         C = c.to_numpy()[: p.n]
         if not hasattr(self, "_c0"):
             self._c0 = _lattice_number_density(self.params.kernel, self.dx, self.support)
-        err = np.abs(C[p.get("kind") == FLUID] / self._c0 - 1.0)
-        return float(err.mean()), float(err.max())
+        return C / self._c0
 
     def kinetic_energy(self) -> float:
         p = self.particles
@@ -246,6 +251,7 @@ class TwoPhaseFlow:
         self._advect(w, fluid, dt)                                               # 3.
 
         self.time += dt
+        self.last_dt = dt
         self.step_count += 1
         info = {"dt": dt, "iterations": int(sum(iterations)), "passes": len(iterations),
                 "cleanup_iterations": cleanup_iterations,
@@ -481,6 +487,25 @@ class TwoPhaseFlow:
         order = np.argsort(ids[f])
         return (p.get("position")[f][order], p.get("velocity")[f][order],
                 p.get("phase")[f][order], ids[f][order])
+
+    def particle_data(self) -> dict:
+        """Per fluid particle, in id order: ``position``, ``velocity``, ``phase``,
+        ``id``, ``pressure`` (the last step's pressure, its impulse q over dt; 0
+        before the first step) and ``volume_error`` (C_i / C_0 - 1, the signed
+        value whose magnitude :meth:`volume_error` averages)."""
+        ratio = self._number_density_ratio()    # first: it may bin, i.e. reorder, the particles
+        p = self.particles
+        kind = p.get("kind")
+        ids = p.get("original_index")
+        fluid = kind == FLUID
+        order = np.argsort(ids[fluid])
+        fluid_ids = ids[fluid][order]
+        dt = getattr(self, "last_dt", 0.0)
+        return {"position": p.get("position")[fluid][order],
+                "velocity": p.get("velocity")[fluid][order],
+                "phase": p.get("phase")[fluid][order], "id": fluid_ids,
+                "pressure": self.q_by_id[fluid_ids] / dt if dt > 0 else np.zeros(len(fluid_ids)),
+                "volume_error": ratio[fluid][order] - 1.0}
 
     def state_dict(self) -> dict:
         pos, vel, phase, _ = self.fluid_state()
