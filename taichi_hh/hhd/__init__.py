@@ -1,3 +1,5 @@
 """Decomposition layer: the SPH Helmholtz-Hodge decomposition
-(:mod:`.decompose`), the null-divergence projection (:mod:`.project`) and
-critical points (:mod:`.critical`)."""
+(:mod:`.decompose`, its options and bundles in :mod:`.options`), the
+null-divergence projection (:mod:`.project`) and critical points
+(:mod:`.critical`); input checks (:mod:`.inputs`), boundary particles
+(:mod:`.boundary`) and the rotation J (:mod:`.rotation`) shared by them."""

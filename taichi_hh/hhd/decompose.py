@@ -5,109 +5,34 @@ points with SPH operators (SPH-HH, Petronetto et al. 2010, Sec. 5 (a)-(e)).
     h harmonic,  lap phi = div v,  lap psi = -curl v  (Eq. 5),
     d phi/dn = d psi/dn = 0 on the boundary  (Eq. 6).
 
-Every numerical choice is an option; :data:`METHODS` bundles them:
-
-``default``         Wendland C2, support 2.5 spacings (measured: the most
-                    accurate of 2.25-4; errors grow like support^2 above); div v and curl v by the
-                    quadratic (MLS) gradient over the data points; corrected
-                    Laplacian (exact on quadratics) on the data points and
-                    Neumann rows on boundary particles sampled along the
-                    boundary, with the quadratic gradient (second order up to
-                    the boundary); bordered system for the pure-Neumann
-                    compatibility; BiCGSTAB to 1e-8 preconditioned by the
-                    multilevel cycle (Jacobi below 1000 particles); d, r by
-                    the quadratic gradient.
-``petronetto2010``  as published: quartic kernel, difference gradient and
-                    divergence (Eqs. 8, 9), Brookshaw Laplacian (Eq. 10), fake
-                    particles outside the boundary by Poisson-disk sampling with
-                    the field extended by the Shepard sum (Eq. 14) and their
-                    potentials by Shepard rows, the Neumann term on particles
-                    within sqrt(m/rho)/pi of the boundary, ridge kappa = 1e-3,
-                    Jacobi-preconditioned BiCGSTAB to residual 1e-6.
-``colin2006``       Colin et al.'s operators: poly6 kernel, DGAF (Eq. 13),
-                    Laplacian Eq. 21, a layer of boundary particles with normals
-                    whose rows enforce dq/dn = 0 (Eq. 37), CG on the normal
-                    equations (Sec. 3.5) to the least-squares solution (normal
-                    residual 1e-4: the stacked system is inconsistent and its
-                    condition number about 1e5).  Made for projections on
-                    lattices: as a decomposition on blue noise its components
-                    are ~100% wrong and flagged (AccuracyWarning).
+Steps (a)-(e): particles and boundary or fake particles, div v and curl v,
+the two Poisson problems of Eq. 5 with the boundary rows of Eq. 6, their
+solutions phi and psi, and d, r, h.  Every numerical choice is an option of
+:class:`~taichi_hh.hhd.options.HHDOptions`; :data:`~taichi_hh.hhd.options.METHODS`
+bundles them (``default``, ``petronetto2010``, ``colin2006``).  Accuracy of
+each bundle: docs/notes/hhd.md.
 """
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .. import runtime
-from ..errors import InputError
 from ..sph.particles import BOUNDARY, FLUID, GHOST
-from ..sph.pointset import DUPLICATE_FRACTION, PointSet, check_points, check_values
+from ..sph.pointset import PointSet
 from ..linalg.poisson import PoissonMatrix
+from .boundary import collocation_particles, far_from
+from .inputs import validate_input
+from .options import BOUNDARY_METHODS, METHODS, PRECONDITIONERS, HHDOptions, options_for
+from .rotation import J
 
-
-@dataclass(frozen=True)
-class HHDOptions:
-    """Numerical choices of :func:`decompose` (see the module doc for the bundles)."""
-    kernel: str = "wendland"
-    support_ratio: float = 2.5          # kernel support / mean spacing sqrt(area / N)
-    divergence: str = "quadratic"       # gradient variant for div v and curl v
-    gradient: str = "quadratic"         # gradient variant for d = grad phi, r = J grad psi
-    laplacian: str = "corrected"        # Laplacian variant of the Poisson rows
-    neumann_gradient: str = "quadratic"  # gradient variant of the Neumann rows
-    boundary: str = "collocation"       # collocation | petronetto | colin | none
-    kappa: float = 0.0                  # ridge term (Petronetto Sec. 6a)
-    bordered: bool = True               # compatibility unknown for pure Neumann
-    remove_mean: bool = False           # subtract the volume-weighted mean of div v, curl v
-    solver: str = "bicgstab"            # bicgstab | cgnr
-    preconditioner: str = "auto"        # auto | multilevel | jacobi (see PoissonMatrix.solve)
-    tol: float = 1e-8
-    max_iterations: int | None = None
-    seed: int = 0                       # for sampled fake/boundary particles
-
-    def __post_init__(self):
-        if self.boundary not in BOUNDARY_METHODS:
-            raise ValueError(f"boundary must be one of {BOUNDARY_METHODS}, got {self.boundary!r}")
-        if not (self.support_ratio > 0):
-            raise ValueError(f"support_ratio must be positive, got {self.support_ratio}")
-        if not (self.tol > 0):
-            raise ValueError(f"tol must be positive, got {self.tol}")
-        if self.preconditioner not in PRECONDITIONERS:
-            raise ValueError(f"preconditioner must be one of {PRECONDITIONERS}, "
-                             f"got {self.preconditioner!r}")
-        if self.preconditioner == "multilevel" and self.solver != "bicgstab":
-            raise ValueError("the multilevel preconditioner works with solver='bicgstab'")
-
-
-BOUNDARY_METHODS = ("collocation", "petronetto", "colin", "none")
-PRECONDITIONERS = ("auto", "multilevel", "jacobi")
-
-METHODS = {
-    "default": HHDOptions(),
-    "petronetto2010": HHDOptions(kernel="quartic", support_ratio=2.0, divergence="difference",
-                                 gradient="difference", laplacian="brookshaw",
-                                 neumann_gradient="difference", boundary="petronetto",
-                                 kappa=1e-3, bordered=False, tol=1e-6,
-                                 preconditioner="jacobi"),
-    "colin2006": HHDOptions(kernel="poly6", support_ratio=2.0, divergence="colin_difference",
-                            gradient="colin_difference", laplacian="colin_difference",
-                            neumann_gradient="colin_difference", boundary="colin",
-                            bordered=False, solver="cgnr", preconditioner="jacobi", tol=1e-4,
-                            max_iterations=20000),
-}
-
-
-def options_for(method: str = "default", **overrides) -> HHDOptions:
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; choose one of {tuple(METHODS)}")
-    return replace(METHODS[method], **overrides)
-
-
-def J(v: np.ndarray) -> np.ndarray:
-    """J(a, b) = (b, -a): rotation by 90 degrees clockwise (Petronetto Eq. 2)."""
-    return np.stack([v[..., 1], -v[..., 0]], axis=-1)
+# re-exported: importers of the options, the input checks and J from here
+__all__ = ["decompose", "poisson_problems", "PoissonProblems", "HHDResult", "ENERGY_LIMIT",
+           "HHDOptions", "METHODS", "BOUNDARY_METHODS", "PRECONDITIONERS", "options_for",
+           "validate_input", "far_from", "J"]
 
 
 @dataclass
@@ -135,45 +60,12 @@ class HHDResult:
 
 # ---------------------------------------------------------------------------
 
-def validate_input(points, vectors, domain):
-    pts = check_points(points)
-    vec = check_values(vectors, len(pts), 2, "vectors")
-    if domain is None:
-        from ..geometry.domain import Box
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        if not np.all(hi > lo):
-            raise InputError("the points span no area (all on one line or one point)")
-        domain = Box(lo, hi)
-    scale = float(np.max(np.abs(np.asarray(domain.bounds)))) or 1.0
-    inside = domain.contains(pts, tol=1e-9 * scale)
-    if not inside.all():
-        bad = np.flatnonzero(~inside)
-        raise InputError(f"{bad.size} point(s) lie outside the domain {domain!r}, first index "
-                         f"{bad[0]} at {pts[bad[0]].tolist()}")
-    return pts, vec, domain
-
-
-def far_from(candidates, points, radius, domain):
-    """Mask of candidates (boundary samples) farther than ``radius`` from every point.
-    Only points within ``radius`` of the boundary can be that close."""
-    keep = np.ones(len(candidates), dtype=bool)
-    dist = domain.closest_boundary(points)[0]
-    near = points[dist < radius]
-    for start in range(0, len(near), 2048):
-        block = near[start:start + 2048]
-        d2 = ((candidates[:, None, :] - block[None, :, :]) ** 2).sum(axis=2)
-        keep &= (d2 >= radius * radius).all(axis=1)
-    return keep
-
-
 def _extra_particles(domain, pts, opts: HHDOptions, spacing: float, support: float):
     """Boundary particles (points, normals) and ghosts for the boundary method."""
     if opts.boundary == "none":
         return None, None
     if opts.boundary == "collocation":
-        bpts, bnrm, _ = domain.sample_boundary(spacing)
-        keep = far_from(bpts, pts, 0.25 * spacing, domain)   # data points on the boundary take over
-        return (bpts[keep], bnrm[keep]), None
+        return collocation_particles(domain, pts, spacing), None
     band = domain.sample_ghosts(spacing, support, seed=opts.seed, avoid=pts)
     if opts.boundary == "colin":
         _, _, nrm, _ = domain.closest_boundary(band)
@@ -342,11 +234,11 @@ ENERGY_LIMIT = 4.0
 def _check_energy(stats, v, d, r, h, vol, opts) -> None:
     """The decomposition is L2-orthogonal (Petronetto Eq. 16), so
     |d|^2 + |r|^2 + |h|^2 = |v|^2 (volume-weighted sums) for an exact one; an
-    accurate discrete one stays within a few percent (measured 1.00-1.01 by
-    default, up to 1.1 for the paper's operators).  Components carrying several
-    times the field's energy cancel each other: the operators are inconsistent on
-    these points (e.g. the symmetric gradient on random points).  Flagged in
-    ``stats["flags"]`` and by an :class:`~taichi_hh.errors.AccuracyWarning`."""
+    accurate discrete one stays within a few percent (docs/notes/hhd.md).
+    Components carrying several times the field's energy cancel each other: the
+    operators are inconsistent on these points (e.g. the symmetric gradient on
+    random points).  Flagged in ``stats["flags"]`` and by an
+    :class:`~taichi_hh.errors.AccuracyWarning`."""
     import warnings
     from ..errors import AccuracyWarning
 

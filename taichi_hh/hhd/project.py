@@ -3,31 +3,14 @@
 pass Colin's two measures over the data points: the maximum |div| and the sum
 of squared div (their Table 1).
 
-Three schemes (``scheme``; each method has its own default):
+Two steps and three schemes built from them (``scheme``; each method has its
+own default).  Measurements of each: docs/notes/hhd.md.
 
-``neumann`` (``method="default"``)
-    Each pass is one Poisson step with our consistent operators (``poisson``
-    below: corrected Laplacian, quadratic gradient, ``dq/dn = 0`` rows on
-    boundary particles along the boundary), which gives the projection its
-    meaning (the normal flux of the data is kept, as in Colin's Eq. 29 and in
-    the divergence-free part ``r + h`` of :func:`taichi_hh.decompose`), then
-    one ``orthogonal`` step, which removes what the Poisson step left exactly
-    and with the smallest change.  One pass leaves ``D w`` at the solver
-    tolerance, so further passes find nothing to do: repeated passes are
-    bounded whatever the geometry.  Measured on the Gaussian field of
-    :mod:`taichi_hh.validation.fields` on blue noise: the result differs from the exact
-    ``r + h`` by 1.8% (2k points) and 0.3% (13k points) of mean |v|, where the
-    orthogonal scheme alone differs by 12% and 17% (it changes the normal
-    flux), and the Poisson step repeated alone diverges at 2k points (max
-    |div| 13.7, 2.8, 0.77, 0.26, 1.6, 43 over five passes).
+The Poisson step (:class:`PoissonStep`)
+    Colin's algorithm: solve ``lap q = div w`` with ``dq/dn = 0`` (Colin Eqs.
+    28-29, 31-38) and update ``w <- w - grad q`` (Eqs. 25, 41).
 
-    Measured divergence: ``D``, the quadratic (MLS) divergence over the data
-    points, i.e. ``PointSet(points, kernel, support).divergence(v, "quadratic")``.
-    Colin's examples 3 and 4 carry a net flux through the walls, so no field
-    keeping their normal flux is divergence-free: there the orthogonal step
-    changes the flux as little as it can.
-
-``orthogonal``
+The orthogonal step (:class:`OrthogonalStep`)
     The discrete orthogonal projection onto the null space of the divergence
     operator ``D`` itself.  With ``V`` the particle volumes,
 
@@ -55,32 +38,48 @@ Three schemes (``scheme``; each method has its own default):
     The adjoint form has none of this: ``D V^-1 D^T`` is symmetric positive
     semi-definite, its null space is the null space of ``D^T`` (the
     checkerboard modes), and ``D w`` lies in the range of ``D``, orthogonal to
-    it, so the system is consistent for every input and CG converges (about
-    150 Jacobi-CG iterations at 2k and at 13k blue-noise points).  The
+    it, so the system is consistent for every input and CG converges.  The
     projection is idempotent and never increases ``sum V |w|^2``, and a field
     with ``D w = 0`` (e.g. a rigid rotation, on which the quadratic
     divergence is exact) is returned unchanged.  No condition is imposed on
     the normal velocity: the continuous analogue is the Leray projection with
     ``q = 0`` on the boundary, which changes the normal flux.
 
-    Measured divergence: ``D`` as for ``neumann``.
+``neumann`` (``method="default"``, :class:`NeumannProjection`)
+    Each pass is one Poisson step with our consistent operators (corrected
+    Laplacian, quadratic gradient, ``dq/dn = 0`` rows on boundary particles
+    along the boundary), which gives the projection its meaning (the normal
+    flux of the data is kept, as in Colin's Eq. 29 and in the divergence-free
+    part ``r + h`` of :func:`taichi_hh.decompose`), then one orthogonal step,
+    which removes what the Poisson step left exactly and with the smallest
+    change.  One pass leaves ``D w`` at the solver tolerance, so further passes
+    find nothing to do: repeated passes are bounded whatever the geometry (the
+    Poisson step repeated alone is not).
 
-``poisson`` (``method="colin2006"``)
-    Colin's algorithm: solve ``lap q = div w`` with ``dq/dn = 0`` (Eqs. 28-29,
-    31-38) and update ``w <- w - grad q`` (Eqs. 25, 41).  With
-    ``method="colin2006"``: poly6, DGAF (Eq. 13) divergence and gradient,
-    Laplacian Eq. 21, a layer of wall particles at rest as wide as the
-    support, continuing the lattice for a box (Sec. 3.6, Fig. 4), carrying
-    outward normals (diagonal at the corners) whose rows enforce
-    ``n . grad q = 0`` (Eq. 37), the square stacked system solved by CG on
-    the normal equations (Sec. 3.5) to the least-squares solution (the
-    stacked system is not consistent in general).  The wall particles' zero
-    velocity joins the divergence sums.  Measured divergence: Colin's Eq. 33
-    (DGAF over inside and wall particles) at the inside particles.  With
-    ``method="default", scheme="poisson"`` the same loop runs with our
-    operators (corrected Laplacian, quadratic gradient and Neumann rows on
-    boundary particles along the boundary, bordered BiCGSTAB); measured
-    divergence: the quadratic divergence over the data points.
+    Measured divergence: ``D``, the quadratic (MLS) divergence over the data
+    points, i.e. ``PointSet(points, kernel, support).divergence(v, "quadratic")``.
+    Colin's examples 3 and 4 carry a net flux through the walls, so no field
+    keeping their normal flux is divergence-free: there the orthogonal step
+    changes the flux as little as it can.
+
+``orthogonal`` (:class:`OrthogonalProjection`)
+    The orthogonal step alone.  Measured divergence: ``D`` as for ``neumann``.
+
+``poisson`` (``method="colin2006"``, :class:`PoissonProjection`)
+    The Poisson step alone, Colin's algorithm.  With ``method="colin2006"``:
+    poly6, DGAF (Eq. 13) divergence and gradient, Laplacian Eq. 21, a layer of
+    wall particles at rest as wide as the support, continuing the lattice for
+    a box (Sec. 3.6, Fig. 4), carrying outward normals (diagonal at the
+    corners) whose rows enforce ``n . grad q = 0`` (Eq. 37), the square
+    stacked system solved by CG on the normal equations (Sec. 3.5) to the
+    least-squares solution (the stacked system is not consistent in general).
+    The wall particles' zero velocity joins the divergence sums.  Measured
+    divergence: Colin's Eq. 33 (DGAF over inside and wall particles) at the
+    inside particles.  With ``method="default", scheme="poisson"`` the same
+    loop runs with our operators (corrected Laplacian, quadratic gradient and
+    Neumann rows on boundary particles along the boundary, bordered
+    BiCGSTAB); measured divergence: the quadratic divergence over the data
+    points.
 """
 
 import math
@@ -88,27 +87,18 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import taichi as ti
 
 from .. import runtime
 
 from ..linalg import krylov as solvers
 from ..errors import InputError, SolverError
-from .decompose import validate_input, options_for
+from .boundary import collocation_particles
+from .inputs import validate_input
+from .options import PROJECT_OVERRIDES, options_for
 from ..sph.particles import BOUNDARY, FLUID
 from ..sph.adjoint import NormalOperator
 from ..sph.pointset import PointSet
 from ..linalg.poisson import PoissonMatrix
-
-SCHEMES = ("neumann", "orthogonal", "poisson")
-
-#: per-method defaults of project() that differ from the decompose() bundles
-#: of :data:`taichi_hh.hhd.decompose.METHODS`: Colin solves the plain (not bordered)
-#: stacked system by CG on the normal equations, here to the least-squares
-#: solution with normal residual 1e-4 (measured: tighter tolerances stall, the
-#: scaled stacked matrix of examples 2-5 having a condition number of about
-#: 1e5 besides its constant null vector, so CGNR's rate follows 1e10).
-PROJECT_OVERRIDES = {"colin2006": {"bordered": False, "tol": 1e-4, "max_iterations": 20000}}
 
 
 @dataclass
@@ -152,6 +142,203 @@ def wall_layer(domain, spacing: float, width: float, points=None, lattice: bool 
 
 # ---------------------------------------------------------------------------
 
+class PoissonStep:
+    """Colin's Poisson step: ``lap q = b`` with ``dq/dn = 0`` rows (Colin Eqs.
+    28-29, 31-38), ``w <- w - grad q`` (Eqs. 25, 41), on the data points and
+    the boundary particles of ``opts.boundary``: Colin's wall layer (``colin``,
+    whose velocity joins the divergence sums) or samples along the boundary
+    (``collocation``)."""
+
+    def __init__(self, pts, domain, opts, spacing: float, support: float, wall_velocity=None):
+        boundary = None
+        if opts.boundary == "colin":
+            boundary = wall_layer(domain, spacing, support, pts)
+        elif opts.boundary == "collocation":
+            boundary = collocation_particles(domain, pts, spacing)
+        elif opts.boundary != "none":
+            raise InputError("project() supports boundary='collocation', 'colin' or 'none'")
+        self.opts = opts
+        self.real = runtime.np_real()
+        self.ps = ps = PointSet(pts, kernel=opts.kernel, support=support, area=domain.area,
+                                boundary=boundary)
+        kind = ps.particles.get("kind")
+        fluid = kind == FLUID
+        # wall particles join the divergence sums with their (rest) velocity in
+        # Colin's formulation; ours differentiates the data alone
+        walls_move = opts.boundary == "colin"
+        self.divergence_stencil = ps.ops.gradient_coefficients(
+            opts.divergence, row_kinds=(FLUID,),
+            source_kinds=(FLUID, BOUNDARY) if walls_move else (FLUID,))
+        self.gradient_stencil = ps.ops.gradient_coefficients(opts.gradient, row_kinds=(FLUID,))
+        self.matrix = PoissonMatrix(ps.ops, laplacian=opts.laplacian,
+                                    gradient=opts.neumann_gradient, kappa=opts.kappa,
+                                    bordered=opts.bordered)
+        # the velocity per slot: the data at the data points, the walls' own elsewhere
+        self.velocity_slots = np.zeros((ps.n_total, 2))
+        if walls_move and wall_velocity is not None:
+            self.velocity_slots[~fluid] = np.asarray(wall_velocity, dtype=np.float64)
+        self.velocity_nd = ps.new_array(2)
+        self.divergence_nd = ps.new_array(1)
+        self.potential_nd = ps.new_array(1)
+        self.gradient_nd = ps.new_array(2)
+        self.n_boundary = int((kind == BOUNDARY).sum())
+        # the stacked colin system is inconsistent in general: its least-squares
+        # solution, as CG on A^T A q = A^T b gives
+        self.solve_options = {"least_squares": True} if opts.solver == "cgnr" else {}
+
+    def divergence(self, w) -> np.ndarray:
+        """The divergence of ``w`` (data points' order) by this step's operator."""
+        ps = self.ps
+        self.velocity_slots[ps.slot_of] = w
+        self.velocity_nd.from_numpy(self.velocity_slots.astype(self.real))
+        ps.ops.divergence(self.divergence_stencil, self.velocity_nd, self.divergence_nd)
+        return ps.download(self.divergence_nd)
+
+    def apply(self, w, b):
+        """``(w - grad q, solver iterations)`` with ``lap q = b`` at the data points."""
+        ps, opts = self.ps, self.opts
+        rhs = np.zeros(ps.n_total)
+        rhs[ps.slot_of] = b
+        res = self.matrix.solve(rhs, x0=None, method=opts.solver, tol=opts.tol,
+                                max_iterations=opts.max_iterations,
+                                preconditioner=opts.preconditioner, **self.solve_options)
+        self.potential_nd.from_numpy(res.x.astype(self.real))
+        ps.ops.gradient(self.gradient_stencil, self.potential_nd, self.gradient_nd)
+        return w - ps.download(self.gradient_nd), res.iterations
+
+
+class OrthogonalStep:
+    """The orthogonal projection onto the null space of ``D``, the divergence
+    over the data points alone (exactly ``PointSet(points).divergence(v,
+    divergence)``): ``(D V^-1 D^T) lam = D w`` by Jacobi-preconditioned CG,
+    ``w <- w - V^-1 D^T lam`` (module doc)."""
+
+    def __init__(self, pts, domain, opts, support: float):
+        self.max_iterations = opts.max_iterations
+        self.real = runtime.np_real()
+        self.ps = ps = PointSet(pts, kernel=opts.kernel, support=support, area=domain.area)
+        self.divergence_stencil = ps.ops.gradient_coefficients(
+            opts.divergence, row_kinds=(FLUID,), source_kinds=(FLUID,))
+        self.normal_operator = NormalOperator.of_pointset(ps, self.divergence_stencil)
+        self.velocity_nd = ps.new_array(2)
+        self.divergence_nd = ps.new_array(1)
+        self.multiplier_nd = ps.new_array(1)
+        self.correction_nd = ps.new_array(2)
+
+    def divergence(self, w) -> np.ndarray:
+        """``D w`` at the data points (their order)."""
+        ps = self.ps
+        self.velocity_nd.from_numpy(_to_slots(ps, w).astype(self.real))
+        ps.ops.divergence(self.divergence_stencil, self.velocity_nd, self.divergence_nd)
+        return ps.download(self.divergence_nd)
+
+    def apply(self, w, div, done: float):
+        """``(w', D w', CG iterations)`` for ``w`` with ``D w = div``: CG to
+        ``|D w'| <= done``; a field already there is returned as it is."""
+        norm = _norm(div)
+        if norm <= done:
+            return w, div, 0
+        ps = self.ps
+        res = solvers.cg(self.normal_operator, _to_slots(ps, div), tol=done / norm,
+                         max_iterations=self.max_iterations, preconditioner="jacobi")
+        self.multiplier_nd.from_numpy(np.resize(res.x.astype(self.real), max(ps.n_total, 1)))
+        self.normal_operator.correction(self.multiplier_nd, self.correction_nd)
+        w = w - ps.download(self.correction_nd)
+        return w, self.divergence(w), res.iterations
+
+
+class Projection:
+    """One projection scheme on one point set: its steps, set up once, the
+    divergence it measures (:meth:`divergence`), one pass (:meth:`pass_`) and
+    the diagnostics (:attr:`n_boundary`, :meth:`divergence_operator`)."""
+
+    def __init__(self, pts, domain, opts, wall_velocity=None):
+        self.opts = opts
+        self.spacing = math.sqrt(domain.area / len(pts))
+        self.support = opts.support_ratio * self.spacing
+        self.n_boundary = 0
+
+    def divergence(self, w) -> np.ndarray:
+        """The measured divergence of ``w`` at the data points."""
+        raise NotImplementedError
+
+    def pass_(self, w, div, done: float):
+        """One pass on ``w`` whose measured divergence is ``div``: ``(w', div',
+        solver iterations per step)``; ``done``: the level of ``|div|`` (2-norm)
+        below which a field counts as divergence-free."""
+        raise NotImplementedError
+
+    def divergence_operator(self) -> str:
+        opts = self.opts
+        return (f"{opts.divergence} divergence over the data points "
+                f"({opts.kernel}, support {opts.support_ratio:g} spacings)")
+
+
+class NeumannProjection(Projection):
+    """Poisson step (kept normal flux) then orthogonal step (exact), measured by ``D``."""
+
+    def __init__(self, pts, domain, opts, wall_velocity=None):
+        super().__init__(pts, domain, opts, wall_velocity)
+        self.poisson = PoissonStep(pts, domain, opts, self.spacing, self.support, wall_velocity)
+        self.orthogonal = OrthogonalStep(pts, domain, opts, self.support)
+        self.n_boundary = self.poisson.n_boundary
+
+    def divergence(self, w):
+        return self.orthogonal.divergence(w)
+
+    def pass_(self, w, div, done):
+        if _norm(div) <= done:
+            poisson_iterations = 0          # nothing left to remove
+        else:
+            w, poisson_iterations = self.poisson.apply(w, self.poisson.divergence(w))
+            div = self.divergence(w)
+        w, div, orthogonal_iterations = self.orthogonal.apply(w, div, done)
+        return w, div, (poisson_iterations, orthogonal_iterations)
+
+
+class OrthogonalProjection(Projection):
+    """The orthogonal step alone, measured by ``D``."""
+
+    def __init__(self, pts, domain, opts, wall_velocity=None):
+        super().__init__(pts, domain, opts, wall_velocity)
+        self.orthogonal = OrthogonalStep(pts, domain, opts, self.support)
+
+    def divergence(self, w):
+        return self.orthogonal.divergence(w)
+
+    def pass_(self, w, div, done):
+        w, div, iterations = self.orthogonal.apply(w, div, done)
+        return w, div, (iterations,)
+
+
+class PoissonProjection(Projection):
+    """The Poisson step alone (Colin's algorithm), measured by its own divergence."""
+
+    def __init__(self, pts, domain, opts, wall_velocity=None):
+        super().__init__(pts, domain, opts, wall_velocity)
+        self.poisson = PoissonStep(pts, domain, opts, self.spacing, self.support, wall_velocity)
+        self.n_boundary = self.poisson.n_boundary
+
+    def divergence(self, w):
+        return self.poisson.divergence(w)
+
+    def pass_(self, w, div, done):
+        w, iterations = self.poisson.apply(w, div)
+        return w, self.divergence(w), (iterations,)
+
+    def divergence_operator(self):
+        opts = self.opts
+        if opts.boundary != "colin":
+            return super().divergence_operator()
+        return (f"{opts.divergence} divergence over the data and wall particles at rest "
+                f"({opts.kernel}, support {self.support:.4g}) at the data points")
+
+
+PROJECTIONS = {"neumann": NeumannProjection, "orthogonal": OrthogonalProjection,
+               "poisson": PoissonProjection}
+SCHEMES = tuple(PROJECTIONS)
+
+
 def project(points, vectors, domain=None, *, iterations: int = 1, method: str = "default",
             scheme: str | None = None, wall_velocity=None, progress=None,
             history: bool = False, **options) -> ProjectionResult:
@@ -160,8 +347,8 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
     points, vectors: (N, 2) arrays; domain: :class:`~taichi_hh.geometry.domain.Box` or
     :class:`~taichi_hh.geometry.domain.Polygon` (default: the points' bounding box).
     method: ``"default"`` or ``"colin2006"`` (or another bundle of
-    :data:`taichi_hh.hhd.decompose.METHODS`; keyword ``options`` override single fields of
-    :class:`~taichi_hh.hhd.decompose.HHDOptions`, e.g. ``support_ratio``, ``kernel``,
+    :data:`taichi_hh.hhd.options.METHODS`; keyword ``options`` override single fields of
+    :class:`~taichi_hh.hhd.options.HHDOptions`, e.g. ``support_ratio``, ``kernel``,
     ``divergence``, ``tol``).  scheme: ``"neumann"``, ``"orthogonal"`` or
     ``"poisson"`` (module doc; default: neumann for ``default``, poisson for
     any other method).  wall_velocity: velocity of the ``colin2006`` wall
@@ -195,132 +382,40 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
     runtime.ensure_init()
     pts, vec, domain = validate_input(points, vectors, domain)
     say = progress or (lambda stage: None)
-    n = len(pts)
-    spacing = math.sqrt(domain.area / n)
-    support = opts.support_ratio * spacing
     t0 = time.perf_counter()
+    projection = PROJECTIONS[scheme](pts, domain, opts, wall_velocity)
 
-    poisson_step = scheme in ("neumann", "poisson")
-    real = runtime.np_real()
-    ps = st_div = A = st_grad = None
-    if poisson_step:
-        boundary = None
-        if opts.boundary == "colin":
-            boundary = wall_layer(domain, spacing, support, pts)
-        elif opts.boundary == "collocation":
-            from .decompose import far_from
-            bpts, bnrm, _ = domain.sample_boundary(spacing)
-            keep = far_from(bpts, pts, 0.25 * spacing, domain)
-            boundary = (bpts[keep], bnrm[keep])
-        elif opts.boundary != "none":
-            raise InputError("project() supports boundary='collocation', 'colin' or 'none'")
-        ps = PointSet(pts, kernel=opts.kernel, support=support, area=domain.area,
-                      boundary=boundary)
-        kind = ps.particles.get("kind")
-        fluid = kind == FLUID
-        # wall particles join the divergence sums with their (rest) velocity in
-        # Colin's formulation; ours differentiates the data alone
-        walls_move = opts.boundary == "colin"
-        st_div = ps.ops.gradient_coefficients(
-            opts.divergence, row_kinds=(FLUID,),
-            source_kinds=(FLUID, BOUNDARY) if walls_move else (FLUID,))
-        st_grad = ps.ops.gradient_coefficients(opts.gradient, row_kinds=(FLUID,))
-        A = PoissonMatrix(ps.ops, laplacian=opts.laplacian, gradient=opts.neumann_gradient,
-                          kappa=opts.kappa, bordered=opts.bordered)
-        w_slots = np.zeros((ps.n_total, 2))
-        if walls_move and wall_velocity is not None:
-            w_slots[~fluid] = np.asarray(wall_velocity, dtype=np.float64)
-        nd = [ps.new_array(2), ps.new_array(1), ps.new_array(1), ps.new_array(2)]
-        n_boundary = int((kind == BOUNDARY).sum())
-    # the orthogonal step and the measure of the neumann/orthogonal schemes: D over
-    # the data points alone, exactly PointSet(points).divergence(v, divergence)
-    ps0 = S = st0 = None
-    if scheme != "poisson":
-        ps0 = PointSet(pts, kernel=opts.kernel, support=support, area=domain.area)
-        st0 = ps0.ops.gradient_coefficients(opts.divergence, row_kinds=(FLUID,),
-                                            source_kinds=(FLUID,))
-        S = NormalOperator.of_pointset(ps0, st0)
-        nd0 = [ps0.new_array(2), ps0.new_array(1), ps0.new_array(1), ps0.new_array(2)]
-        n_boundary = 0 if ps is None else n_boundary
-
-    def poisson_divergence(w):
-        w_slots[ps.slot_of] = w
-        nd[0].from_numpy(w_slots.astype(real))
-        ps.ops.divergence(st_div, nd[0], nd[1])
-        return ps.download(nd[1])
-
-    def data_divergence(w):
-        nd0[0].from_numpy(_to_slots(ps0, w).astype(real))
-        ps0.ops.divergence(st0, nd0[0], nd0[1])
-        return ps0.download(nd0[1])
-
-    measure = poisson_divergence if scheme == "poisson" else data_divergence
     w = vec.copy()
-    div = measure(w)
+    div = projection.divergence(w)
     first = _measures(div)
     max_div, sum_sq = [first[0]], [first[1]]
     # "already divergence-free": |D w| at most tol times the larger of the
     # input's |D w| and |w| / spacing (the divergence of a field varying by its
     # own size over one spacing), and never below rounding level; so feeding a
     # projected field back in does nothing rather than chase rounding errors
-    eps = float(np.finfo(real).eps)
-    scale = math.sqrt(float((w ** 2).sum())) / spacing
+    eps = float(np.finfo(runtime.np_real()).eps)
+    scale = math.sqrt(float((w ** 2).sum())) / projection.spacing
     floor = 1e3 * eps * scale
     done = max(opts.tol * max(math.sqrt(first[1]), scale), floor)
-    extra = {"least_squares": True} if opts.solver == "cgnr" else {}
     iters, stage_iters, residuals = [], [], []
     fields = [vec.copy()] if history else None
     for k in range(iterations):
         say(f"projection {k + 1}/{iterations}")
-        counts = []
-        if poisson_step:
-            b = poisson_divergence(w) if scheme == "neumann" else div
-            if scheme == "neumann" and math.sqrt(float((div ** 2).sum())) <= done:
-                counts.append(0)          # nothing left to remove
-            else:
-                # the stacked colin system is inconsistent in general: its
-                # least-squares solution, as CG on A^T A q = A^T b gives
-                rhs = np.zeros(ps.n_total)
-                rhs[ps.slot_of] = b
-                res = A.solve(rhs, x0=None, method=opts.solver, tol=opts.tol,
-                              max_iterations=opts.max_iterations,
-                              preconditioner=opts.preconditioner, **extra)
-                counts.append(res.iterations)
-                nd[2].from_numpy(res.x.astype(real))
-                ps.ops.gradient(st_grad, nd[2], nd[3])
-                w = w - ps.download(nd[3])
-                div = measure(w)
-        if S is not None:
-            bnorm = math.sqrt(float((div ** 2).sum()))
-            if bnorm <= done:
-                counts.append(0)
-            else:
-                res = solvers.cg(S, _to_slots(ps0, div), tol=done / bnorm,
-                                 max_iterations=opts.max_iterations, preconditioner="jacobi")
-                counts.append(res.iterations)
-                nd0[2].from_numpy(np.resize(res.x.astype(real), max(ps0.n_total, 1)))
-                S.correction(nd0[2], nd0[3])
-                w = w - ps0.download(nd0[3])
-                div = measure(w)
+        w, div, counts = projection.pass_(w, div, done)
         iters.append(sum(counts))
-        stage_iters.append(tuple(counts))
-        residuals.append(math.sqrt(float((div ** 2).sum())))
+        stage_iters.append(counts)
+        residuals.append(_norm(div))
         m, q = _measures(div)
         max_div.append(m)
         sum_sq.append(q)
         if history:
             fields.append(w.copy())
         _check_pass(k + 1, w, vec, max_div, method, scheme)
-    if scheme == "poisson" and opts.boundary == "colin":
-        what = (f"{opts.divergence} divergence over the data and wall particles at rest "
-                f"({opts.kernel}, support {support:.4g}) at the data points")
-    else:
-        what = (f"{opts.divergence} divergence over the data points "
-                f"({opts.kernel}, support {opts.support_ratio:g} spacings)")
     stats = {"iterations": iters, "stage_iterations": stage_iters,
              "divergence_norm": residuals, "seconds": time.perf_counter() - t0,
-             "scheme": scheme, "n_boundary": n_boundary, "support": support,
-             "spacing": spacing, "divergence_operator": what}
+             "scheme": scheme, "n_boundary": projection.n_boundary,
+             "support": projection.support, "spacing": projection.spacing,
+             "divergence_operator": projection.divergence_operator()}
     return ProjectionResult(points=pts, vectors=w, initial=vec,
                             max_divergence=np.array(max_div), sum_sq_divergence=np.array(sum_sq),
                             divergence=div, stats=stats, history=fields)
@@ -361,6 +456,10 @@ def _to_slots(ps, values):
     out = np.zeros((ps.n_total,) + values.shape[1:])
     out[ps.slot_of] = values
     return out
+
+
+def _norm(div) -> float:
+    return math.sqrt(float((div ** 2).sum()))
 
 
 def _measures(div):

@@ -26,11 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry.domain import Box, Polygon
-
-
-def J(v: np.ndarray) -> np.ndarray:
-    """Rotate vectors by 90 degrees clockwise: J(a, b) = (b, -a) (Petronetto Eq. 2)."""
-    return np.stack([v[..., 1], -v[..., 0]], axis=-1)
+from ..hhd.rotation import J
 
 
 @dataclass(frozen=True)

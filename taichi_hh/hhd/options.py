@@ -1,0 +1,99 @@
+"""Numerical options of :func:`~taichi_hh.hhd.decompose.decompose` and
+:func:`~taichi_hh.hhd.project.project`, and the bundles that name them.
+
+:data:`METHODS`:
+
+``default``         Wendland C2, support 2.5 spacings (the most accurate
+                    support: docs/notes/hhd.md); div v and curl v by the
+                    quadratic (MLS) gradient over the data points; corrected
+                    Laplacian (exact on quadratics) on the data points and
+                    Neumann rows on boundary particles sampled along the
+                    boundary, with the quadratic gradient (second order up to
+                    the boundary); bordered system for the pure-Neumann
+                    compatibility; BiCGSTAB to 1e-8 preconditioned by the
+                    multilevel cycle (Jacobi below 1000 particles); d, r by
+                    the quadratic gradient.
+``petronetto2010``  as published: quartic kernel, difference gradient and
+                    divergence (Petronetto Eqs. 8, 9), Brookshaw Laplacian
+                    (Eq. 10), fake particles outside the boundary by
+                    Poisson-disk sampling with the field extended by the
+                    Shepard sum (Eq. 14) and their potentials by Shepard rows,
+                    the Neumann term on particles within sqrt(m/rho)/pi of the
+                    boundary, ridge kappa = 1e-3 (Sec. 6a), Jacobi-preconditioned
+                    BiCGSTAB to residual 1e-6.
+``colin2006``       Colin et al.'s operators: poly6 kernel, DGAF (Colin Eq. 13),
+                    Laplacian Eq. 21, a layer of boundary particles with normals
+                    whose rows enforce dq/dn = 0 (Eq. 37), CG on the normal
+                    equations (Sec. 3.5) to the least-squares solution (the
+                    stacked system is inconsistent and ill-conditioned).  Made
+                    for projections on lattices: as a decomposition on blue
+                    noise its components are wrong and flagged
+                    (AccuracyWarning; docs/notes/hhd.md).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+BOUNDARY_METHODS = ("collocation", "petronetto", "colin", "none")
+PRECONDITIONERS = ("auto", "multilevel", "jacobi")
+
+
+@dataclass(frozen=True)
+class HHDOptions:
+    """Numerical choices of :func:`~taichi_hh.hhd.decompose.decompose` (bundles: :data:`METHODS`)."""
+    kernel: str = "wendland"
+    support_ratio: float = 2.5          # kernel support / mean spacing sqrt(area / N)
+    divergence: str = "quadratic"       # gradient variant for div v and curl v
+    gradient: str = "quadratic"         # gradient variant for d = grad phi, r = J grad psi
+    laplacian: str = "corrected"        # Laplacian variant of the Poisson rows
+    neumann_gradient: str = "quadratic"  # gradient variant of the Neumann rows
+    boundary: str = "collocation"       # collocation | petronetto | colin | none
+    kappa: float = 0.0                  # ridge term (Petronetto Sec. 6a)
+    bordered: bool = True               # compatibility unknown for pure Neumann
+    remove_mean: bool = False           # subtract the volume-weighted mean of div v, curl v
+    solver: str = "bicgstab"            # bicgstab | cgnr
+    preconditioner: str = "auto"        # auto | multilevel | jacobi (see PoissonMatrix.solve)
+    tol: float = 1e-8
+    max_iterations: int | None = None
+    seed: int = 0                       # for sampled fake/boundary particles
+
+    def __post_init__(self):
+        if self.boundary not in BOUNDARY_METHODS:
+            raise ValueError(f"boundary must be one of {BOUNDARY_METHODS}, got {self.boundary!r}")
+        if not (self.support_ratio > 0):
+            raise ValueError(f"support_ratio must be positive, got {self.support_ratio}")
+        if not (self.tol > 0):
+            raise ValueError(f"tol must be positive, got {self.tol}")
+        if self.preconditioner not in PRECONDITIONERS:
+            raise ValueError(f"preconditioner must be one of {PRECONDITIONERS}, "
+                             f"got {self.preconditioner!r}")
+        if self.preconditioner == "multilevel" and self.solver != "bicgstab":
+            raise ValueError("the multilevel preconditioner works with solver='bicgstab'")
+
+
+METHODS = {
+    "default": HHDOptions(),
+    "petronetto2010": HHDOptions(kernel="quartic", support_ratio=2.0, divergence="difference",
+                                 gradient="difference", laplacian="brookshaw",
+                                 neumann_gradient="difference", boundary="petronetto",
+                                 kappa=1e-3, bordered=False, tol=1e-6,
+                                 preconditioner="jacobi"),
+    "colin2006": HHDOptions(kernel="poly6", support_ratio=2.0, divergence="colin_difference",
+                            gradient="colin_difference", laplacian="colin_difference",
+                            neumann_gradient="colin_difference", boundary="colin",
+                            bordered=False, solver="cgnr", preconditioner="jacobi", tol=1e-4,
+                            max_iterations=20000),
+}
+
+#: per-method options of project() that differ from the :data:`METHODS` bundles:
+#: Colin solves the plain (not bordered) stacked system by CG on the normal
+#: equations, here to the least-squares solution with normal residual 1e-4
+#: (tighter tolerances stall: docs/notes/hhd.md)
+PROJECT_OVERRIDES = {"colin2006": {"bordered": False, "tol": 1e-4, "max_iterations": 20000}}
+
+
+def options_for(method: str = "default", **overrides) -> HHDOptions:
+    """The bundle ``method`` of :data:`METHODS` with single fields ``overrides``."""
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {tuple(METHODS)}")
+    return replace(METHODS[method], **overrides)
