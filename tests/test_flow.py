@@ -262,7 +262,7 @@ def test_dropped_vector_ndarrays_are_freed():
     assert rss_mb() - before < 60.0                            # 240 MB if leaked
 
 
-def test_clean_up_operator_and_its_conditioning_against_the_support():
+def test_clean_up_operator_and_its_conditioning_against_the_support(scene_module):
     """benchmarks/projection_conditioning.py's foundation: the clean-up's system
     assembled with scipy from the flow's coefficients reproduces the flow's
     D w (``assemble`` checks it to 1e-10), textbook Jacobi-CG on it takes the
@@ -270,20 +270,24 @@ def test_clean_up_operator_and_its_conditioning_against_the_support():
     within 0.3% at 10k particles), and the kernel support sets its condition:
     the 3 dx Wendland gradient, a low-pass filter, makes S = D M^-1 D^T far
     worse conditioned than the 2 dx one (measured 8e4 against 8e2 here)."""
-    import sys
+    import argparse
     from dataclasses import replace
-    from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-    import projection_conditioning as pc
+    from taichi_hh.validation import conditioning as pc
 
-    state, params, _vol, _sec = pc.droplet_run(1200, 0.2)
+    droplet = scene_module("rising_droplet")
+    args = argparse.ArgumentParser()
+    droplet.add_arguments(args)
+    args = args.parse_args([])
+    args.particles = 1200
+    pts, phases, dx, params = droplet.build(args)
+    state, _vol, _sec = pc.advance(pts, phases, dx, params, 0.2)
     cond = {}
     for ratio in (3.0, 2.0):
-        seen, _dx = pc.capture_step(state, replace(params, support_ratio=ratio))
+        seen, _dx = pc.capture_cleanup(state, replace(params, support_ratio=ratio))
         D, S, pos, d = pc.assemble(seen)
         assert S.shape == (1152, 1152)
         rtol = params.solver_tol * seen["norm_before"] / np.linalg.norm(d)
-        norms = pc.cg_history(S, d, pc._jacobi(S), rtol)
+        norms = pc.cg_history(S, d, pc.jacobi(S), rtol)
         its = pc.first_below(norms, params.solver_tol * seen["norm_before"])
         assert abs(its - seen["iterations"]) <= max(3, 0.02 * seen["iterations"]), \
             (its, seen["iterations"])

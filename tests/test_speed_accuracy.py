@@ -9,9 +9,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = ROOT / "benchmarks" / "speed_accuracy.py"
 CHARTS = ("pareto", "convergence", "kappa", "flow")
+
+pytestmark = pytest.mark.slow          # about 90 s
 
 
 def test_quick_sweep_writes_csv_and_charts(tmp_path):
