@@ -74,8 +74,8 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import REPO_ROOT, add_repo_to_path, format_table, parse_list, run_tasks, \
-    write_csv_atomic
+from _common import (REPO_ROOT, add_repo_to_path, format_table, parse_list, run_tasks,
+                     write_bytes_atomic, write_csv_atomic)
 
 add_repo_to_path()
 from taichi_hh.validation.measures import as_float, loglog_slope  # noqa: E402
@@ -306,10 +306,8 @@ def _fmt(x, spec=".3g"):
 
 def _to_docs(chart: Path) -> None:
     """Copy a chart to docs/figures/ atomically (the README embeds it)."""
-    from taichi_hh.app.io import atomic_path
-    dest = REPO_ROOT / "docs" / "figures" / chart.name.replace("_quick", "")
-    with atomic_path(str(dest)) as tmp:
-        Path(tmp).write_bytes(chart.read_bytes())
+    write_bytes_atomic(REPO_ROOT / "docs" / "figures" / chart.name.replace("_quick", ""),
+                       chart.read_bytes())
 
 
 def main(argv=None):
