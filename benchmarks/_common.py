@@ -1,16 +1,16 @@
-"""Small helpers shared by the benchmark scripts: timing, CSV, tables.
+"""Command-line glue shared by the benchmark scripts: timing, option lists,
+atomic CSV and figure files, tables, loading a scene script.
 
 Nothing here imports Taichi; the caller passes its ``ti.sync`` so that a timer
-stops only after the asynchronous kernels it launched have finished.
+stops only after the asynchronous kernels it launched have finished.  What the
+benchmarks measure lives in :mod:`taichi_hh.validation`.
 """
 from __future__ import annotations
 
 import csv
 import io
-import os
 import statistics
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -53,26 +53,11 @@ def summary(times: list[float]) -> dict:
             "repeats": len(times)}
 
 
-def _atomic_write(path: Path, write) -> None:
-    """Write through a temporary file in the same directory, then rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    umask = os.umask(0)
-    os.umask(umask)
-    try:
-        os.chmod(tmp, 0o666 & ~umask)      # mkstemp makes it private; use normal permissions
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+def write_bytes_atomic(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file and a rename."""
+    from taichi_hh.app.io import atomic_path
+    with atomic_path(str(path)) as tmp:
+        Path(tmp).write_bytes(data)
 
 
 def write_csv_atomic(path, rows: list[dict], fieldnames: list[str]) -> None:
@@ -81,13 +66,32 @@ def write_csv_atomic(path, rows: list[dict], fieldnames: list[str]) -> None:
     writer.writeheader()
     for row in rows:
         writer.writerow(row)
-    data = buf.getvalue().encode()
-    _atomic_write(path, lambda fh: fh.write(data))
+    write_bytes_atomic(path, buf.getvalue().encode())
 
 
 def save_figure_atomic(fig, path, **kwargs) -> None:
-    fmt = Path(path).suffix.lstrip(".") or "png"
-    _atomic_write(path, lambda fh: fig.savefig(fh, format=fmt, **kwargs))
+    from taichi_hh.app.io import atomic_savefig
+    atomic_savefig(fig, str(path), **kwargs)
+
+
+def parse_list(text: str, kind=float) -> list:
+    """A comma-separated option value as a list: ``"1e-8, 1e-2"`` -> [1e-08, 0.01]
+    (empty items skipped; ``kind=int`` also accepts ``"4e4"``, ``kind=str``
+    strips the items)."""
+    convert = (lambda s: int(float(s))) if kind is int else kind
+    return [convert(s.strip()) for s in str(text).split(",") if s.strip()]
+
+
+def run_tasks(tasks: list[dict], workers: int, threads: int, progress: bool) -> list[dict]:
+    """:func:`taichi_hh.validation.sweep.run_pool` with a progress bar."""
+    from taichi_hh.app.runloop import ProgressBar
+    from taichi_hh.validation.sweep import run_pool
+    bar = ProgressBar(len(tasks)) if progress else None
+    rows = run_pool(tasks, workers, threads,
+                    on_done=(lambda done: bar.update(done, done)) if bar else None)
+    if bar:
+        bar.close()
+    return rows
 
 
 def format_table(header: list[str], rows: list[list[str]], align: str | None = None) -> str:

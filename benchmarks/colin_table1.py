@@ -23,6 +23,14 @@ Measures (max |div| and sum of squared div over the data points, per pass):
 ``quadratic``   our quadratic divergence over the data points applied to both
                 results: exact on linear fields, so 0 on example 5's input.
 
+Reproduction: example 1's initial measures
+come out within 4% (5.12 and 1276 against 5.32 and 1250.48).  Examples 2-4
+come out within a factor of about 2 and example 5 not at all: the text's setup
+gives max |div| 0.45 and sum 7.9 for the rigid rotation where Table 1 has 2.81
+and 82.61.  Neither 18 x 18 or 20 x 20 lattices, supports of 1/9 or 1/10, nor
+other spacings (tried 1/18 to 1/45) reproduce those numbers, so the published
+setup of examples 2-5 differs from the text in some unstated way.
+
 Writes ``colin_table1.csv`` (one row per example, method, measure and value:
 init, pass_1 ... pass_k) and ``colin_table1.png`` (max |div| per pass) to
 ``--out-dir``.

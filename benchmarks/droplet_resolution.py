@@ -38,8 +38,8 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from _common import (REPO_ROOT, add_repo_to_path, format_table, scene_module,  # noqa: E402
-                     save_figure_atomic, write_csv_atomic)
+from _common import (REPO_ROOT, add_repo_to_path, format_table, parse_list,  # noqa: E402
+                     save_figure_atomic, scene_module, write_csv_atomic)
 
 add_repo_to_path()
 
@@ -128,7 +128,7 @@ def main(argv=None) -> int:
     ap.add_argument("--progress", action="store_true", help="show the scene's progress bar")
     args = ap.parse_args(argv)
     out_dir = Path(args.out_dir)
-    counts = [int(c) for c in args.particles.split(",") if c.strip()]
+    counts = parse_list(args.particles, int)
     reuse = {}
     for item in args.reuse:
         n, _, d = item.partition("=")
@@ -200,7 +200,7 @@ def main(argv=None) -> int:
     if pairs:
         print(f"pairwise at t = {t_cmp:g}: " + "; ".join(pairs))
     worst = max(r["rel_diff_vs_finest"] for r in out_rows)
-    times = [float(t) for t in args.times.split(",") if t.strip() and float(t) < t_cmp]
+    times = [t for t in parse_list(args.times) if t < t_cmp]
     for t in times:
         ref_t = at_time(series[finest], t)["centroid_y"]
         diffs = []

@@ -5,7 +5,8 @@
 
 Petronetto's Poisson systems (both potentials of the Gaussian field, as in
 benchmarks/solver.py) on 30%-jittered lattices, one per (size, seed), solved to
-1e-6 with our multilevel W-cycle as the preconditioner by two Krylov methods:
+1e-6 with our multilevel W-cycle as the preconditioner by two Krylov methods
+(:mod:`taichi_hh.validation.krylov_comparison`):
 our BiCGSTAB (two operator applies and two cycles per iteration) and scipy's
 GMRES (restart 200, never reached here: one apply and one cycle per
 iteration; its residual norm never rises, so its count measures the
@@ -24,38 +25,10 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-from _common import REPO_ROOT, add_repo_to_path, format_table, write_csv_atomic  # noqa: E402
+from _common import REPO_ROOT, add_repo_to_path, format_table, parse_list, \
+    write_csv_atomic
 
 add_repo_to_path()
-
-
-def gmres_iterations(A_scipy, M, b, tol: float) -> tuple:
-    """GMRES (scipy, the cycle as its preconditioner M, restart 200) to ``tol``:
-    (iterations, true relative residual ||b - A x|| / ||b|| of its answer, to
-    check the stopping rules agree)."""
-    import scipy.sparse.linalg as spla
-    import taichi as ti
-    n = A_scipy.shape[0]
-    r_nd = ti.ndarray(ti.f64, shape=(n,))
-    z_nd = ti.ndarray(ti.f64, shape=(n,))
-
-    def cycle(r):
-        r_nd.from_numpy(np.ascontiguousarray(r, dtype=np.float64))
-        M.apply(r_nd, z_nd)
-        return z_nd.to_numpy()
-
-    count = [0]
-
-    def tick(_residual):
-        count[0] += 1
-
-    x, _info = spla.gmres(A_scipy, b, M=spla.LinearOperator((n, n), matvec=cycle), rtol=tol,
-                          restart=200, maxiter=5, callback=tick, callback_type="pr_norm")
-    return count[0], float(np.linalg.norm(b - A_scipy @ x) / np.linalg.norm(b))
 
 
 def main(argv=None) -> int:
@@ -67,28 +40,12 @@ def main(argv=None) -> int:
     ap.add_argument("--out-dir", default=str(REPO_ROOT / "outputs" / "benchmarks"))
     args = ap.parse_args(argv)
     from taichi_hh import runtime
-    from taichi_hh.validation import fields
-    from taichi_hh.hhd.decompose import poisson_problems
+    from taichi_hh.validation.krylov_comparison import compare_on_sample
     runtime.init("cpu", "f64")
-    F = fields.get("gaussian")
     rows = []
-    for n in (int(float(s)) for s in args.sizes.split(",")):
-        for seed in (int(s) for s in args.seeds.split(",")):
-            pts = F.sample(n, "jittered", seed=seed)
-            P = poisson_problems(pts, F.evaluate(pts).v, F.domain, method="petronetto2010",
-                                 kappa=args.kappa, remove_mean=True)
-            A = P.A.to_scipy().tocsr()
-            M = P.A.multilevel()
-            for name in ("phi", "psi"):
-                res = P.A.solve(P.rhs[name], tol=args.tol, preconditioner=M,
-                                raise_on_failure=False)
-                b = np.asarray(P.rhs[name], dtype=np.float64)
-                its, rel = gmres_iterations(A, M, b, args.tol)
-                rows.append({"n": n, "seed": seed, "potential": name,
-                             "bicgstab_iterations": res.iterations,
-                             "bicgstab_cycles": 2 * res.iterations,
-                             "bicgstab_relative_residual": res.relative_residual,
-                             "gmres_iterations": its, "gmres_relative_residual": rel})
+    for n in parse_list(args.sizes, int):
+        for seed in parse_list(args.seeds, int):
+            rows += compare_on_sample(n, seed, args.kappa, args.tol)
             print(f"n={n} seed={seed} done", file=sys.stderr, flush=True)
     out = Path(args.out_dir)
     write_csv_atomic(out / "krylov_samples.csv", rows, list(rows[0]))

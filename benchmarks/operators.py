@@ -60,7 +60,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import (REPO_ROOT, add_repo_to_path, format_table, measure,  # noqa: E402
-                     save_figure_atomic, summary, write_csv_atomic)
+                     parse_list, save_figure_atomic, summary, write_csv_atomic)
 
 DEFAULT_SIZES = (10_000, 100_000, 1_000_000)
 JITTER = 0.3
@@ -75,18 +75,6 @@ APPLY_OPS = ("gradient", "divergence", "curl", "laplacian")
 FIELDS = ["precision", "n_requested", "n", "n_pairs", "group", "operation", "variant",
           "repeats", "median_s", "min_s", "max_s", "pairs_per_s", "stream_GBps", "threads",
           "load_avg_1min"]
-
-
-def jittered_lattice(n_requested: int, jitter: float = JITTER, seed: int = SEED):
-    import numpy as np
-    m = max(2, int(round(math.sqrt(n_requested))))
-    h = 1.0 / m
-    g = (np.arange(m) + 0.5) * h
-    x, y = np.meshgrid(g, g, indexing="xy")
-    rng = np.random.default_rng(seed)
-    pts = np.stack([x.ravel(), y.ravel()], axis=1)
-    pts += rng.uniform(-jitter, jitter, size=pts.shape) * h
-    return pts[rng.permutation(pts.shape[0])]
 
 
 # ---------------------------------------------------------------------------
@@ -111,6 +99,7 @@ def run_worker(precision: str, sizes, repeats: int, threads: int | None, result_
     from taichi_hh.sph.neighbors import CellGrid, PairList, bin_particles
     from taichi_hh.sph.particles import FLUID, Particles
     from taichi_hh.sph.pointset import DUPLICATE_FRACTION, PointSet
+    from taichi_hh.validation.layouts import jittered_lattice
 
     nthreads = ti.lang.impl.current_cfg().cpu_max_num_threads
     real = np.dtype(runtime.np_real()).itemsize
@@ -120,7 +109,7 @@ def run_worker(precision: str, sizes, repeats: int, threads: int | None, result_
         print(f"[{precision}] {msg}", file=sys.stderr, flush=True)
 
     for n_req in sizes:
-        pts = jittered_lattice(n_req)
+        pts = jittered_lattice(n_req, JITTER, SEED)
         n = pts.shape[0]
         t0 = time.perf_counter()
         ps = PointSet(pts)
@@ -165,7 +154,7 @@ def run_worker(precision: str, sizes, repeats: int, threads: int | None, result_
             restore_shuffled()
             state["order"] = grid.sort(parts.position, n)
             # the inverse permutation, when the grid recorded one for bin_particles
-            state["inverse"] = getattr(grid, "_rank", None)
+            state["inverse"] = grid.rank
 
         def permute():
             if state["inverse"] is None:
@@ -357,10 +346,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     try:
-        sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
+        sizes = parse_list(args.sizes, int)
     except ValueError:
         ap.error(f"--sizes must be comma-separated integers, got {args.sizes!r}")
-    precisions = [s.strip() for s in args.precision.split(",") if s.strip()]
+    precisions = parse_list(args.precision, str)
     for p in precisions:
         if p not in ("f32", "f64"):
             ap.error(f"unknown precision {p!r}; use f32 and/or f64")

@@ -70,8 +70,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import (REPO_ROOT, _atomic_write, add_repo_to_path, format_table,  # noqa: E402
-                     save_figure_atomic, write_csv_atomic)
+from _common import (REPO_ROOT, add_repo_to_path, format_table, parse_list,  # noqa: E402
+                     save_figure_atomic, write_bytes_atomic, write_csv_atomic)
+
+add_repo_to_path()
+from taichi_hh.validation.measures import loglog_slope, summary_stats  # noqa: E402
 
 CONFIGS = ("petronetto2010", "default")
 LABEL = {"petronetto2010": "paper", "default": "default"}
@@ -181,12 +184,6 @@ class Runner:
 # ---------------------------------------------------------------------------
 # measures
 
-def _stats(x):
-    x = np.asarray(x, dtype=np.float64)
-    return {"max": float(x.max()), "mean": float(x.mean()), "var": float(x.var()),
-            "median": float(np.median(x))}
-
-
 def _norm(a):
     return np.linalg.norm(a, axis=1)
 
@@ -238,21 +235,23 @@ def measure(res, exact, F):
         "h_mag_mean": float(h_mag.mean()), "h_mag_std": float(h_mag.std()),
     }
     fig12 = {
-        "|d-d0|": _stats(e_d), "|d-d0|/|v0|": _stats(e_d / vm),
-        "|r-r0|": _stats(e_r), "|r-r0|/|v0|": _stats(e_r / vm),
-        "|h-h0|": _stats(e_h), "|h-h0|/|v0|": _stats(e_h / vm),
-        "|h|": _stats(h_mag), "|cos(r,d)|": _stats(cos_rd),
-        "|curl d|": _stats(np.abs(curl_d)), "|div r|": _stats(np.abs(div_r)),
-        "curl d (signed)": _stats(curl_d), "div r (signed)": _stats(div_r),
-        "|v0|": _stats(v0),
+        "|d-d0|": summary_stats(e_d), "|d-d0|/|v0|": summary_stats(e_d / vm),
+        "|r-r0|": summary_stats(e_r), "|r-r0|/|v0|": summary_stats(e_r / vm),
+        "|h-h0|": summary_stats(e_h), "|h-h0|/|v0|": summary_stats(e_h / vm),
+        "|h|": summary_stats(h_mag), "|cos(r,d)|": summary_stats(cos_rd),
+        "|curl d|": summary_stats(np.abs(curl_d)), "|div r|": summary_stats(np.abs(div_r)),
+        "curl d (signed)": summary_stats(curl_d), "div r (signed)": summary_stats(div_r),
+        "|v0|": summary_stats(v0),
     }
     n0d, n0r = _norm(exact.d), _norm(exact.r)
     both0 = (n0d > 0) & (n0r > 0)
-    fig12_exact = {"|cos(r,d)|": _stats(np.abs((exact.d * exact.r).sum(axis=1)[both0])
+    fig12_exact = {"|cos(r,d)|": summary_stats(np.abs((exact.d * exact.r).sum(axis=1)[both0])
                                         / (n0d[both0] * n0r[both0])),
-                   "|curl d|": _stats(np.abs(curl_d0)), "|div r|": _stats(np.abs(div_r0)),
-                   "curl d (signed)": _stats(curl_d0), "div r (signed)": _stats(div_r0),
-                   "|v0|": _stats(v0)}
+                   "|curl d|": summary_stats(np.abs(curl_d0)),
+                   "|div r|": summary_stats(np.abs(div_r0)),
+                   "curl d (signed)": summary_stats(curl_d0),
+                   "div r (signed)": summary_stats(div_r0),
+                   "|v0|": summary_stats(v0)}
     arrays = {"div_r": div_r, "curl_d": curl_d, "div_r0": div_r0, "curl_d0": curl_d0,
               "h_mag": h_mag, "div_scale": div_scale, "curl_scale": curl_scale}
     return row, fig12, fig12_exact, arrays
@@ -344,15 +343,6 @@ class Study:
             self.cache[key] = out
             return out
         raise RuntimeError(f"no usable sample for {F.name} N~{n} in {MAX_SEED_TRIES} seeds")
-
-
-def fit_order(ns_spacing, errs):
-    """Least-squares p in err ~ spacing^p (log-log)."""
-    x = np.log(np.asarray(ns_spacing, dtype=np.float64))
-    y = np.log(np.asarray(errs, dtype=np.float64))
-    if len(x) < 2 or not np.all(np.isfinite(y)):
-        return float("nan")
-    return float(np.polyfit(x, y, 1)[0])
 
 
 # ---------------------------------------------------------------------------
@@ -534,10 +524,6 @@ def source_version():
     return (rev + ("+changes" if dirty else "")) if rev else "unknown"
 
 
-def parse_floats(text):
-    return [float(s) for s in text.split(",") if s.strip()]
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -564,9 +550,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="seed of the blue-noise samples")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: all)")
     args = ap.parse_args(argv)
-    args.fallback_tols = parse_floats(args.fallback_tols)
+    args.fallback_tols = parse_list(args.fallback_tols)
     if args.sizes:
-        sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
+        sizes = parse_list(args.sizes, int)
     else:
         sizes = list(QUICK_SIZES if args.quick else DEFAULT_SIZES)
     table_n = args.table_n or (QUICK_TABLE_N if args.quick else TABLE_N)
@@ -575,7 +561,6 @@ def main(argv=None) -> int:
         ap.error("sizes must be >= 100 and tol > 0")
 
     t_start = time.perf_counter()
-    add_repo_to_path()
     import taichi_hh as thh
     from taichi_hh.validation import fields
     thh.init(arch="cpu", precision="f64", threads=args.threads,
@@ -606,7 +591,7 @@ def main(argv=None) -> int:
         for m in CONFIGS:
             sel = [r for r in rows if r["method"] == m]
             for key in ("err_d", "err_r", "err_h"):
-                orders[(fname, m, key)] = fit_order([r["spacing"] for r in sel],
+                orders[(fname, m, key)] = loglog_slope([r["spacing"] for r in sel],
                                                     [r[key] for r in sel])
 
     # ---- tables ---------------------------------------------------------------------
@@ -818,7 +803,7 @@ def main(argv=None) -> int:
                                ("curl_d0", a["curl_d0"], a["curl_scale"]),
                                ("div_r0", a["div_r0"], a["div_scale"]),
                                ("h_mag", a["h_mag"], 1.0)):
-            s = _stats(np.abs(vals))
+            s = summary_stats(np.abs(vals))
             prop_rows.append(dict(field=FH.name, n=r["n"], method=m, quantity=q, scale=scale,
                                   **{k: v for k, v in s.items()},
                                   p05=float(np.quantile(vals, 0.05)),
@@ -876,7 +861,7 @@ def main(argv=None) -> int:
     md += ["", "Figures: `petronetto_histograms.png` (a, b), `petronetto_convergence.png` (e), "
                "`petronetto_critical_points.png` (f).", ""]
     text = "\n".join(md).encode()
-    _atomic_write(out / "petronetto_summary.md", lambda fh: fh.write(text))
+    write_bytes_atomic(out / "petronetto_summary.md", text)
     print(f"\nwrote petronetto_*.csv, *.png and petronetto_summary.md to {out}")
     return 0
 

@@ -44,10 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-from _common import (REPO_ROOT, add_repo_to_path, format_table,  # noqa: E402
-                     scene_module, write_csv_atomic)
+from _common import REPO_ROOT, add_repo_to_path, format_table, parse_list, scene_module, \
+    write_csv_atomic
 
 add_repo_to_path()
 
@@ -56,7 +54,7 @@ def droplet_run(particles: int, t_end: float, support_ratio: float | None = None
     """The droplet scene (defaults; optionally another kernel support ratio)
     advanced to ``t_end``: (state, params, volume error (mean, max) at the end,
     median step seconds over the steps after the first)."""
-    from taichi_hh.flow.twophase import TwoPhaseFlow
+    from taichi_hh.validation.conditioning import advance
     mod = scene_module("rising_droplet")
     ap = argparse.ArgumentParser()
     mod.add_arguments(ap)
@@ -65,135 +63,8 @@ def droplet_run(particles: int, t_end: float, support_ratio: float | None = None
     pts, phases, dx, params = mod.build(args)
     if support_ratio is not None:
         params = replace(params, support_ratio=support_ratio)
-    flow = TwoPhaseFlow(pts, phases, dx, params)
-    seconds = []
-    while flow.time < t_end:
-        t0 = time.perf_counter()
-        flow.step()
-        seconds.append(time.perf_counter() - t0)
-    return flow.state_dict(), params, flow.volume_error(), float(np.median(seconds[1:]))
-
-
-def capture_step(state, params):
-    """One step with the clean-up on (cold start); returns what the clean-up saw
-    (velocity, D w, ||D w*||, coefficients, pairs, particles), its CG iterations
-    and seconds."""
-    from taichi_hh.flow.twophase import TwoPhaseFlow
-
-    class Spy(TwoPhaseFlow):
-        def _clean_up(self, w, d, norm_before, st):
-            p = self.particles
-            n = p.n
-            offsets = self.pairs.offsets.to_numpy()[: n + 1]
-            self.seen = dict(w=w.copy(), d=d.copy(), norm_before=norm_before,
-                             G=st.G.to_numpy()[: offsets[-1]], s=st.s.to_numpy()[:n],
-                             offsets=offsets, nbrs=self.pairs.neighbours.to_numpy()[: offsets[-1]],
-                             kind=p.get("kind"), mass=p.get("mass"), pos=p.get("position"))
-            t0 = time.perf_counter()
-            out = super()._clean_up(w, d, norm_before, st)
-            self.seen["seconds"] = time.perf_counter() - t0
-            self.seen["iterations"] = out[1]
-            return out
-
-    flow = Spy.from_state(state, replace(params, exact_projection=True, cleanup_warm_start=False))
-    flow.lam_by_id[:] = 0.0
-    flow.step()
-    return flow.seen, flow.dx
-
-
-def assemble(seen):
-    """D (fluid rows x 2 fluid velocities) and S = D M^-1 D^T as scipy matrices,
-    with the fluid positions, masses and right-hand side."""
-    import scipy.sparse as sp
-    from taichi_hh.sph.particles import FLUID
-    kind, off = seen["kind"], seen["offsets"]
-    n = len(kind)
-    fluid = kind == FLUID
-    rows = np.repeat(np.arange(n), np.diff(off))
-    cols = seen["nbrs"]
-    G = seen["G"]
-    diag = seen["s"].copy()
-    np.add.at(diag, rows, -G)                    # (D u)_i = s_i.u_i + sum G_ij.(u_j - u_i)
-    idx = -np.ones(n, dtype=np.int64)
-    fi = np.flatnonzero(fluid)
-    idx[fi] = np.arange(len(fi))
-    keep = fluid[rows] & fluid[cols]             # wall velocities are zero
-    r = np.r_[idx[rows[keep]], idx[rows[keep]], idx[fi], idx[fi]]
-    c = np.r_[2 * idx[cols[keep]], 2 * idx[cols[keep]] + 1, 2 * idx[fi], 2 * idx[fi] + 1]
-    v = np.r_[G[keep, 0], G[keep, 1], diag[fi, 0], diag[fi, 1]]
-    D = sp.csr_matrix((v, (r, c)), shape=(len(fi), 2 * len(fi)))
-    D.eliminate_zeros()
-    m = seen["mass"][fi]
-    S = (D @ sp.diags(np.repeat(1.0 / m, 2)) @ D.T).tocsr()
-    d = seen["d"][fi]
-    check = np.abs(D @ seen["w"][fi].ravel() - d).max() / max(np.abs(d).max(), 1e-300)
-    if check > 1e-10:
-        raise RuntimeError(f"assembled D disagrees with the flow's D w by {check:.2e}")
-    return D, S, seen["pos"][fi], d
-
-
-def cg_history(S, b, M, tol: float, maxiter: int = 5000):
-    import scipy.sparse.linalg as spla
-    norms = []
-    spla.cg(S, b, rtol=tol, maxiter=maxiter, M=M,
-            callback=lambda x: norms.append(float(np.linalg.norm(b - S @ x))))
-    return np.array(norms)
-
-
-def first_below(norms, level) -> int | str:
-    hit = np.flatnonzero(norms <= level)
-    return int(hit[0]) + 1 if len(hit) else f">{len(norms)}"
-
-
-def geometric_aggregates(pos, dx, ncand: int, cell: float = 3.0):
-    """Aggregation operators per level: cells of ``cell`` spacings, then 2 x 2 cells."""
-    import scipy.sparse as sp
-    out = []
-    cells = np.floor(pos / (cell * dx)).astype(np.int64)
-    n = len(pos)
-    while True:
-        key = cells[:, 0] * 1_000_003 + cells[:, 1]
-        uniq, agg = np.unique(key, return_inverse=True)
-        nd = n if not out else n * ncand
-        out.append(sp.csr_matrix((np.ones(nd), (np.arange(nd), agg if not out
-                                                 else np.repeat(agg, ncand)))))
-        parents = np.c_[uniq // 1_000_003, uniq % 1_000_003]
-        if len(uniq) * ncand <= 200 or len(uniq) < 4:
-            return out
-        n, cells = len(uniq), parents // 2
-
-
-def aggregation_iterations(S, d, pos, dx, rtol: float, ncand: int) -> tuple:
-    import pyamg
-    ij = np.rint((pos - pos.min(axis=0)) / dx).astype(np.int64)
-    px, py = (-1.0) ** ij[:, 0], (-1.0) ** ij[:, 1]
-    B = np.c_[np.ones(len(d)), px, py, px * py][:, :ncand]
-    aggs = geometric_aggregates(pos, dx, ncand)
-    ml = pyamg.smoothed_aggregation_solver(
-        S, B=B, aggregate=[("predefined", {"AggOp": A}) for A in aggs], smooth=None,
-        strength=None, max_levels=len(aggs) + 1, max_coarse=10)
-    norms = cg_history(S, d, ml.aspreconditioner(), rtol)
-    return first_below(norms, rtol * np.linalg.norm(d)), ml.operator_complexity()
-
-
-def extreme_eigenvalues(S):
-    import scipy.sparse as sp
-    import scipy.sparse.linalg as spla
-    h = sp.diags(1.0 / np.sqrt(S.diagonal()))
-    Sh = (h @ S @ h).tocsc()
-    lmax = float(spla.eigsh(Sh, k=1, which="LA", return_eigenvectors=False)[0])
-    lmin = float(spla.eigsh(Sh, k=1, sigma=0.0, which="LM", return_eigenvectors=False)[0])
-    return lmin, lmax
-
-
-def eigenvalue_counts(S, fractions=(1e-3, 1e-2)) -> list:
-    """How many eigenvalues of the Jacobi-scaled S lie below each fraction of the
-    largest (dense: O(N^3))."""
-    import scipy.linalg as sl
-    import scipy.sparse as sp
-    h = sp.diags(1.0 / np.sqrt(S.diagonal()))
-    ev = sl.eigh((h @ S @ h).toarray(), eigvals_only=True)
-    return [int((ev < f * ev[-1]).sum()) for f in fractions]
+    state, vol, step_s = advance(pts, phases, dx, params, t_end)
+    return state, params, vol, step_s
 
 
 def main(argv=None) -> int:
@@ -207,22 +78,26 @@ def main(argv=None) -> int:
     ap.add_argument("--out-dir", default=str(REPO_ROOT / "outputs" / "benchmarks"))
     args = ap.parse_args(argv)
     from taichi_hh import runtime
+    from taichi_hh.validation.conditioning import (aggregation_iterations, assemble,
+                                                   capture_cleanup, cg_history,
+                                                   eigenvalue_counts, extreme_eigenvalues,
+                                                   first_below, jacobi)
     runtime.init("cpu")
     t0 = time.perf_counter()
     state, params, vol_default, step_default = droplet_run(args.particles, args.time)
     print(f"droplet at t = {state['time']:.3f} ({len(state['positions'])} fluid particles) "
           f"in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     rows = []
-    for ratio in (float(x) for x in args.supports.split(",")):
+    for ratio in parse_list(args.supports):
         if ratio == params.support_ratio:
             vol, step_s = vol_default, step_default
         else:
             _, _, vol, step_s = droplet_run(args.particles, args.time, ratio)
         p = replace(params, support_ratio=ratio)
-        seen, dx = capture_step(state, p)
+        seen, dx = capture_cleanup(state, p)
         D, S, pos, d = assemble(seen)
         rtol = params.solver_tol * seen["norm_before"] / np.linalg.norm(d)
-        norms = cg_history(S, d, _jacobi(S), rtol)
+        norms = cg_history(S, d, jacobi(S), rtol)
         lmin, lmax = extreme_eigenvalues(S)
         agg1 = aggregation_iterations(S, d, pos, dx, rtol, 1)
         agg4 = aggregation_iterations(S, d, pos, dx, rtol, 4)
@@ -266,11 +141,6 @@ def main(argv=None) -> int:
                   "of the largest")
     print(f"wrote {out / 'projection_conditioning.csv'}")
     return 0
-
-
-def _jacobi(S):
-    import scipy.sparse as sp
-    return sp.diags(1.0 / S.diagonal())
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ spacing are represented; the amplitude is the cos(k x) coefficient of the
 vertical position of the particles that started next to the interface), and
 we fit s by least squares of
 ln a(t) - ln(a0 cosh(s t)) while a < 0.05 wavelength (the linear regime).
+The case itself is :mod:`taichi_hh.validation.rt`.
 
 Walls: the theory is for an unbounded layer.  Free-slip side walls at x = 0
 and x = one wavelength leave the cos(k x) mode exactly as in a periodic box
@@ -28,83 +29,13 @@ resolution, which resolves them.  Both are run by default.
 Prints a table and writes outputs/benchmarks/rt_growth.csv and .png.
 """
 import argparse
-import math
 import os
-import sys
-import time
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, ".."))
+from _common import REPO_ROOT, add_repo_to_path, parse_list
 
-
-def theory(ratio, g, k, nu):
-    A = (ratio - 1.0) / (ratio + 1.0)
-    return math.sqrt(A * g * k + nu ** 2 * k ** 4) - nu * k ** 2, A
-
-
-def fit_rate(t, a, a0):
-    """s minimising sum (ln a - ln(a0 cosh(s t)))^2 (golden-section search)."""
-    la = np.log(np.abs(a))
-
-    def cost(s):
-        return float(((la - np.log(a0 * np.cosh(s * t))) ** 2).sum())
-
-    lo, hi = 0.0, 10.0
-    phi = (math.sqrt(5) - 1) / 2
-    for _ in range(80):
-        m1, m2 = hi - phi * (hi - lo), lo + phi * (hi - lo)
-        if cost(m1) < cost(m2):
-            hi = m2
-        else:
-            lo = m1
-    return 0.5 * (lo + hi)
-
-
-def run_case(ratio, n, args, walls="no-slip"):
-    from taichi_hh.flow.twophase import FlowParams, TwoPhaseFlow
-    from taichi_hh.app.scene import lattice_in_box
-    W, H, lam, g, nu = 1.0, 2.0, 1.0, 1.0, args.viscosity
-    a0 = 0.01 * lam
-    box = (0.0, 0.0, W, H)
-    pts, dx = lattice_in_box(n, box)
-    k = 2 * math.pi / lam
-    y0 = 0.5 * H
-    phases = np.where(pts[:, 1] > y0, 1, 0)
-    # seed the mode by a divergence-free displacement: amplitudes below the
-    # particle spacing are then represented exactly
-    decay = a0 * np.exp(-k * np.abs(pts[:, 1] - y0))
-    # the two lattice rows next to the interface, chosen before the displacement
-    # (which reaches 0.8 spacings at 12800 particles and would bias the choice)
-    interface = np.flatnonzero(np.abs(pts[:, 1] - y0) < dx)     # ids, as fluid_state orders
-    pts = pts + np.c_[np.sign(pts[:, 1] - y0) * decay * np.sin(k * pts[:, 0]),
-                      decay * np.cos(k * pts[:, 0])]
-
-    def amplitude(pos):
-        p = pos[interface]
-        return 2.0 * np.mean((p[:, 1] - y0) * np.cos(k * p[:, 0]))
-
-    params = FlowParams(box=box, gravity=(0.0, -g), nu=nu, densities=(1.0, ratio),
-                        shifting=args.shifting, walls=walls)
-    flow = TwoPhaseFlow(pts, phases, dx, params)
-    s_th, A = theory(ratio, g, k, nu)
-    t_end = min(args.max_time, math.acosh(5.0) / s_th)     # a grows to ~5 a0
-    ts = [0.0]
-    amps = [amplitude(flow.fluid_state()[0])]
-    t0 = time.perf_counter()
-    while flow.time < t_end:
-        flow.step()
-        ts.append(flow.time)
-        amps.append(amplitude(flow.fluid_state()[0]))
-    wall = time.perf_counter() - t0
-    ts, amps = np.array(ts), np.array(amps)
-    keep = np.abs(amps) < 0.05 * lam
-    s_fit = fit_rate(ts[keep], amps[keep], amps[0])
-    return {"density_ratio": ratio, "walls": walls, "atwood": A, "particles": flow.n_fluid, "spacing": dx,
-            "a0_measured": amps[0], "s_theory": s_th, "s_measured": s_fit,
-            "relative_error": s_fit / s_th - 1.0, "steps": flow.step_count, "t_end": flow.time,
-            "wall_seconds": wall, "sim_time_per_wall_second": flow.time / wall}, (ts, amps)
+add_repo_to_path()
 
 
 def main(argv=None):
@@ -117,14 +48,15 @@ def main(argv=None):
     ap.add_argument("--walls", default="free-slip,no-slip",
                     help="viscous wall conditions to run (FlowParams.walls; module doc)")
     ap.add_argument("--quick", action="store_true", help="one small case (smoke test)")
-    ap.add_argument("--out-dir", default=os.path.join(HERE, "..", "outputs", "benchmarks"))
+    ap.add_argument("--out-dir", default=str(REPO_ROOT / "outputs" / "benchmarks"))
     args = ap.parse_args(argv)
     import taichi_hh as thh
     from taichi_hh.app.io import atomic_savefig, atomic_write_csv
+    from taichi_hh.validation.rt import run_case
     thh.init(arch="cpu", precision="f64")
-    ratios = [float(r) for r in args.ratios.split(",")]
-    sizes = [int(n) for n in args.particles.split(",")]
-    wall_conditions = [w.strip() for w in args.walls.split(",")]
+    ratios = parse_list(args.ratios)
+    sizes = parse_list(args.particles, int)
+    wall_conditions = parse_list(args.walls, str)
     if args.quick:
         ratios, sizes, args.max_time = ratios[-1:], [800], 1.0
     rows, curves = [], []
@@ -133,7 +65,9 @@ def main(argv=None):
     for walls in wall_conditions:
         for ratio in ratios:
             for n in sizes:
-                row, curve = run_case(ratio, n, args, walls)
+                row, curve = run_case(ratio, n, viscosity=args.viscosity,
+                                      shifting=args.shifting, max_time=args.max_time,
+                                      walls=walls)
                 rows.append(row)
                 curves.append((row, curve))
                 print(f"{walls:>9} {ratio:6.2f} {row['atwood']:7.4f} {row['particles']:6d} "

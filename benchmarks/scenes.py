@@ -58,8 +58,8 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from _common import (REPO_ROOT, add_repo_to_path, format_table, scene_module,  # noqa: E402
-                     save_figure_atomic, write_csv_atomic)
+from _common import (REPO_ROOT, add_repo_to_path, format_table, parse_list,  # noqa: E402
+                     save_figure_atomic, scene_module, write_csv_atomic)
 
 add_repo_to_path()
 
@@ -216,7 +216,7 @@ def main(argv=None) -> int:
 
     import taichi_hh
     taichi_hh.init(arch="cpu", precision="f64", threads=args.threads, verbose=False)
-    cases = [] if args.full_only else [c.strip() for c in args.cases.split(",") if c.strip()]
+    cases = [] if args.full_only else parse_list(args.cases, str)
     for c in cases:
         if c not in CASES:
             ap.error(f"unknown case {c!r}; choose from {', '.join(CASES)}")

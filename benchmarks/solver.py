@@ -51,21 +51,17 @@ from __future__ import annotations
 
 import argparse
 import math
-import statistics
 import sys
 import time
 
 import numpy as np
 
-from _common import REPO_ROOT, add_repo_to_path, write_csv_atomic
+from _common import REPO_ROOT, add_repo_to_path, measure, parse_list, write_csv_atomic
 
 add_repo_to_path()
+from taichi_hh.validation.measures import median  # noqa: E402
+from taichi_hh.validation.sweep import PETRONETTO_TABLE9 as PAPER  # noqa: E402
 
-PAPER = {  # Table 9: (N, kappa) -> (seconds, iterations curl-free, div-free)
-    (1640, 1e-8): (4.31, 1234, 629), (1640, 1e-2): (2.23, 476, 477),
-    (5000, 1e-8): (37.78, 2609, 636), (5000, 1e-2): (9.53, 407, 411),
-    (18221, 1e-8): (130.39, 683, 582), (18221, 1e-2): (78.95, 393, 391),
-}
 DEFAULT_SIZES = (1640, 5000, 18221, 40_000, 100_000, 1_000_000)
 FIELDS = ["N", "unknowns", "kappa", "solver", "setup_s", "solve_s", "total_s", "iters_phi", "iters_psi",
           "converged", "residual", "apply_s", "iter_per_apply", "levels", "note"]
@@ -86,57 +82,63 @@ def problems_for(n: int, kappa: float, remove_mean: bool = True, jittered: bool 
                             kappa=kappa, remove_mean=remove_mean)
 
 
-def _median(xs):
-    return statistics.median(xs)
-
-
-class _ApplyClock:
-    """Times the operator applies inside a solve (instance attributes shadow
-    the methods while active): the solve's seconds over these are the
-    iteration cost in units of the applies it contains, measured in place,
-    same moment, same caches (an apply timed apart varies 2x between calls
-    on this shared machine)."""
+class TimedApplies:
+    """The operator ``A`` for a Krylov solver, counting the seconds spent in its
+    applies: the solve's seconds over these are the iteration cost in units of
+    the applies it contains, measured in place, same moment, same caches (an
+    apply timed apart varies 2x between calls on this shared machine)."""
 
     def __init__(self, A):
-        self.A, self.seconds = A, 0.0
+        self.A, self.n, self.seconds = A, A.n, 0.0
 
-    def _wrap(self, f):
-        def timed(*args):
-            t = time.perf_counter()
-            out = f(*args)
-            self.seconds += time.perf_counter() - t
-            return out
-        return timed
+    def apply(self, x, y):
+        t = time.perf_counter()
+        self.A.apply(x, y)
+        self.seconds += time.perf_counter() - t
 
-    def __enter__(self):
-        self.A.apply = self._wrap(self.A.apply)
-        self.A.apply_dot = self._wrap(self.A.apply_dot)
-        return self
+    def apply_dot(self, x, y, a):
+        t = time.perf_counter()
+        out = self.A.apply_dot(x, y, a)
+        self.seconds += time.perf_counter() - t
+        return out
 
-    def __exit__(self, *exc):
-        del self.A.apply, self.A.apply_dot
+    def diagonal(self, d):
+        self.A.diagonal(d)
+
+
+def solve_both(A, P, M, tol: float, max_iterations: int):
+    """Both potentials solved by BiCGSTAB through :class:`TimedApplies` (the
+    right-hand side bordered as :meth:`PoissonMatrix.solve` borders it):
+    (results, seconds in the applies)."""
+    from taichi_hh.linalg import krylov
+    timed = TimedApplies(A)
+    results = []
+    for name in ("phi", "psi"):
+        b = np.asarray(P.rhs[name], dtype=np.float64)
+        if A.bordered:
+            b = np.append(b, 0.0)
+        results.append(krylov.bicgstab(timed, b, tol=tol, preconditioner=M,
+                                       raise_on_failure=False, max_iterations=max_iterations))
+    return results, timed.seconds
 
 
 def run_ours(P, solver: str, tol: float, repeats: int, max_iterations: int):
     import taichi as ti
+    from taichi_hh.linalg.multilevel import MultilevelPreconditioner
     A = P.A
     runs = []
     for rep in range(repeats + 1):                       # first run: warm-up
         t0 = time.perf_counter()
-        M = A.multilevel() if solver == "multilevel" else "jacobi"
-        if solver == "multilevel":
-            A._multilevel = None                         # rebuild: time the setup
-            M = A.multilevel()
+        # a new cycle every time: time its setup
+        M = MultilevelPreconditioner(A) if solver == "multilevel" else "jacobi"
         ti.sync()
-        with _ApplyClock(A) as clock:
-            t1 = time.perf_counter()
-            results = [A.solve(P.rhs[name], tol=tol, preconditioner=M, raise_on_failure=False,
-                               max_iterations=max_iterations) for name in ("phi", "psi")]
-            t2 = time.perf_counter()
+        t1 = time.perf_counter()
+        results, apply_seconds = solve_both(A, P, M, tol, max_iterations)
+        t2 = time.perf_counter()
         if rep:
-            runs.append((t1 - t0, t2 - t1, results, (t2 - t1) / max(clock.seconds, 1e-12)))
-    setup = _median([r[0] for r in runs])
-    solve = _median([r[1] for r in runs])
+            runs.append((t1 - t0, t2 - t1, results, (t2 - t1) / max(apply_seconds, 1e-12)))
+    setup = median([r[0] for r in runs])
+    solve = median([r[1] for r in runs])
     results = runs[-1][2]
     row = {"setup_s": setup if solver == "multilevel" else 0.0, "solve_s": solve,
            "total_s": (setup if solver == "multilevel" else 0.0) + solve,
@@ -144,27 +146,20 @@ def run_ours(P, solver: str, tol: float, repeats: int, max_iterations: int):
            "converged": all(r.converged for r in results),
            "residual": max(r.relative_residual for r in results),
            "note": "; ".join(sorted({r.reason for r in results if not r.converged})),
-           "solve_per_apply_time": _median([r[3] for r in runs])}
+           "solve_per_apply_time": median([r[3] for r in runs])}
     if solver == "multilevel":
-        row["levels"] = A.multilevel().describe()
+        row["levels"] = M.describe()
     return row
 
 
 def apply_time(A, repeats: int) -> float:
+    """Median seconds of one operator apply, timed apart from any solve."""
     import taichi as ti
     from taichi_hh import runtime
     x = ti.ndarray(runtime.real_dtype(), shape=(A.n,))
     y = ti.ndarray(runtime.real_dtype(), shape=(A.n,))
     x.fill(1.0)
-    A.apply(x, y)
-    times = []
-    for _ in range(max(repeats, 5)):
-        ti.sync()
-        t0 = time.perf_counter()
-        A.apply(x, y)
-        ti.sync()
-        times.append(time.perf_counter() - t0)
-    return _median(times)
+    return median(measure(lambda: A.apply(x, y), max(repeats, 5), sync=ti.sync))
 
 
 def run_direct(P, tol: float, repeats: int):
@@ -179,7 +174,7 @@ def run_direct(P, tol: float, repeats: int):
         runs.append((t1 - t0, time.perf_counter() - t1))
     res = max(np.linalg.norm(A @ x - P.rhs[k]) / np.linalg.norm(P.rhs[k])
               for x, k in zip(xs, ("phi", "psi")))
-    setup, solve = _median([r[0] for r in runs]), _median([r[1] for r in runs])
+    setup, solve = median([r[0] for r in runs]), median([r[1] for r in runs])
     return {"setup_s": setup, "solve_s": solve, "total_s": setup + solve, "iters_phi": 0,
             "iters_psi": 0, "converged": bool(res <= tol), "residual": res}
 
@@ -200,7 +195,7 @@ def run_pyamg(P, tol: float, repeats: int):
         runs.append((t1 - t0, time.perf_counter() - t1))
     res = max(np.linalg.norm(A @ x - P.rhs[k]) / np.linalg.norm(P.rhs[k])
               for (x, _), k in zip(out, ("phi", "psi")))
-    setup, solve = _median([r[0] for r in runs]), _median([r[1] for r in runs])
+    setup, solve = median([r[0] for r in runs]), median([r[1] for r in runs])
     return {"setup_s": setup, "solve_s": solve, "total_s": setup + solve,
             "iters_phi": out[0][1], "iters_psi": out[1][1],
             "converged": bool(res <= 10 * tol), "residual": res,
@@ -314,9 +309,9 @@ def main(argv=None) -> int:
                     help="do not remove the right-hand sides' means (see the module doc)")
     ap.add_argument("--out-dir", default=str(REPO_ROOT / "outputs" / "benchmarks"))
     args = ap.parse_args(argv)
-    sizes = [int(float(s)) for s in args.sizes.split(",")]
-    kappas = [float(k) for k in args.kappas.split(",")]
-    solvers = args.solvers.split(",")
+    sizes = parse_list(args.sizes, int)
+    kappas = parse_list(args.kappas)
+    solvers = parse_list(args.solvers, str)
     if args.quick:
         sizes, args.repeats = [1640, 5000], 1
     import taichi_hh as thh

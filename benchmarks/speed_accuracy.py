@@ -43,7 +43,7 @@ plot.  A configuration that raises is kept with ``status=error`` and the
 exception (``error``: class, ``reason``: SolverError.reason, ``message``).
 
 Flow (``flow`` group): the Rayleigh-Taylor growth rate of a single mode
-(:func:`rt_growth.run_case`, density ratio 2, viscosity 2e-3, shifting 2,
+(:mod:`taichi_hh.validation.rt`, density ratio 2, viscosity 2e-3, shifting 2,
 free-slip walls: the theory's setting, see rt_growth.py) against viscous
 linear theory, over resolution (800 ... 7200 particles) and
 pressure-solver tolerance (1e-3 ... 1e-8); quick: 800 particles, t <= 1,
@@ -69,323 +69,18 @@ from __future__ import annotations
 
 import argparse
 import math
-import multiprocessing as mp
-import os
-import statistics
-import sys
 import time
-import traceback
-import types
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-if str(HERE) not in sys.path:
-    sys.path.insert(0, str(HERE))
-
-from _common import REPO_ROOT, add_repo_to_path, format_table, write_csv_atomic  # noqa: E402
+from _common import (REPO_ROOT, add_repo_to_path, format_table, parse_list, run_tasks,
+                     write_bytes_atomic, write_csv_atomic)
 
 add_repo_to_path()
-
-CSV_FIELDS = ["group", "label", "task", "field", "sampling", "method", "overrides", "precision",
-              "n_points", "repeats", "status", "error", "reason", "message",
-              "setup_s", "solve_s", "components_s", "total_s", "wall_s",
-              "iterations_phi", "iterations_psi", "residual_phi", "residual_psi",
-              "mean_neighbours", "err", "err_d", "err_r", "err_h", "err_d_max", "err_r_max",
-              "err_h_max", "finite", "max_abs_ratio", "flags",
-              "s_theory", "s_measured", "relative_error", "steps", "t_end", "max_speed",
-              "flow_solve_s", "flow_neighbours_s", "flow_operators_s", "flow_iterations"]
-
-PAPER_TABLE9 = {  # (N, kappa) -> (seconds, iterations curl-free, div-free); REFERENCE.md
-    (1640, 1e-8): (4.31, 1234, 629), (1640, 1e-2): (2.23, 476, 477),
-    (5000, 1e-8): (37.78, 2609, 636), (5000, 1e-2): (9.53, 407, 411),
-    (18221, 1e-8): (130.39, 683, 582), (18221, 1e-2): (78.95, 393, 391),
-}
-
-GRADIENTS = ("basic", "difference", "colin_difference", "symmetric", "corrected")
-LAPLACIANS = ("basic", "colin_difference", "brookshaw")
-
-
-def variant(name: str) -> tuple[str, dict]:
-    """(method bundle, option overrides) of a variant label."""
-    if name in ("default", "petronetto2010", "colin2006"):
-        return name, {}
-    kind, _, val = name.partition(":")
-    if kind == "grad":
-        return "default", {"divergence": val, "gradient": val, "neumann_gradient": val}
-    if kind == "lap":
-        return "default", {"laplacian": val}
-    raise ValueError(f"unknown variant {name!r}")
-
-
-# ---------------------------------------------------------------------------- sampling
-
-def sample_points(F, n: int, sampling: str, seed: int) -> np.ndarray:
-    """About ``n`` points inside ``F.domain``.  sampling: ``poisson`` (blue noise),
-    ``lattice``, ``jitterX`` (lattice, each point moved uniformly in a square of
-    side X spacings), ``random`` (uniform) or ``clustered`` (half blue noise, half
-    in four Gaussian clusters of width 0.05: local density up to ~20x the mean)."""
-    dom = F.domain
-    if sampling in ("poisson", "random"):
-        return dom.sample_interior(n, kind=sampling, seed=seed)
-    if sampling == "lattice":
-        return dom.sample_interior(n, kind="jittered", jitter=0.0, seed=seed)
-    if sampling.startswith("jitter"):
-        return dom.sample_interior(n, kind="jittered", jitter=float(sampling[6:]), seed=seed)
-    if sampling == "clustered":
-        rng = np.random.default_rng(seed)
-        bg = dom.sample_interior(n // 2, kind="poisson", seed=seed)
-        centres = np.array([[0.3, 0.3], [0.7, 0.35], [0.4, 0.75], [0.75, 0.8]])
-        need = n - len(bg)
-        out = []
-        while sum(len(o) for o in out) < need:
-            c = centres[rng.integers(0, len(centres), size=need)]
-            p = c + 0.05 * rng.standard_normal((need, 2))
-            out.append(p[dom.contains(p)])
-        return np.vstack([bg, np.vstack(out)[:need]])
-    raise ValueError(f"unknown sampling {sampling!r}")
-
-
-# ---------------------------------------------------------------------------- workers
-
-_SEEN: set = set()
-
-
-def _worker_init(precision: str, threads: int) -> None:
-    add_repo_to_path()
-    if str(HERE) not in sys.path:
-        sys.path.insert(0, str(HERE))
-    import taichi_hh as thh
-    thh.init(arch="cpu", precision=precision, threads=threads, verbose=False)
-
-
-def _rel_errors(got, exact, vmean):
-    e = np.linalg.norm(np.asarray(got, dtype=np.float64) - exact, axis=1) / vmean
-    return float(e.mean()), float(e.max())
-
-
-def _error_fields(exc: BaseException) -> dict:
-    return {"status": "error", "error": type(exc).__name__,
-            "reason": getattr(exc, "reason", "") or getattr(exc, "cause", "") or "",
-            "message": " ".join(str(exc).split())[:300]}
-
-
-def _median(xs):
-    return statistics.median(xs) if xs else float("nan")
-
-
-def _corrupt(task: dict, v: np.ndarray) -> np.ndarray:
-    """``task["corrupt"] == "nan"``: one NaN in the input vectors (to provoke an
-    InputError); ``"duplicate"`` (handled by the callers): a repeated point."""
-    if task.get("corrupt") == "nan":
-        v = v.copy()
-        v[len(v) // 2, 0] = np.nan
-    return v
-
-
-def run_hhd(task: dict) -> dict:
-    """One decomposition configuration: warm-up when new to this worker, then
-    ``repeats`` timed runs.  Never raises: an exception becomes the row's status."""
-    import taichi_hh as thh
-    from taichi_hh.validation import fields
-    F = fields.get(task["field"])
-    pts = sample_points(F, task["n"], task.get("sampling", "poisson"), task.get("seed", 1))
-    ex = F.evaluate(pts)
-    vecs = _corrupt(task, ex.v)
-    if task.get("corrupt") == "duplicate":
-        pts = np.vstack([pts, pts[:1]])
-        vecs = np.vstack([vecs, vecs[:1]])
-    vmean = float(np.linalg.norm(ex.v, axis=1).mean())
-    opts = dict(task.get("overrides", {}))
-    row = {"n_points": len(pts)}
-    sig = (task["method"], tuple(sorted((k, v) for k, v in opts.items()
-                                        if k not in ("tol", "kappa", "max_iterations"))))
-    times = {"setup": [], "solve": [], "components": [], "total": [], "wall": []}
-    res = None
-    import warnings
-    try:
-        # an AccuracyWarning is recorded from stats["flags"], not printed
-        warnings.simplefilter("ignore", thh.AccuracyWarning)
-        if sig not in _SEEN:          # compile; a failure here is the row's answer
-            _SEEN.add(sig)
-            thh.decompose(pts, vecs, F.domain, method=task["method"], **opts)
-        for _ in range(task.get("repeats", 1)):
-            t0 = time.perf_counter()
-            res = thh.decompose(pts, vecs, F.domain, method=task["method"], **opts)
-            wall = time.perf_counter() - t0
-            s = res.stats["seconds"]
-            times["setup"].append(s["setup"] + s["divergence"] + s["assemble"])
-            times["solve"].append(s["solve_phi"] + s["solve_psi"])
-            times["components"].append(s["components"])
-            times["total"].append(s["total"])
-            times["wall"].append(wall)
-    except Exception as exc:          # noqa: BLE001 - recorded, not hidden
-        row.update(_error_fields(exc))
-        return row
-    st = res.stats
-    comps = (res.curl_free, res.div_free, res.harmonic, res.phi, res.psi)
-    finite = all(np.isfinite(a).all() for a in comps)
-    vmax = float(np.abs(ex.v).max())
-    big = max(float(np.nanmax(np.abs(a))) if np.isfinite(a).any() else math.inf
-              for a in comps[:3])
-    row.update({"status": "ok", "finite": finite, "max_abs_ratio": big / vmax,
-                "iterations_phi": st.get("iterations_phi"),
-                "iterations_psi": st.get("iterations_psi"),
-                "residual_phi": st.get("residual_phi"), "residual_psi": st.get("residual_psi"),
-                "mean_neighbours": st.get("mean_neighbours"),
-                "flags": "; ".join(st.get("flags", [])),
-                "repeats": len(times["total"])})
-    for k, v in times.items():
-        row[f"{k}_s"] = _median(v)
-    errs = {}
-    for name, got, exact in (("d", res.curl_free, ex.d), ("r", res.div_free, ex.r),
-                             ("h", res.harmonic, ex.h)):
-        errs[name], row[f"err_{name}_max"] = _rel_errors(got, exact, vmean)
-        row[f"err_{name}"] = errs[name]
-    row["err"] = max(errs.values())
-    return row
-
-
-def run_project(task: dict) -> dict:
-    """One null-divergence projection: error of the result against the exact
-    divergence-free part r + h (relative to mean |v|) and the divergence left."""
-    import taichi_hh as thh
-    from taichi_hh.validation import fields
-    F = fields.get(task["field"])
-    pts = sample_points(F, task["n"], task.get("sampling", "poisson"), task.get("seed", 1))
-    ex = F.evaluate(pts)
-    vmean = float(np.linalg.norm(ex.v, axis=1).mean())
-    row = {"n_points": len(pts)}
-    opts = dict(task.get("overrides", {}))
-    vecs = _corrupt(task, ex.v)
-    try:
-        t0 = time.perf_counter()
-        out = thh.project(pts, vecs, F.domain, iterations=task.get("iterations", 1),
-                          method=task["method"], **opts)
-        row["total_s"] = row["wall_s"] = time.perf_counter() - t0
-    except Exception as exc:          # noqa: BLE001
-        row.update(_error_fields(exc))
-        return row
-    w = np.asarray(out.vectors, dtype=np.float64)
-    row["finite"] = bool(np.isfinite(w).all() and np.isfinite(out.max_divergence).all())
-    row["max_abs_ratio"] = float(np.nanmax(np.abs(w)) / np.abs(ex.v).max()) if row["finite"] \
-        else math.inf
-    row["err"], row["err_r_max"] = _rel_errors(w, ex.r + ex.h, vmean)
-    row["err_r"] = row["err"]
-    row["status"] = "ok"
-    row["message"] = (f"max|div| {out.max_divergence[0]:.3g} -> {out.max_divergence[-1]:.3g}")
-    its = out.stats.get("iterations")
-    row["iterations_phi"] = int(np.sum(its)) if its is not None else ""
-    return row
-
-
-def run_rt(task: dict) -> dict:
-    """Rayleigh-Taylor growth through :func:`rt_growth.run_case`, with extra
-    FlowParams (``task["params"]``, e.g. solver_tol, cfl) and a record of every
-    step (max speed, iterations)."""
-    import rt_growth
-    import taichi_hh.flow.twophase as fl
-    record = {"max_speed": 0.0, "iterations": 0, "flow": None}
-    orig_params, orig_flow = fl.FlowParams, fl.TwoPhaseFlow
-    extra = dict(task.get("params", {}))
-
-    def params(**kw):
-        kw.update(extra)
-        return orig_params(**kw)
-
-    class RecordingFlow(orig_flow):
-        def __init__(self, *a, **kw):
-            super().__init__(*a, **kw)
-            record["flow"] = self
-
-        def step(self, dt=None):
-            info = super().step(dt)
-            ms = info.get("max_speed", 0.0)
-            record["max_speed"] = ms if not np.isfinite(ms) else max(record["max_speed"], ms)
-            record["iterations"] += info.get("iterations", 0)
-            return info
-
-    args = types.SimpleNamespace(viscosity=task.get("viscosity", 2e-3),
-                                 shifting=task.get("shifting", 2.0),
-                                 max_time=task.get("max_time", 6.0))
-    row = {}
-    fl.FlowParams, fl.TwoPhaseFlow = params, RecordingFlow
-    try:
-        out, (ts, amps) = rt_growth.run_case(task.get("ratio", 2.0), task["n"], args)
-    except Exception as exc:          # noqa: BLE001
-        row.update(_error_fields(exc))
-        flow = record["flow"]
-        if flow is not None:
-            row.update({"n_points": flow.n_fluid, "steps": flow.step_count, "t_end": flow.time})
-        return row
-    finally:
-        fl.FlowParams, fl.TwoPhaseFlow = orig_params, orig_flow
-    tm = record["flow"].timings
-    finite = bool(np.isfinite(amps).all() and np.isfinite(out["s_measured"])
-                  and np.isfinite(record["max_speed"]))
-    row.update({"status": "ok", "n_points": out["particles"], "s_theory": out["s_theory"],
-                "s_measured": out["s_measured"], "relative_error": out["relative_error"],
-                "err": abs(out["relative_error"]), "steps": out["steps"], "t_end": out["t_end"],
-                "wall_s": out["wall_seconds"], "total_s": out["wall_seconds"],
-                "max_speed": record["max_speed"], "finite": finite,
-                "max_abs_ratio": float(np.nanmax(np.abs(amps)) / abs(amps[0])),
-                "flow_solve_s": tm["solve"], "flow_neighbours_s": tm["neighbours"],
-                "flow_operators_s": tm["operators"], "flow_iterations": record["iterations"]})
-    return row
-
-
-def run_task(task: dict) -> dict:
-    """Dispatch one task (``task["task"]`` in hhd | project | rt) and return its
-    CSV row (the task's descriptive fields plus the measurements)."""
-    base = {"group": task.get("group", ""), "label": task.get("label", ""),
-            "task": task["task"], "field": task.get("field", ""),
-            "sampling": task.get("sampling", ""), "method": task.get("method", ""),
-            "overrides": ";".join(f"{k}={v}" for k, v in
-                                  {**task.get("overrides", {}), **task.get("params", {})}.items()),
-            "precision": task.get("precision", "f64"), "repeats": task.get("repeats", 1)}
-    try:
-        fn = {"hhd": run_hhd, "project": run_project, "rt": run_rt}[task["task"]]
-        row = fn(task)
-    except Exception as exc:          # a bug in this script, not in a method
-        row = _error_fields(exc)
-        row["message"] = "benchmark script: " + traceback.format_exc(limit=3)[-300:]
-    for k in ("status", "error", "reason", "message"):
-        row.setdefault(k, "")
-    return {**base, **row, **{k: v for k, v in task.get("extra", {}).items()}}
-
-
-def run_pool(tasks: list[dict], workers: int = 2, threads: int = 1,
-             progress: bool = True) -> list[dict]:
-    """Run tasks in process pools (spawn), one pool per precision (Taichi's
-    precision is process-wide), with a progress bar; rows in task order."""
-    from taichi_hh.app.runloop import ProgressBar
-    rows: list = [None] * len(tasks)
-    bar = ProgressBar(len(tasks)) if progress else None
-    done = 0
-    ctx = mp.get_context("spawn")
-    for precision in sorted({t.get("precision", "f64") for t in tasks}, reverse=True):
-        idx = [i for i, t in enumerate(tasks) if t.get("precision", "f64") == precision]
-        # longest first keeps both workers busy to the end
-        idx.sort(key=lambda i: -tasks[i].get("cost", 1.0))
-        with ProcessPoolExecutor(max_workers=max(1, min(workers, len(idx))), mp_context=ctx,
-                                 initializer=_worker_init,
-                                 initargs=(precision, threads)) as pool:
-            futures = {pool.submit(run_task, tasks[i]): i for i in idx}
-            for fut in as_completed(futures):
-                i = futures[fut]
-                try:
-                    rows[i] = fut.result()
-                except Exception as exc:     # the worker died (a crash in Taichi)
-                    rows[i] = {**{k: tasks[i].get(k, "") for k in ("group", "label", "task")},
-                               **_error_fields(exc), "status": "crash"}
-                done += 1
-                if bar:
-                    bar.update(done, done)
-    if bar:
-        bar.close()
-    return rows
+from taichi_hh.validation.measures import as_float, loglog_slope  # noqa: E402
+from taichi_hh.validation.sweep import (CSV_FIELDS, GRADIENTS, LAPLACIANS,  # noqa: E402
+                                        PETRONETTO_TABLE9, read_rows, variant)
 
 
 # ---------------------------------------------------------------------------- the sweep
@@ -447,14 +142,6 @@ def build_tasks(quick: bool, repeats: int, groups: set | None) -> list[dict]:
 
 # ---------------------------------------------------------------------------- charts
 
-def _num(x):
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return math.nan
-    return v
-
-
 def pareto_front(points):
     """Indices of the points (time, err) that no other point beats in both."""
     order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
@@ -466,16 +153,8 @@ def pareto_front(points):
     return front
 
 
-def fit_slope(ns, errs):
-    ns, errs = np.asarray(ns, float), np.asarray(errs, float)
-    ok = np.isfinite(errs) & (errs > 0)
-    if ok.sum() < 2:
-        return math.nan
-    return float(np.polyfit(np.log(ns[ok]), np.log(errs[ok]), 1)[0])
-
-
 def _ok(rows, **match):
-    return [r for r in rows if r.get("status") == "ok" and np.isfinite(_num(r.get("err")))
+    return [r for r in rows if r.get("status") == "ok" and np.isfinite(as_float(r.get("err")))
             and all(r.get(k) == v for k, v in match.items())]
 
 
@@ -543,7 +222,7 @@ def make_charts(rows: list[dict], out: Path, quick: bool) -> dict:
             continue
         ns = [r["n_points"] for r in sel]
         es = [r["err"] for r in sel]
-        k = fit_slope(ns, es)
+        k = loglog_slope(ns, es)
         slopes[lab] = k
         style = "-" if lab in ("default", "petronetto2010", "colin2006") else "--"
         ax.loglog(ns, es, style, marker="o", ms=4, color=cmap(li % 10),
@@ -582,7 +261,7 @@ def make_charts(rows: list[dict], out: Path, quick: bool) -> dict:
                     ax.annotate(f"{r.get('reason') or r.get('error')}", (kx, fail_at),
                                 fontsize=6, color=color, xytext=(4, -4 - 7 * (li % 4)),
                                 textcoords="offset points")
-    for (n, kp), (sec, i1, i2) in PAPER_TABLE9.items():
+    for (n, kp), (sec, i1, i2) in PETRONETTO_TABLE9.items():
         ax.scatter([kp, kp], [i1, i2], facecolors="none", edgecolors="k", s=30, zorder=3)
         ax.annotate(f"paper N={n}", (kp, i1), fontsize=6, xytext=(3, 2),
                     textcoords="offset points")
@@ -620,37 +299,15 @@ def _kappa_of(r) -> float:
     return 0.0
 
 
-def read_rows(path) -> list[dict]:
-    """Rows of a CSV written by this script, numbers converted back."""
-    import csv
-    rows = []
-    with open(path) as fh:
-        for r in csv.DictReader(fh):
-            for k, v in r.items():
-                if k in ("n_points", "iterations_phi", "iterations_psi", "repeats", "steps",
-                         "flow_iterations") and v not in ("", None):
-                    r[k] = int(float(v))
-                elif k == "finite":
-                    r[k] = v == "True"
-                elif k.endswith("_s") or (k.startswith("err") and k != "error") or k in (
-                        "residual_phi", "residual_psi", "mean_neighbours", "max_abs_ratio",
-                        "s_theory", "s_measured", "relative_error", "t_end", "max_speed"):
-                    r[k] = _num(v)
-            rows.append(r)
-    return rows
-
-
 def _fmt(x, spec=".3g"):
-    v = _num(x)
+    v = as_float(x)
     return "" if not np.isfinite(v) else format(v, spec)
 
 
 def _to_docs(chart: Path) -> None:
     """Copy a chart to docs/figures/ atomically (the README embeds it)."""
-    from taichi_hh.app.io import atomic_path
-    dest = REPO_ROOT / "docs" / "figures" / chart.name.replace("_quick", "")
-    with atomic_path(str(dest)) as tmp:
-        Path(tmp).write_bytes(chart.read_bytes())
+    write_bytes_atomic(REPO_ROOT / "docs" / "figures" / chart.name.replace("_quick", ""),
+                       chart.read_bytes())
 
 
 def main(argv=None):
@@ -677,7 +334,7 @@ def main(argv=None):
         print(info)
         return info
     repeats = args.repeats or (1 if args.quick else 3)
-    groups = {g for g in args.groups.split(",") if g} or None
+    groups = set(parse_list(args.groups, str)) or None
     if args.out:
         csv_dir = chart_dir = Path(args.out)
     else:
@@ -685,7 +342,7 @@ def main(argv=None):
     tasks = build_tasks(args.quick, repeats, groups)
     t0 = time.perf_counter()
     print(f"{len(tasks)} configurations, {args.workers} workers", flush=True)
-    rows = run_pool(tasks, args.workers, args.threads, progress=not args.no_progress)
+    rows = run_tasks(tasks, args.workers, args.threads, progress=not args.no_progress)
     elapsed = time.perf_counter() - t0
     name = "speed_accuracy_quick.csv" if args.quick else "speed_accuracy.csv"
     write_csv_atomic(csv_dir / name, rows, CSV_FIELDS)

@@ -58,25 +58,18 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-if str(HERE) not in sys.path:
-    sys.path.insert(0, str(HERE))
+from _common import REPO_ROOT, add_repo_to_path, format_table, run_tasks, write_csv_atomic
 
-from _common import REPO_ROOT, format_table, write_csv_atomic  # noqa: E402
-from speed_accuracy import CSV_FIELDS, run_pool, variant  # noqa: E402
+add_repo_to_path()
+from taichi_hh.validation.stability import (ERR_ABS, ERR_REL, as_float,  # noqa: E402
+                                            classify)
+from taichi_hh.validation.sweep import CSV_FIELDS, read_rows, variant  # noqa: E402
 
-ERR_ABS = 0.25            # inaccurate above this error
-ERR_REL = 4.0             # ... or above this factor times the row's reference cell
-ABSURD_RATIO = 100.0      # garbage: a component above this times max |v|
-ABSURD_SPEED = 10.0       # garbage: a flow speed above this (box 1 x 2, g = 1)
-PACKAGE_ERRORS = ("InputError", "NeighbourError", "SolverError", "BlowUpError", "BlowUp",
-                  "TaichiHHError")
 
 MAP_FIELDS = ["family", "row", "column", "status", "note", "ref_err"] + CSV_FIELDS
 COLORS = {"ok": "#7fc97f", "inaccurate": "#fdc086", "error": "#80b1d3", "flagged": "#beaed4",
@@ -182,48 +175,6 @@ def build_tasks(quick: bool) -> list[dict]:
     return tasks
 
 
-def _f(x):
-    try:
-        return float(x)
-    except (TypeError, ValueError):
-        return math.nan
-
-
-def classify(row: dict, ref_err: float) -> tuple[str, str]:
-    """(status, note) of one cell; see the module doc for the thresholds."""
-    st = row.get("status")
-    if st == "crash":
-        return "crash", f"worker died: {row.get('message', '')[:60]}"
-    if st == "error":
-        if row.get("error") not in PACKAGE_ERRORS:
-            return "crash", f"{row.get('error')}: {row.get('message', '')[:60]}"
-        why = row.get("reason") or ""
-        return "error", f"{row['error']}{': ' + why if why else ''}"
-    if row.get("flags"):
-        # returned, but flagged by the library's own consistency check
-        # (AccuracyWarning, stats["flags"]): reported, not silent
-        import re
-        m = re.search(r"carry ([0-9.e+]+) times", row["flags"])
-        return "flagged", f"AccuracyWarning\nenergy x{m.group(1) if m else '?'}"
-    err = _f(row.get("err"))
-    absurd = _f(row.get("max_abs_ratio"))
-    if row.get("task") == "rt":
-        speed = _f(row.get("max_speed"))
-        if not row.get("finite") or not math.isfinite(err) or not (speed <= ABSURD_SPEED):
-            return "garbage", f"max speed {speed:.2g}\nerr {err:.2g}"
-    elif not row.get("finite") or not math.isfinite(err) or not (absurd <= ABSURD_RATIO):
-        return "garbage", ("non-finite" if not row.get("finite") else
-                           f"|out| {absurd:.1e}\nx max|v|")
-    note = f"err {err:.2g}"
-    if row.get("task") == "hhd" and row.get("iterations_phi") not in (None, ""):
-        note += f"\nit {row['iterations_phi']}/{row['iterations_psi']}"
-    if err > ERR_ABS:
-        return "inaccurate", note
-    if math.isfinite(ref_err) and ref_err > 0 and err > ERR_REL * ref_err:
-        return "inaccurate", note + f" ({err / ref_err:.0f}x ref)"
-    return "ok", note
-
-
 def make_chart(cells: list[dict], path: Path, quick: bool) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -295,18 +246,17 @@ def main(argv=None):
     t0 = time.perf_counter()
     refs = {}
     if args.replot:
-        from speed_accuracy import read_rows
         rows = read_rows(args.replot)
         for r in rows:
             r["status"] = r.pop("run_status")
-            refs[(r["family"], r["row"])] = _f(r.get("ref_err"))
+            refs[(r["family"], r["row"])] = as_float(r.get("ref_err"))
     else:
         tasks = build_tasks(args.quick)
         print(f"{len(tasks)} cells, {args.workers} workers", flush=True)
-        rows = run_pool(tasks, args.workers, args.threads, progress=not args.no_progress)
+        rows = run_tasks(tasks, args.workers, args.threads, progress=not args.no_progress)
         for r in rows:
             if r.get("reference") and r.get("status") == "ok":
-                refs[(r["family"], r["row"])] = _f(r.get("err"))
+                refs[(r["family"], r["row"])] = as_float(r.get("err"))
     cells = []
     for r in rows:
         ref = refs.get((r["family"], r["row"]), math.nan)

@@ -267,8 +267,10 @@ def test_a_step_allocates_no_ndarrays_in_the_flow():
     """The flow's work arrays are allocated once (FlowBuffers) and reused: after the
     first step no code in taichi_hh.flow makes a Taichi ndarray, and the buffers
     are the same objects.  Counted at the constructors of Taichi's ndarray
-    classes, by the module that called them (the library below the flow, e.g. the
-    operators' coefficients, still allocates per step: not counted here)."""
+    classes, by the module that called them.  The library below the flow still
+    makes scalar arrays per step (the Poisson matrix, the Laplacian
+    coefficients), which Taichi frees; no vector array is made anywhere, since
+    Taichi 1.7 frees none of those by itself (docs/notes/flow.md)."""
     import sys
     from taichi.lang import _ndarray, matrix
     pts, dx = tank(8, 16)
@@ -279,6 +281,7 @@ def test_a_step_allocates_no_ndarrays_in_the_flow():
     flow.volume_error()
     buffers = {name: id(value) for name, value in vars(flow.buffers).items()}
     made_by_flow = []
+    vectors_made = []
     classes = (_ndarray.ScalarNdarray, matrix.VectorNdarray, matrix.MatrixNdarray)
     originals = {cls: cls.__init__ for cls in classes}
 
@@ -290,6 +293,8 @@ def test_a_step_allocates_no_ndarrays_in_the_flow():
             caller = frame.f_globals.get("__name__", "") if frame is not None else ""
             if caller.startswith("taichi_hh.flow"):
                 made_by_flow.append((cls.__name__, caller, frame.f_lineno))
+            if cls is not _ndarray.ScalarNdarray:
+                vectors_made.append((cls.__name__, caller, frame.f_lineno if frame else 0))
             originals[cls](self, *args, **kwargs)
         return __init__
 
@@ -304,10 +309,11 @@ def test_a_step_allocates_no_ndarrays_in_the_flow():
             cls.__init__ = originals[cls]
     assert info["cleanup_iterations"] > 0          # the clean-up's arrays were used too
     assert made_by_flow == []
+    assert vectors_made == []
     assert {name: id(value) for name, value in vars(flow.buffers).items()} == buffers
 
 
-def test_clean_up_operator_and_its_conditioning_against_the_support():
+def test_clean_up_operator_and_its_conditioning_against_the_support(scene_module):
     """benchmarks/projection_conditioning.py's foundation: the clean-up's system
     assembled with scipy from the flow's coefficients reproduces the flow's
     D w (``assemble`` checks it to 1e-10), textbook Jacobi-CG on it takes the
@@ -315,20 +321,24 @@ def test_clean_up_operator_and_its_conditioning_against_the_support():
     within 0.3% at 10k particles), and the kernel support sets its condition:
     the 3 dx Wendland gradient, a low-pass filter, makes S = D M^-1 D^T far
     worse conditioned than the 2 dx one (measured 8e4 against 8e2 here)."""
-    import sys
+    import argparse
     from dataclasses import replace
-    from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-    import projection_conditioning as pc
+    from taichi_hh.validation import conditioning as pc
 
-    state, params, _vol, _sec = pc.droplet_run(1200, 0.2)
+    droplet = scene_module("rising_droplet")
+    args = argparse.ArgumentParser()
+    droplet.add_arguments(args)
+    args = args.parse_args([])
+    args.particles = 1200
+    pts, phases, dx, params = droplet.build(args)
+    state, _vol, _sec = pc.advance(pts, phases, dx, params, 0.2)
     cond = {}
     for ratio in (3.0, 2.0):
-        seen, _dx = pc.capture_step(state, replace(params, support_ratio=ratio))
+        seen, _dx = pc.capture_cleanup(state, replace(params, support_ratio=ratio))
         D, S, pos, d = pc.assemble(seen)
         assert S.shape == (1152, 1152)
         rtol = params.solver_tol * seen["norm_before"] / np.linalg.norm(d)
-        norms = pc.cg_history(S, d, pc._jacobi(S), rtol)
+        norms = pc.cg_history(S, d, pc.jacobi(S), rtol)
         its = pc.first_below(norms, params.solver_tol * seen["norm_before"])
         assert abs(its - seen["iterations"]) <= max(3, 0.02 * seen["iterations"]), \
             (its, seen["iterations"])

@@ -13,6 +13,8 @@ import pytest
 SCRIPT = pathlib.Path(__file__).resolve().parent.parent / "benchmarks" / "petronetto_analysis.py"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):

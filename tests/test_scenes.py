@@ -67,6 +67,7 @@ def test_droplet_resume_continues_the_run(tmp_path):
     assert ya > float(a[0]["centroid_y"])            # the droplet rose
 
 
+@pytest.mark.slow
 def test_exact_projection_option_takes_every_step_to_solver_tolerance(tmp_path):
     """``--exact-projection``: every diagnostics row shows the clean-up at work
     and max |div v| after the projection within solver_tol sqrt(N) of its value

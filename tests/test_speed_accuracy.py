@@ -9,9 +9,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = ROOT / "benchmarks" / "speed_accuracy.py"
 CHARTS = ("pareto", "convergence", "kappa", "flow")
+
+pytestmark = pytest.mark.slow          # about 90 s
 
 
 def test_quick_sweep_writes_csv_and_charts(tmp_path):
@@ -19,7 +23,7 @@ def test_quick_sweep_writes_csv_and_charts(tmp_path):
     env.setdefault("TAICHI_HH_CACHE", str(ROOT / ".taichi_cache"))
     proc = subprocess.run([sys.executable, str(SCRIPT), "--quick", "--no-progress",
                            "--out", str(tmp_path)], cwd=ROOT, env=env, capture_output=True,
-                          text=True, timeout=170)
+                          text=True, timeout=600)   # ~90 s alone; a shared machine is slower
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "Pareto front" in proc.stdout
     with open(tmp_path / "speed_accuracy_quick.csv") as fh:

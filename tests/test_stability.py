@@ -2,8 +2,6 @@
 error naming the cause, or a flagged result) and never returned as garbage.
 benchmarks/stability_map.py maps the same edges over many more cells."""
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -52,7 +50,8 @@ def test_too_few_neighbours_projection(trig):
 
 @pytest.mark.parametrize("method,options", [
     ("petronetto2010", {"kappa": 0.0}),                       # published, ridge removed
-    ("default", {"kappa": 0.0, "bordered": False}),           # pure Neumann, singular
+    pytest.param("default", {"kappa": 0.0, "bordered": False},   # pure Neumann, singular
+                 marks=pytest.mark.slow),            # about 13 s
 ])
 def test_kappa_zero_pure_neumann_without_bordering_is_reported(method, options):
     """Pure Neumann without the ridge term or the compatibility unknown: the
@@ -102,7 +101,7 @@ def test_nan_input_is_refused(trig, where):
 
 
 def test_nan_flow_particles_refused():
-    from taichi_hh.app.scene import lattice_in_box
+    from taichi_hh.validation.layouts import lattice_in_box
     pts, dx = lattice_in_box(200, (0.0, 0.0, 1.0, 2.0))
     pts[5, 0] = np.nan
     with pytest.raises(thh.InputError):
@@ -112,7 +111,7 @@ def test_nan_flow_particles_refused():
 def _rt_flow(n, **params):
     """The Rayleigh-Taylor set-up of benchmarks/rt_growth.py (heavy over light,
     one mode of amplitude 1% of the wavelength)."""
-    from taichi_hh.app.scene import lattice_in_box
+    from taichi_hh.validation.layouts import lattice_in_box
     box = (0.0, 0.0, 1.0, 2.0)
     pts, dx = lattice_in_box(n, box)
     k, y0, a0 = 2 * math.pi, 1.0, 0.01
@@ -167,8 +166,7 @@ def test_flow_density_ratio_1000_reported_or_sane():
 
 
 def test_stability_map_classification():
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-    from stability_map import classify
+    from taichi_hh.validation.stability import classify
     ok = {"status": "ok", "task": "hhd", "finite": True, "err": 0.01, "max_abs_ratio": 1.2}
     assert classify(ok, 0.01)[0] == "ok"
     assert classify({**ok, "err": 0.3}, 0.01)[0] == "inaccurate"
@@ -185,6 +183,7 @@ def test_stability_map_classification():
 # Silent garbage found by benchmarks/stability_map.py, now detected and reported:
 # a diverging projection raises, an inconsistent decomposition is flagged.
 
+@pytest.mark.slow
 def test_colin2006_projection_never_returns_garbage():
     F = fields.get("trig")
     pts = F.domain.sample_interior(1600, kind="poisson", seed=3)

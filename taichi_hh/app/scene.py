@@ -5,7 +5,6 @@ this module parses the common options, runs the time loop with progress,
 frames, diagnostics and checkpoints (:mod:`taichi_hh.app.runloop`), and resumes.
 """
 import argparse
-import math
 import os
 import sys
 import time
@@ -15,6 +14,7 @@ import numpy as np
 
 from .. import runtime
 from ..flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
+from ..validation.layouts import lattice_in_box  # noqa: F401  (the scenes' initial lattice)
 from .overlay import FrameLabels, label_frame
 from .particle_files import PvdSeries, write_particles
 from .render import STYLES, FrameRenderer, frame_path, write_movie, write_png
@@ -36,22 +36,6 @@ class Scene:
     measure_columns: list = field(default_factory=list)
     terms: str = ""                      # which physical terms the scene uses
     phase_names: tuple = ()              # legend labels of phases 0, 1, ... in the frames
-
-
-def lattice_in_box(n_target: int, box):
-    """A square lattice of about n_target points filling box = (x0, y0, x1, y1)."""
-    x0, y0, x1, y1 = box
-    area = (x1 - x0) * (y1 - y0)
-    nx = max(2, int(round((x1 - x0) / math.sqrt(area / n_target))))
-    dx = (x1 - x0) / nx
-    ny = max(2, int(round((y1 - y0) / dx)))
-    dy = (y1 - y0) / ny
-    if abs(dy - dx) > 1e-9 * dx:
-        raise ValueError(f"box {box} is not a whole number of square cells at {n_target} "
-                         "particles; choose another particle count")
-    gx = x0 + (np.arange(nx) + 0.5) * dx
-    gy = y0 + (np.arange(ny) + 0.5) * dx
-    return np.stack(np.meshgrid(gx, gy), -1).reshape(-1, 2), dx
 
 
 def _montage(args, name: str) -> None:

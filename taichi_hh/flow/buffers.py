@@ -43,6 +43,7 @@ class FlowBuffers:
     # the orthogonal clean-up
     multiplier: object              # lam
     cleanup_correction: object      # M^-1 D^T lam
+    cleanup_scratch: object         # M^-1 D^T x inside the clean-up's operator
     # particle shifting and the volume error
     concentration_gradient: object
     number_density: object
@@ -58,7 +59,7 @@ class FlowBuffers:
     def allocate(cls, capacity: int) -> "FlowBuffers":
         size = max(capacity, 1)
         vectors = {"wall_velocity", "velocity_laplacian", "velocity", "velocity_with_walls",
-                   "pressure_gradient", "measured_velocity", "cleanup_correction",
+                   "pressure_gradient", "measured_velocity", "cleanup_correction", "cleanup_scratch",
                    "concentration_gradient", "gradient_self"}
         per_pair = {"gradient_pairs", "pair_gradient"}
         return cls(**{f.name: (_vectors if f.name in vectors else _scalars)(size)

@@ -415,7 +415,8 @@ class TwoPhaseFlow:
         target = max(tol * norm_before, floor)
         if norm <= target:
             return w, 0
-        S = NormalOperator(self.ops, self.pairs, st, p.mass, p.n, rows=(FLUID,), cols=(FLUID,))
+        S = NormalOperator(self.ops, self.pairs, st, p.mass, p.n, rows=(FLUID,), cols=(FLUID,),
+                           scratch=self.buffers.cleanup_scratch)
         x0 = self.lam_by_id[ids] if params.cleanup_warm_start else None
         self.clock.lap("operators", "cleanup")
         try:

@@ -69,9 +69,11 @@ class NormalOperator:
     (velocities) whose kind is in ``cols``: the velocity of the other columns is
     taken as zero, and :meth:`correction` leaves it zero.  ``weight``: the
     per-particle weight ``W`` of the norm ``sum_k W_k |u_k|^2`` (volumes for
-    :func:`project`, masses for the flow's clean-up)."""
+    :func:`project`, masses for the flow's clean-up).  scratch: a 2-vector
+    ndarray of at least ``n`` rows for the intermediate ``W^-1 D^T x`` (a
+    caller that keeps one across calls), default a new one."""
 
-    def __init__(self, ops, pairs, st, weight, n: int, *, rows=None, cols=None):
+    def __init__(self, ops, pairs, st, weight, n: int, *, rows=None, cols=None, scratch=None):
         from .operators import ALL_KINDS, kind_bits
         self.ops, self.pairs, self.st, self.weight = ops, pairs, st, weight
         self.n = n
@@ -79,7 +81,8 @@ class NormalOperator:
         self.rows = kind_bits(ALL_KINDS if rows is None else rows)
         self.cols = kind_bits(ALL_KINDS if cols is None else cols)
         self.reverse = pairs.reverse_index()
-        self.tmp = ti.Vector.ndarray(2, runtime.real_dtype(), shape=(max(n, 1),))
+        self.tmp = scratch if scratch is not None else \
+            ti.Vector.ndarray(2, runtime.real_dtype(), shape=(max(n, 1),))
 
     @classmethod
     def of_pointset(cls, ps: PointSet, st) -> "NormalOperator":

@@ -14,13 +14,9 @@ Table 1 (max |div| and sum of squared div, initial state then after each of 5
 projections) is :data:`TABLE1`; :func:`colin_divergence` is the divergence it
 reports (their Eq. 33, wall particles at rest included).
 
-Reproduction (``benchmarks/colin_table1.py``): example 1's initial measures
-come out within 4% (5.12 and 1276 against 5.32 and 1250.48).  Examples 2-4
-come out within a factor of about 2 and example 5 not at all: the text's setup
-gives max |div| 0.45 and sum 7.9 for the rigid rotation where Table 1 has 2.81
-and 82.61.  Neither 18 x 18 or 20 x 20 lattices, supports of 1/9 or 1/10, nor
-other spacings (tried 1/18 to 1/45) reproduce those numbers, so the published
-setup of examples 2-5 differs from the text in some unstated way.
+Example 1 reproduces the published initial measures; examples 2-5 do not, so
+their published setup differs from the text in some unstated way (the
+measurements are in ``benchmarks/colin_table1.py``).
 """
 import numpy as np
 
