@@ -96,6 +96,7 @@ from .boundary import collocation_particles
 from .inputs import validate_input
 from .options import PROJECT_OVERRIDES, options_for
 from ..sph.particles import BOUNDARY, FLUID
+from ..geometry.walls import box_wall_lattice
 from ..sph.adjoint import NormalOperator
 from ..sph.pointset import PointSet
 from ..linalg.poisson import PoissonMatrix
@@ -123,17 +124,7 @@ def wall_layer(domain, spacing: float, width: float, points=None, lattice: bool 
     """
     from ..geometry.domain import Box
     if lattice and isinstance(domain, Box):
-        lo, hi = np.asarray(domain.lo), np.asarray(domain.hi)
-        k = int(math.ceil(width / spacing)) + 1
-        nx = max(int(round((hi[0] - lo[0]) / spacing)), 1)
-        ny = max(int(round((hi[1] - lo[1]) / spacing)), 1)
-        gx = lo[0] + (np.arange(-k, nx + k) + 0.5) * (hi[0] - lo[0]) / nx
-        gy = lo[1] + (np.arange(-k, ny + k) + 0.5) * (hi[1] - lo[1]) / ny
-        P = np.stack(np.meshgrid(gx, gy), -1).reshape(-1, 2)
-        outside = ~domain.contains(P)
-        P = P[outside]
-        dist = domain.signed_distance(P)
-        P = P[dist <= width]
+        P = box_wall_lattice(domain.lo, domain.hi, spacing, width, closed=True)
     else:
         P = domain.sample_ghosts(spacing, width, avoid=points)
     _, _, nrm, _ = domain.closest_boundary(P)
