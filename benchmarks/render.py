@@ -9,18 +9,19 @@ labels, PNG bytes).  Prints a table and writes outputs/render.csv.
     python benchmarks/render.py [--repeat 15] [--width 800] [--particles 10500]
 """
 import argparse
-import csv
-import pathlib
 import time
 
 import numpy as np
+from _common import REPO_ROOT, add_repo_to_path, write_csv_atomic
+
+add_repo_to_path()
 
 import taichi_hh as thh
 from taichi_hh.app import render
 from taichi_hh.app.overlay import FrameLabels, label_frame
 from taichi_hh.app.scene import lattice_in_box
 
-OUT = pathlib.Path(__file__).resolve().parent.parent / "outputs"
+OUT = REPO_ROOT / "outputs"
 
 
 def main():
@@ -61,12 +62,9 @@ def main():
         rows.append(row)
         print(f"{style:8s} {row['draw_ms']:8.1f} {row['frame_ms']:9.1f} {row['draw_ratio']:13.2f} "
               f"{row['frame_ratio']:14.2f}")
-    OUT.mkdir(exist_ok=True)
-    with open(OUT / "render.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    print(f"wrote {OUT / 'render.csv'}")
+    path = OUT / "render.csv"
+    write_csv_atomic(path, rows, list(rows[0]))
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":

@@ -10,10 +10,11 @@ error, or the failure).  Prints a table and writes outputs/scattered_probe.csv.
                                          [--supports 2.5,4]
 """
 import argparse
-import csv
-import pathlib
 
 import numpy as np
+from _common import REPO_ROOT, add_repo_to_path, write_csv_atomic
+
+add_repo_to_path()
 import scipy.sparse.linalg as spla
 
 import taichi_hh as thh
@@ -23,7 +24,7 @@ from taichi_hh.hhd.decompose import poisson_problems
 from taichi_hh.sph.particles import FLUID
 from taichi_hh.validation import fields
 
-OUT = pathlib.Path(__file__).resolve().parent.parent / "outputs"
+OUT = REPO_ROOT / "outputs"
 
 
 def layout_points(layout: str, n: int, field) -> np.ndarray:
@@ -93,12 +94,8 @@ def main():
                 rows.append(row)
                 print(" ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
                                for k, v in row.items()), flush=True)
-    OUT.mkdir(exist_ok=True)
     path = OUT / "scattered_probe.csv"
-    with open(path, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv_atomic(path, rows, list(rows[0]))
     print(f"wrote {path}")
 
 
