@@ -12,7 +12,7 @@ adds (taichi-dev/taichi#8763).  ``--without-vector-free`` removes it for the run
 to show the leak it prevents.
 
     python benchmarks/flow_memory.py [--particles 2500] [--steps 600] [--every 50]
-        [--without-vector-free] [--out outputs/flow_memory.csv]
+        [--without-vector-free] [--out outputs/benchmarks/flow_memory.csv]
 """
 import argparse
 import gc
@@ -47,7 +47,7 @@ def main(argv=None):
                     help="the growth is measured from this step to the end")
     ap.add_argument("--without-vector-free", action="store_true",
                     help="remove taichi_hh.runtime's VectorNdarray.__del__ for this run")
-    ap.add_argument("--out", default="outputs/flow_memory.csv")
+    ap.add_argument("--out", default="outputs/benchmarks/flow_memory.csv")
     args = ap.parse_args(argv)
 
     from taichi_hh import runtime

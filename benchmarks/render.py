@@ -4,7 +4,7 @@ The droplet scene's frame at its defaults (10 368 particles in the 1 x 2 box,
 800 px wide), particles on the lattice with a 15% jitter (what a frame shows
 after the first steps).  Styles are timed interleaved, after compilation, as
 medians of ``--repeat`` rounds: the draw alone, and the whole frame (draw,
-labels, PNG bytes).  Prints a table and writes outputs/render.csv.
+labels, PNG bytes).  Prints a table and writes outputs/benchmarks/render.csv.
 
     python benchmarks/render.py [--repeat 15] [--width 800] [--particles 10500]
 """
@@ -21,7 +21,7 @@ from taichi_hh.app import render
 from taichi_hh.app.overlay import FrameLabels, label_frame
 from taichi_hh.app.scene import lattice_in_box
 
-OUT = REPO_ROOT / "outputs"
+OUT = REPO_ROOT / "outputs" / "benchmarks"
 
 
 def main():

@@ -4,7 +4,7 @@ For each point layout and support ratio: the assembled default system's row
 structure (fluid rows with a positive diagonal, rows with an off-diagonal of
 the diagonal's sign), its exact solve by SuperLU and the error of the
 components that solve gives, and the default ``decompose()`` (iterations,
-error, or the failure).  Prints a table and writes outputs/scattered_probe.csv.
+error, or the failure).  Prints a table and writes outputs/benchmarks/scattered_probe.csv.
 
     python benchmarks/scattered_probe.py [--n 5000,13000] [--layouts poisson,random]
                                          [--supports 2.5,4]
@@ -24,7 +24,7 @@ from taichi_hh.hhd.decompose import poisson_problems
 from taichi_hh.sph.particles import FLUID
 from taichi_hh.validation import fields
 
-OUT = REPO_ROOT / "outputs"
+OUT = REPO_ROOT / "outputs" / "benchmarks"
 
 
 def layout_points(layout: str, n: int, field) -> np.ndarray:
