@@ -169,23 +169,35 @@ def _draw_smooth(px: ti.types.ndarray(), colour: ti.types.ndarray(), n: ti.i32,
             rgb = alpha * (acc / den) + (one - alpha) * rgb
         for ch in ti.static(range(3)):
             samples[s, ch] = rgb[ch]
+    # bilinear interpolation, one block of stride x stride pixels per sample
+    # cell (its four corner samples read once)
     inv = one / ti.cast(stride, ti.f32)
-    for p in range(width * height):
-        row = p // width
-        col = p - row * width
-        fx = ti.min((ti.cast(col, ti.f32)) * inv, ti.cast(sw - 1, ti.f32))
-        fy = ti.min((ti.cast(height - 1 - row, ti.f32)) * inv, ti.cast(sh - 1, ti.f32))
-        x0 = ti.min(ti.cast(ti.floor(fx), ti.i32), sw - 1)
-        y0 = ti.min(ti.cast(ti.floor(fy), ti.i32), sh - 1)
-        x1 = ti.min(x0 + 1, sw - 1)
-        y1 = ti.min(y0 + 1, sh - 1)
-        tx = fx - ti.cast(x0, ti.f32)
-        ty = fy - ti.cast(y0, ti.f32)
-        for ch in ti.static(range(3)):
-            a = (one - tx) * samples[y0 * sw + x0, ch] + tx * samples[y0 * sw + x1, ch]
-            b = (one - tx) * samples[y1 * sw + x0, ch] + tx * samples[y1 * sw + x1, ch]
-            val = (one - ty) * a + ty * b
-            image[p, ch] = ti.cast(ti.min(ti.max(val + ti.cast(0.5, ti.f32), 0.0), 255.0), ti.u8)
+    for s in range((sw - 1) * (sh - 1)):
+        sy = s // (sw - 1)
+        sx = s - sy * (sw - 1)
+        c00 = ti.Vector([samples[sy * sw + sx, 0], samples[sy * sw + sx, 1],
+                         samples[sy * sw + sx, 2]], ti.f32)
+        c10 = ti.Vector([samples[sy * sw + sx + 1, 0], samples[sy * sw + sx + 1, 1],
+                         samples[sy * sw + sx + 1, 2]], ti.f32)
+        c01 = ti.Vector([samples[(sy + 1) * sw + sx, 0], samples[(sy + 1) * sw + sx, 1],
+                         samples[(sy + 1) * sw + sx, 2]], ti.f32)
+        c11 = ti.Vector([samples[(sy + 1) * sw + sx + 1, 0], samples[(sy + 1) * sw + sx + 1, 1],
+                         samples[(sy + 1) * sw + sx + 1, 2]], ti.f32)
+        for dy in range(stride):
+            y_up = sy * stride + dy
+            if y_up < height:
+                ty = ti.cast(dy, ti.f32) * inv
+                left = (one - ty) * c00 + ty * c01
+                right = (one - ty) * c10 + ty * c11
+                base = (height - 1 - y_up) * width
+                for dx in range(stride):
+                    col = sx * stride + dx
+                    if col < width:
+                        tx = ti.cast(dx, ti.f32) * inv
+                        val = (one - tx) * left + tx * right
+                        for ch in ti.static(range(3)):
+                            image[base + col, ch] = ti.cast(
+                                ti.min(ti.max(val[ch] + ti.cast(0.5, ti.f32), 0.0), 255.0), ti.u8)
 
 def colormap_table(name: str = "viridis") -> np.ndarray:
     """A (256, 3) u8 table of a matplotlib colormap."""
