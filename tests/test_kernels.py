@@ -22,27 +22,27 @@ SUPPORTS = (1.0, 0.037)
 
 
 # ---------------------------------------------------------------------------
-# Taichi evaluation of kernel_wfl (kernels must live in a file)
+# Taichi evaluation of kernel_terms (kernels must live in a file)
 
 @ti.kernel
-def _eval_wfl(kid: ti.template(), r: ti.types.ndarray(), H: float, W: ti.types.ndarray(),
+def _eval_wfl(kernel_id: ti.template(), r: ti.types.ndarray(), H: float, W: ti.types.ndarray(),
               F: ti.types.ndarray(), L: ti.types.ndarray()):
     for i in range(r.shape[0]):
-        w, f, lap = kernels.kernel_wfl(kid, r[i], H)
+        w, f, lap = kernels.kernel_terms(kernel_id, r[i], H)
         W[i] = w
         F[i] = f
         L[i] = lap
 
 
 @ti.kernel
-def _eval_pair_gradients(kid: ti.template(), xi: ti.types.ndarray(), xj: ti.types.ndarray(),
+def _eval_pair_gradients(kernel_id: ti.template(), xi: ti.types.ndarray(), xj: ti.types.ndarray(),
                          H: float, gi: ti.types.ndarray(), gj: ti.types.ndarray()):
     # grad_i W_ij = F(r_ij) x_ij and grad_j W_ji = F(r_ji) x_ji, each with the vector formula
     for k in range(xi.shape[0]):
         xij = xi[k] - xj[k]
         xji = xj[k] - xi[k]
-        _, fij, _ = kernels.kernel_wfl(kid, xij.norm(), H)
-        _, fji, _ = kernels.kernel_wfl(kid, xji.norm(), H)
+        _, fij, _ = kernels.kernel_terms(kernel_id, xij.norm(), H)
+        _, fji, _ = kernels.kernel_terms(kernel_id, xji.norm(), H)
         gi[k] = fij * xij
         gj[k] = fji * xji
 

@@ -20,6 +20,9 @@ from .particle_files import PvdSeries, write_particles
 from .render import STYLES, FrameRenderer, frame_path, write_movie, write_png
 from .runloop import Checkpoint, DiagnosticsWriter, add_common_arguments, run
 
+#: the checkout this module runs from (``--docs`` writes the README's figures there)
+REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
 BASE_COLUMNS = ["time", "step", "dt", "solver_iterations", "cleanup_iterations", "max_div",
                 "max_div_before",
                 "volume_error_mean", "volume_error_max", "kinetic_energy"]
@@ -53,8 +56,7 @@ def _montage(args, name: str) -> None:
     row = np.ascontiguousarray(row[::stride, ::stride])
     write_png(os.path.join(args.out, "montage.png"), row)
     if args.docs:
-        docs = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "docs", "figures",
-                            f"{name}.png")
+        docs = os.path.join(REPO_ROOT, "docs", "figures", f"{name}.png")
         write_png(docs, row)
 
 

@@ -4,7 +4,7 @@ spread evenly where the flow would bunch them up."""
 import numpy as np
 import taichi as ti
 
-from ..sph.kernels import kernel_wfl
+from ..sph.kernels import kernel_terms
 from ..sph.particles import FLUID
 
 
@@ -21,7 +21,7 @@ def concentration_gradient(kernel_id: ti.template(), n: ti.i32, offsets: ti.type
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
                 xij = pos[i] - pos[j]
-                _W, F, _L = kernel_wfl(kernel_id, xij.norm(), H)
+                _W, F, _L = kernel_terms(kernel_id, xij.norm(), H)
                 g += (mass[j] / rho[j]) * (F * xij)
         out[i] = g
 

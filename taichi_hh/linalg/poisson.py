@@ -34,7 +34,7 @@ from ..sph.particles import BOUNDARY, FLUID, GHOST
 
 
 @ti.kernel
-def _assemble(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
+def _assemble(kernel_id: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
               nbrs: ti.types.ndarray(), pos: ti.types.ndarray(), vol: ti.types.ndarray(),
               kind: ti.types.ndarray(), normal: ti.types.ndarray(), near: ti.types.ndarray(),
               C: ti.types.ndarray(), sC: ti.types.ndarray(), G: ti.types.ndarray(),
@@ -60,7 +60,7 @@ def _assemble(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
             D[i] = d
         else:
             # the Shepard row (Petronetto Eq. 14): phi_g - sum_k S_gk phi_k = 0
-            _num, den = shepard_sums(kid, i, offsets, nbrs, pos, vol, kind, H, 1 << FLUID,
+            _num, den = shepard_sums(kernel_id, i, offsets, nbrs, pos, vol, kind, H, 1 << FLUID,
                                      vol, 0.0, 0.0)
             if den <= 0.0:
                 ti.atomic_max(orphan[0], i)
@@ -69,7 +69,7 @@ def _assemble(kid: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
                 j = nbrs[k]
                 c = 0.0
                 if kind[j] == FLUID:
-                    c = -shepard_weight(kid, pos, vol, i, j, H) / den
+                    c = -shepard_weight(kernel_id, pos, vol, i, j, H) / den
                 K[k] = c
             D[i] = 1.0
 

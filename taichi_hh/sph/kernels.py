@@ -34,7 +34,7 @@ import taichi as ti
 
 
 class KernelId(IntEnum):
-    """The kernels (the value selects the branch of :func:`kernel_wfl` at compile time)."""
+    """The kernels (the value selects the branch of :func:`kernel_terms` at compile time)."""
     QUARTIC = 0
     POLY6 = 1
     WENDLAND = 2
@@ -54,12 +54,12 @@ def kernel_id(name: str) -> KernelId:
 
 
 @ti.func
-def kernel_wfl(kid: ti.template(), r, H):
-    """(W, W'/r, laplacian W) of kernel ``kid`` (a static id) at distance r."""
+def kernel_terms(kernel_id: ti.template(), r, H):
+    """(W, W'/r, laplacian W) of kernel ``kernel_id`` (a static id) at distance r."""
     W = 0.0
     F = 0.0
     L = 0.0
-    if ti.static(kid == KernelId.QUARTIC):      # quartic, h = H/2
+    if ti.static(kernel_id == KernelId.QUARTIC):      # quartic, h = H/2
         h = 0.5 * H
         q = r / h
         if q < 2.0:
@@ -70,7 +70,7 @@ def kernel_wfl(kid: ti.template(), r, H):
             d2w = -9.0 / 4.0 + 19.0 / 4.0 * q - 15.0 / 8.0 * q * q
             F = s * dwq / (h * h)
             L = s * (d2w + dwq) / (h * h)
-    elif ti.static(kid == KernelId.POLY6):    # poly6, support H (Colin's h)
+    elif ti.static(kernel_id == KernelId.POLY6):    # poly6, support H (Colin's h)
         if r < H:
             s = 4.0 / (math.pi * H ** 8)
             d = H * H - r * r
@@ -78,7 +78,7 @@ def kernel_wfl(kid: ti.template(), r, H):
             F = -6.0 * s * d * d
             # W'' = -6 s (d^2 - 4 r^2 d); L = W'' + W'/r
             L = -6.0 * s * (d * d - 4.0 * r * r * d) + F
-    elif ti.static(kid == KernelId.WENDLAND):    # Wendland C2, h = H/2
+    elif ti.static(kernel_id == KernelId.WENDLAND):    # Wendland C2, h = H/2
         h = 0.5 * H
         q = r / h
         if q < 2.0:
@@ -107,13 +107,13 @@ def kernel_wfl(kid: ti.template(), r, H):
 # ---- numpy twins: for tests, plots and host-side set-up (not hot paths) ----
 
 def kernel_numpy(name: str, r, H):
-    """(W, W'/r, laplacian W) evaluated with numpy; mirrors :func:`kernel_wfl`."""
+    """(W, W'/r, laplacian W) evaluated with numpy; mirrors :func:`kernel_terms`."""
     r = np.asarray(r, dtype=np.float64)
-    kid = kernel_id(name)
+    which = kernel_id(name)
     W = np.zeros_like(r)
     F = np.zeros_like(r)
     L = np.zeros_like(r)
-    if kid == KernelId.QUARTIC:
+    if which == KernelId.QUARTIC:
         h = 0.5 * H
         q = r / h
         m = q < 2
@@ -123,14 +123,14 @@ def kernel_numpy(name: str, r, H):
         dwq = -9 / 4 + 19 / 8 * qm - 5 / 8 * qm**2
         F[m] = s * dwq / h**2
         L[m] = s * (-9 / 4 + 19 / 4 * qm - 15 / 8 * qm**2 + dwq) / h**2
-    elif kid == KernelId.POLY6:
+    elif which == KernelId.POLY6:
         m = r < H
         s = 4.0 / (np.pi * H**8)
         d = H * H - r[m] ** 2
         W[m] = s * d**3
         F[m] = -6 * s * d**2
         L[m] = -6 * s * (d**2 - 4 * r[m] ** 2 * d) + F[m]
-    elif kid == KernelId.WENDLAND:
+    elif which == KernelId.WENDLAND:
         h = 0.5 * H
         q = r / h
         m = q < 2

@@ -57,7 +57,7 @@ import taichi as ti
 
 from .. import runtime
 from ..errors import NeighbourError
-from .kernels import kernel_id, kernel_wfl
+from .kernels import kernel_id, kernel_terms
 from .particles import BOUNDARY, FLUID, GHOST
 
 ALL_KINDS = (FLUID, BOUNDARY, GHOST)
@@ -104,16 +104,16 @@ def _variant_id(name: str, table) -> int:
 # Taichi kernels
 
 @ti.kernel
-def number_density(kid: ti.template(), pos: ti.types.ndarray(), mass: ti.types.ndarray(),
+def number_density(kernel_id: ti.template(), pos: ti.types.ndarray(), mass: ti.types.ndarray(),
              n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
              rho: ti.types.ndarray(), vol: ti.types.ndarray()):
     """rho_i = sum_j m_j W_ij including j = i (Petronetto Sec. 5a); V_i = m_i / rho_i."""
     for i in range(n):
-        W0, _F0, _L0 = kernel_wfl(kid, 0.0, H)
+        W0, _F0, _L0 = kernel_terms(kernel_id, 0.0, H)
         s = mass[i] * W0
         for k in range(offsets[i], offsets[i + 1]):
             j = nbrs[k]
-            W, _F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
+            W, _F, _L = kernel_terms(kernel_id, (pos[i] - pos[j]).norm(), H)
             s += mass[j] * W
         rho[i] = s
         vol[i] = mass[i] / s
@@ -145,7 +145,7 @@ def _src_mass(mass: ti.template(), kind: ti.template(), j, src_kinds):
 
 
 @ti.func
-def _correction_matrix(kid: ti.template(), i, pos: ti.template(), mass: ti.template(),
+def _correction_matrix(kernel_id: ti.template(), i, pos: ti.template(), mass: ti.template(),
                        rho: ti.template(), offsets: ti.template(), nbrs: ti.template(), H,
                        kind: ti.template(), src_kinds):
     """M_i = sum_j V_j grad W_ij (x) (x_j - x_i); symmetric positive for these kernels."""
@@ -154,13 +154,13 @@ def _correction_matrix(kid: ti.template(), i, pos: ti.template(), mass: ti.templ
         j = nbrs[k]
         mj = _src_mass(mass, kind, j, src_kinds)
         x = pos[j] - pos[i]
-        _W, F, _L = kernel_wfl(kid, x.norm(), H)
+        _W, F, _L = kernel_terms(kernel_id, x.norm(), H)
         M += (mj / rho[j]) * (-F) * x.outer_product(x)
     return M
 
 
 @ti.func
-def _quadratic_fit_rows(kid: ti.template(), i, pos: ti.template(), mass: ti.template(),
+def _quadratic_fit_rows(kernel_id: ti.template(), i, pos: ti.template(), mass: ti.template(),
                         rho: ti.template(), offsets: ti.template(), nbrs: ti.template(), H,
                         kind: ti.template(), src_kinds):
     """Cholesky factor of M = sum_j V_j W_ij p_j p_j^T, p = (x, y, x^2, xy, y^2)(x_ji / H);
@@ -171,7 +171,7 @@ def _quadratic_fit_rows(kid: ti.template(), i, pos: ti.template(), mass: ti.temp
         j = nbrs[k]
         mj = _src_mass(mass, kind, j, src_kinds)
         x = pos[j] - pos[i]
-        W, _F, _L = kernel_wfl(kid, x.norm(), H)
+        W, _F, _L = kernel_terms(kernel_id, x.norm(), H)
         u = x / H
         p = ti.Vector([u[0], u[1], u[0] * u[0], u[0] * u[1], u[1] * u[1]])
         M += (mj / rho[j]) * W * p.outer_product(p)
@@ -213,7 +213,7 @@ def _cholesky_solve5(Lf, rhs):
 
 
 @ti.kernel
-def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
+def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
                      mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
                      offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
                      G: ti.types.ndarray(), s: ti.types.ndarray(), bad: ti.types.ndarray(),
@@ -228,19 +228,19 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
         Lf = ti.Matrix.identity(float, 5)
         linear = 0
         if ti.static(variant == GradientVariant.QUADRATIC):
-            Lf, ok = _quadratic_fit_rows(kid, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
+            Lf, ok = _quadratic_fit_rows(kernel_id, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
             if not ok:
                 # Too few neighbours for a quadratic fit (e.g. a corner): this
                 # particle falls back to the linearly corrected gradient, and only
                 # if that is singular too is the set refused.
-                M = _correction_matrix(kid, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
+                M = _correction_matrix(kernel_id, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
                 if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
                     ti.atomic_max(bad[0], i)
                 else:
                     L = M.inverse()
                     linear = 1
         if ti.static(variant == GradientVariant.CORRECTED):
-            M = _correction_matrix(kid, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
+            M = _correction_matrix(kernel_id, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
             if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
                 ti.atomic_max(bad[0], i)
             else:
@@ -250,7 +250,7 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
             j = nbrs[k]
             mj = _src_mass(mass, kind, j, src_kinds)
             xij = pos[i] - pos[j]
-            _W, F, _L = kernel_wfl(kid, xij.norm(), H)
+            _W, F, _L = kernel_terms(kernel_id, xij.norm(), H)
             gw = F * xij
             coef = ti.Vector.zero(float, 2)
             if ti.static(variant == GradientVariant.BASIC or variant == GradientVariant.DIFFERENCE):
@@ -268,7 +268,7 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
                     coef = (mj / rho[j]) * (L @ gw)
                 else:
                     # rows 0-1 of M^-1 (V_j W_ij p_j) / H: the fitted gradient's weights
-                    W, _F2, _L2 = kernel_wfl(kid, xij.norm(), H)
+                    W, _F2, _L2 = kernel_terms(kernel_id, xij.norm(), H)
                     u = -xij / H
                     p = ti.Vector([u[0], u[1], u[0] * u[0], u[0] * u[1], u[1] * u[1]])
                     z = _cholesky_solve5(Lf, (mj / rho[j]) * W * p)
@@ -280,7 +280,7 @@ def _gradient_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.n
 
 
 @ti.kernel
-def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
+def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
                       mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
                       offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
                       C: ti.types.ndarray(), s: ti.types.ndarray(), bad: ti.types.ndarray(),
@@ -293,12 +293,12 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
             continue
         selfc = 0.0
         if ti.static(variant == LaplacianVariant.BASIC):
-            _W0, _F0, L0 = kernel_wfl(kid, 0.0, H)
+            _W0, _F0, L0 = kernel_terms(kernel_id, 0.0, H)
             csum = 0.0
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
                 mj = _src_mass(mass, kind, j, src_kinds)
-                _W, _F, Lw = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
+                _W, _F, Lw = kernel_terms(kernel_id, (pos[i] - pos[j]).norm(), H)
                 c = (mj / rho[j]) * Lw
                 C[k] = c
                 csum += c
@@ -309,19 +309,19 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
                 j = nbrs[k]
                 mj = _src_mass(mass, kind, j, src_kinds)
                 xij = pos[i] - pos[j]
-                _W, F, _L = kernel_wfl(kid, xij.norm(), H)
+                _W, F, _L = kernel_terms(kernel_id, xij.norm(), H)
                 grho += mj * F * xij
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
                 mj = _src_mass(mass, kind, j, src_kinds)
                 xij = pos[i] - pos[j]
-                _W, F, Lw = kernel_wfl(kid, xij.norm(), H)
+                _W, F, Lw = kernel_terms(kernel_id, xij.norm(), H)
                 C[k] = (mj / rho[i]) * (Lw - 2.0 / rho[i] * F * xij.dot(grho))
         elif ti.static(variant == LaplacianVariant.BROOKSHAW):
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
                 mj = _src_mass(mass, kind, j, src_kinds)
-                _W, F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
+                _W, F, _L = kernel_terms(kernel_id, (pos[i] - pos[j]).norm(), H)
                 C[k] = -2.0 * (mj / rho[j]) * F
         else:                                # renormalised, exact on quadratics
             M = ti.Matrix.zero(float, 2, 2)
@@ -333,7 +333,7 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
                 mj = _src_mass(mass, kind, j, src_kinds)
                 x = pos[j] - pos[i]
                 r = x.norm()
-                _W, F, _L = kernel_wfl(kid, r, H)
+                _W, F, _L = kernel_terms(kernel_id, r, H)
                 V = mj / rho[j]
                 gw = -F * x                     # grad_i W_ij = F x_ij = -F x_ji
                 M += V * gw.outer_product(x)
@@ -379,7 +379,7 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
                 mj = _src_mass(mass, kind, j, src_kinds)
                 x = pos[j] - pos[i]
                 r = x.norm()
-                _W, F, _L = kernel_wfl(kid, r, H)
+                _W, F, _L = kernel_terms(kernel_id, r, H)
                 e = x / r
                 a_ij = -2.0 * (mj / rho[j]) * F * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
                                                    + 2.0 * Bxy * e[0] * e[1])
@@ -390,7 +390,7 @@ def _laplacian_coeffs(kid: ti.template(), variant: ti.template(), pos: ti.types.
                 j = nbrs[k]
                 mj = _src_mass(mass, kind, j, src_kinds)
                 x = pos[j] - pos[i]
-                _W, F, _L = kernel_wfl(kid, x.norm(), H)
+                _W, F, _L = kernel_terms(kernel_id, x.norm(), H)
                 # C_ij = a_ij - V_j beta . grad W_ij,  grad W_ij = -F x_ji
                 C[k] += (mj / rho[j]) * F * beta.dot(x)
         s[i] = selfc
@@ -461,14 +461,14 @@ def _laplacian_diagonal(n: ti.i32, offsets: ti.types.ndarray(), C: ti.types.ndar
 
 
 @ti.func
-def shepard_weight(kid: ti.template(), pos: ti.template(), vol: ti.template(), i, j, H):
+def shepard_weight(kernel_id: ti.template(), pos: ti.template(), vol: ti.template(), i, j, H):
     """V_j W_ij: the weight of particle j in the Shepard sum at i (Petronetto Eq. 14)."""
-    W, _F, _L = kernel_wfl(kid, (pos[i] - pos[j]).norm(), H)
+    W, _F, _L = kernel_terms(kernel_id, (pos[i] - pos[j]).norm(), H)
     return vol[j] * W
 
 
 @ti.func
-def shepard_sums(kid: ti.template(), i, offsets: ti.template(), nbrs: ti.template(),
+def shepard_sums(kernel_id: ti.template(), i, offsets: ti.template(), nbrs: ti.template(),
                  pos: ti.template(), vol: ti.template(), kind: ti.template(), H, src_kinds,
                  f: ti.template(), num, den):
     """(num + sum_j V_j W_ij f_j, den + sum_j V_j W_ij) over the neighbours j of i
@@ -478,27 +478,27 @@ def shepard_sums(kid: ti.template(), i, offsets: ti.template(), nbrs: ti.templat
     for k in range(offsets[i], offsets[i + 1]):
         j = nbrs[k]
         if (src_kinds >> kind[j]) & 1:
-            w = shepard_weight(kid, pos, vol, i, j, H)
+            w = shepard_weight(kernel_id, pos, vol, i, j, H)
             num += w * f[j]
             den += w
     return num, den
 
 
 @ti.kernel
-def _shepard(kid: ti.template(), pos: ti.types.ndarray(), vol: ti.types.ndarray(), n: ti.i32,
+def _shepard(kernel_id: ti.template(), pos: ti.types.ndarray(), vol: ti.types.ndarray(), n: ti.i32,
              offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
              f: ti.types.ndarray(), out: ti.types.ndarray(), kind: ti.types.ndarray(),
              src_kinds: ti.i32):
     """Shepard-normalised interpolation (Petronetto Eq. 14) from the neighbours of
     the given kinds, the particle itself included when its kind is one of them."""
     for i in range(n):
-        W0, _F0, _L0 = kernel_wfl(kid, 0.0, H)
+        W0, _F0, _L0 = kernel_terms(kernel_id, 0.0, H)
         num = out[i] * 0.0
         den = 0.0
         if (src_kinds >> kind[i]) & 1:
             num += vol[i] * W0 * f[i]
             den += vol[i] * W0
-        num, den = shepard_sums(kid, i, offsets, nbrs, pos, vol, kind, H, src_kinds, f, num, den)
+        num, den = shepard_sums(kernel_id, i, offsets, nbrs, pos, vol, kind, H, src_kinds, f, num, den)
         if den > 0.0:
             out[i] = num / den
         else:
