@@ -34,10 +34,8 @@ def add_arguments(ap):
     ap.add_argument("--width", type=float, default=1.0, help="box width")
     ap.add_argument("--height", type=float, default=2.0, help="box height")
     ap.add_argument("--shifting", type=float, default=2.0,
-                    help="particle-shifting coefficient (0 = off).  Without it the particles "
-                         "line up in streaks behind the interface (measured at 2.6k particles, "
-                         "t = 1.5: volume error mean 2.0%% / max 39%% off, 0.38%% / 2.5%% at 2.0, "
-                         "kinetic energy within 0.3%%)")
+                    help="particle-shifting coefficient (0 = off; without it the particles "
+                         "line up in streaks behind the interface: docs/notes/flow.md)")
 
 
 def build(args):

@@ -1,14 +1,11 @@
-"""Headless frames: particles drawn as filled discs into an RGB image, PNG, movies.
+"""Headless frames: particles drawn into an RGB image, PNG, movies.
 
 No window and no GGUI (which needs Vulkan, absent on CPU machines): one Taichi
-kernel per frame draws the discs into a ``(H, W, 3)`` u8 image, and a minimal
-PNG encoder (no filtering, zlib level 1) writes it.  Measured on the 2-core CPU
-machines (shared with other jobs while measuring), 1000x1000 frame, 12k
-particles, radius 5.5 px: draw 9-17 ms, PNG 9-13 ms, together 23-44 ms (median
-31 ms by phase, 40 ms by speed, whose PNG is larger).  Pillow's PNG writer at
-compress_level=1 took 60 ms alone (its adaptive row filters), and Taichi's
-``ndarray.to_numpy`` of the image 85 ms: hence the own encoder and a numpy
-image that the kernel writes into.
+kernel per frame draws the particles into a ``(H, W, 3)`` u8 numpy image, as
+discs or as the smooth interpolated colour field (``style``), and a minimal
+PNG encoder (no filtering, zlib level 1) writes it: Pillow's adaptive row
+filters and Taichi's ``ndarray.to_numpy`` of the image each cost more than the
+whole draw (docs/notes/app.md).
 
 How a frame is drawn (one kernel, two parallel loops, no float atomics).  On
 the host, numpy turns positions into pixel coordinates (f32, y up) and gives

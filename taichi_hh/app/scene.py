@@ -113,13 +113,12 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     ap.add_argument("--exact-projection", action="store_true",
                     help="follow each step's pressure projection by the orthogonal clean-up "
                          "that takes max |div v| to the solver tolerance (FlowParams."
-                         "exact_projection; about 30x the cost of a step at 10k particles, "
-                         "hence off: the default projection leaves 3-20%% of the predicted "
-                         "divergence, see docs/notes/flow.md)")
+                         "exact_projection; many times the cost of a step, hence off: "
+                         "docs/notes/flow.md)")
     ap.add_argument("--cleanup-tol", type=float, default=None, metavar="TOL",
                     help="with --exact-projection: stop the clean-up at ||div v|| <= TOL "
-                         "||div v*|| (default: the pressure solver's tolerance, 1e-6; 1e-3 "
-                         "takes a sixth of its iterations on the droplet at t = 1)")
+                         "||div v*|| (default: the pressure solver's tolerance; a looser one "
+                         "is cheaper)")
     scene.add_arguments(ap)
     args = ap.parse_args(argv)
     if args.cleanup_tol is not None and not args.exact_projection:
