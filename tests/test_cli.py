@@ -354,3 +354,44 @@ def test_even_subsample_and_masked_triangulation():
     assert f.domain.contains(centroids).all()
     assert tri.mask.any()                                   # the hole's triangles are gone
     assert len(figures.even_subsample(pts[:100], f.domain)) == 100
+
+
+def _module_run(*args):
+    env = dict(os.environ)
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
+    return subprocess.run([sys.executable, "-m", "taichi_hh", *args], capture_output=True,
+                          text=True, env=env, timeout=300)
+
+
+def test_version_and_info_print_only_their_own_lines():
+    proc = _module_run("--version")
+    assert proc.returncode == 0 and proc.stdout.strip() == f"taichi-hh {thh.__version__}"
+    proc = _module_run("info", "--arch", "auto")
+    assert proc.returncode == 0 and proc.stderr == ""
+    lines = proc.stdout.splitlines()
+    assert lines[0].startswith(f"taichi_hh {thh.__version__}: Taichi arch=")
+    assert all(not ln.startswith("[") for ln in lines)           # no Taichi log line
+    assert len(lines) <= 2
+
+
+def test_boolean_options_are_flags_not_strings():
+    parser = cli.build_parser()
+    args = parser.parse_args(["decompose", "f.csv", "--no-remove-mean", "--bordered"])
+    assert args.remove_mean is False and args.bordered is True
+    assert parser.parse_args(["decompose", "f.csv", "--remove-mean"]).remove_mean is True
+    assert parser.parse_args(["decompose", "f.csv"]).remove_mean is None    # the bundle's value
+    with pytest.raises(SystemExit):
+        with contextlib.redirect_stderr(_io.StringIO()):
+            parser.parse_args(["decompose", "f.csv", "--remove-mean", "no"])
+
+
+def test_help_names_each_default_once(scene_module):
+    mod = scene_module("rising_droplet")
+    out = _io.StringIO()
+    with contextlib.redirect_stdout(out), pytest.raises(SystemExit):
+        mod.main(mod.SCENE, ["--help"])
+    text = " ".join(out.getvalue().split())
+    options = text.split(" --")
+    assert not [o for o in options if o.count("(default") > 1]
+    assert "(default: 10500)" in text                            # a plain default is shown

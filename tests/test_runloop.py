@@ -253,6 +253,22 @@ def test_progress_bar_without_a_tty_prints_a_line_per_tenth():
     assert "steps/s" in lines[0] and "ETA" in lines[0]
 
 
+def test_eta_follows_the_recent_step_rate_when_the_time_step_shrinks(monkeypatch):
+    """One wall second per step throughout; the time step halves after t = 1.
+    Left: 0.7 / 0.01 = 70 steps, 70 s.  The run's average wall time per
+    simulated time would promise 80 / 1.3 * 0.7 = 43 s."""
+    from taichi_hh.app import runloop
+    clock = [0.0]
+    monkeypatch.setattr(runloop.time, "monotonic", lambda: clock[0])
+    bar = ProgressBar(2.0, io.StringIO())
+    t = 0.0
+    for k in range(1, 81):
+        clock[0] = float(k)
+        t += 0.02 if k <= 50 else 0.01
+        bar.update(t, k)
+    assert bar.line().endswith("ETA 1:10")
+
+
 def test_progress_bar_on_a_tty_redraws_in_place_at_most_5_times_a_second():
     out = FakeTTY()
     bar = ProgressBar(1.0, out)

@@ -22,6 +22,7 @@ import sys
 import textwrap
 import time
 
+from .. import __version__
 from ..checks import nonnegative_float, nonnegative_int, positive_float, positive_int
 
 #: HHDOptions fields exposed as --options: field -> (metavar/choices source, help)
@@ -126,7 +127,7 @@ def _add_common(p, command):
         if name in choices:
             num.add_argument(flag, dest=name, default=None, choices=tuple(choices[name]),
                              help=text)
-        elif name == "bordered":
+        elif f.type in (bool, "bool"):            # --flag / --no-flag, never a string
             num.add_argument(flag, dest=name, default=None,
                              action=argparse.BooleanOptionalAction, help=text)
         elif name in types:
@@ -150,6 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
         "Meshless Helmholtz-Hodge decomposition and null-divergence SPH on Taichi."),
         epilog="Run 'taichi-hh COMMAND --help' for the options of a command. "
                "Errors exit with status 2.")
+    ap.add_argument("--version", action="version", version=f"taichi-hh {__version__}")
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     dec = sub.add_parser(
@@ -191,6 +193,8 @@ def build_parser() -> argparse.ArgumentParser:
     info = sub.add_parser("info", help="show the version and the Taichi arch in use")
     info.add_argument("--arch", default="auto", choices=("cpu", "gpu", "auto"),
                       help="Taichi arch: cpu, gpu (falls back to cpu) or auto (default)")
+    info.add_argument("--verbose", action="store_true",
+                      help="also show Taichi's own start-up messages")
     info.add_argument("--precision", default="f64", choices=("f32", "f64"),
                       help="floating-point precision (default: f64)")
     info.set_defaults(func=_cmd_info)
@@ -261,13 +265,46 @@ def _plural(n, word, plural=None):
 
 # --------------------------------------------------------------------------- commands
 def _cmd_info(args) -> int:
-    import contextlib
     import taichi_hh as thh
-    with contextlib.redirect_stdout(sys.stderr):        # Taichi's own start-up messages
+    with _captured_output() as captured:     # Taichi's start-up and arch-probing messages
         st = thh.init(arch=args.arch, precision=args.precision)
     print(f"taichi_hh {thh.__version__}: Taichi arch={st.arch} (requested {st.requested_arch}), "
           f"precision={st.precision}")
+    lines = [ln for ln in captured.text.splitlines() if ln.strip()]
+    if args.verbose:
+        for ln in lines:
+            print(f"  taichi: {ln}")
+    elif lines:
+        print(f"  ({_plural(len(lines), 'line')} of Taichi start-up messages hidden; "
+              "--verbose shows them)")
     return 0
+
+
+class _captured_output:
+    """Collect what is written to the process's stdout and stderr file
+    descriptors (Taichi's C++ runtime writes there directly) into ``text``."""
+
+    def __enter__(self):
+        import tempfile
+        sys.stdout.flush()
+        sys.stderr.flush()
+        self._file = tempfile.TemporaryFile(mode="w+b")
+        self._saved = [os.dup(1), os.dup(2)]
+        os.dup2(self._file.fileno(), 1)
+        os.dup2(self._file.fileno(), 2)
+        self.text = ""
+        return self
+
+    def __exit__(self, *exc):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        for fd, saved in zip((1, 2), self._saved):
+            os.dup2(saved, fd)
+            os.close(saved)
+        self._file.seek(0)
+        self.text = self._file.read().decode(errors="replace")
+        self._file.close()
+        return False
 
 
 def _cmd_decompose(args) -> int:

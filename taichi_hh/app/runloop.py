@@ -81,7 +81,10 @@ class ProgressBar:
     On a terminal the line is redrawn in place at most every ``min_interval``
     seconds (default 0.2: 5 times a second); otherwise (a log file, a pipe) a
     full line is printed each time another 10% of the simulated time is done.
-    The ETA extrapolates the wall time per unit of simulated time of this run.
+    The ETA is the steps left at the recent time step times the recent wall
+    time per step (both over the last third of the elapsed wall time): the
+    time step of a flow that speeds up shrinks, so the run's average rate
+    would promise too early an end.
     """
 
     def __init__(self, total_time: float, stream=None, *, t_start: float = 0.0,
@@ -97,6 +100,7 @@ class ProgressBar:
         self._decile = int(self._fraction(self.t_start) * 10)
         self._shown = 0          # length of the line on screen (tty)
         self.t, self.step = self.t_start, self.step_start
+        self._samples = [(self._wall0, self.t_start, self.step_start)]   # (wall, t, step)
 
     def _fraction(self, t: float) -> float:
         return min(max(t / self.total, 0.0), 1.0) if self.total > 0 else 1.0
@@ -104,16 +108,33 @@ class ProgressBar:
     def line(self) -> str:
         elapsed = time.monotonic() - self._wall0
         frac = self._fraction(self.t)
-        done = self.t - self.t_start
-        eta = elapsed / done * (self.total - self.t) if done > 0 else math.inf
+        eta = self._eta()
         rate = (self.step - self.step_start) / elapsed if elapsed > 0 else 0.0
         fill = int(round(frac * self.width))
         return (f"t = {self.t:.4g} / {self.total:.4g}  [{'#' * fill}{'-' * (self.width - fill)}] "
                 f"{100 * frac:3.0f}%  step {self.step}  {rate:.1f} steps/s  "
                 f"elapsed {_clock(elapsed)}  ETA {_clock(max(eta, 0.0))}")
 
+    def _eta(self) -> float:
+        now, t, step = self._samples[-1]
+        cut = now - (now - self._wall0) / 3.0
+        last = len(self._samples) - 1
+        k = min(next(i for i, s in enumerate(self._samples) if s[0] >= cut or i == last), last - 1)
+        if k < 0:
+            return math.inf
+        wall0, t0, step0 = self._samples[k]
+        steps, sim = step - step0, t - t0
+        if steps <= 0 or sim <= 0:
+            return math.inf
+        wall_per_step = (now - wall0) / steps
+        dt = sim / steps
+        return (self.total - t) / dt * wall_per_step
+
     def update(self, t: float, step: int, *, force: bool = False) -> None:
         self.t, self.step = float(t), int(step)
+        self._samples.append((time.monotonic(), self.t, self.step))
+        if len(self._samples) > 4096:          # keep the memory bounded: thin the old half
+            self._samples = self._samples[:2048:2] + self._samples[2048:]
         if self.tty:
             now = time.monotonic()
             if force or now - self._last_draw >= self.min_interval:
@@ -413,6 +434,19 @@ DEFAULTS = {
     "particles": 10000, "end_time": 1.0, "out": "outputs/scene", "arch": "cpu",
     "movie": "none", "fps": 20.0, "frame_width": 800, "color": "phase", "precision": "f64",
 }
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """``--help`` with each option's default appended once: not where the help
+    text already names it, and not for flags (whose default is off) or options
+    without a default."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if "default" in text or action.default in (None, False, argparse.SUPPRESS) \
+                or isinstance(action, argparse.BooleanOptionalAction):
+            return text
+        return super()._get_help_string(action)
 
 
 def add_common_arguments(parser: argparse.ArgumentParser, defaults: dict | None = None):

@@ -18,7 +18,7 @@ from ..validation.layouts import lattice_in_box  # noqa: F401  (the scenes' init
 from .overlay import FrameLabels, label_frame
 from .particle_files import PvdSeries, write_particles
 from .render import STYLES, FrameRenderer, frame_path, write_movie, write_png
-from .runloop import Checkpoint, DiagnosticsWriter, add_common_arguments, run
+from .runloop import Checkpoint, DiagnosticsWriter, HelpFormatter, add_common_arguments, run
 
 #: the checkout this module runs from (``--docs`` writes the README's figures there)
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -93,7 +93,7 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     :mod:`taichi_hh.app.runloop`)."""
     wall0 = time.perf_counter()
     ap = argparse.ArgumentParser(prog=f"{scene.name}.py", description=scene.description,
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                                 formatter_class=HelpFormatter)
     common = {k: v for k, v in scene.defaults.items() if k not in ("output_interval", "montage")}
     add_common_arguments(ap, common)
     ap.add_argument("--output-interval", type=float, default=scene.defaults.get("output_interval", 0.1),
