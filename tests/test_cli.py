@@ -87,6 +87,18 @@ def test_decompose_writes_readable_components(decomposed, gaussian_files):
         assert np.hypot(x - exact[k][0], y - exact[k][1]) < 0.03, (k, x, y)
 
 
+def test_decompose_writes_the_components_as_vtu_too(decomposed):
+    import meshio
+    assert decomposed["rc"] == 0
+    mesh = meshio.read(decomposed["out"] / "components.vtu")
+    with np.load(decomposed["out"] / "components.npz") as z:
+        assert np.array_equal(mesh.points[:, :2], z["points"])
+        for key in ("v", "d", "r", "h"):
+            assert np.array_equal(mesh.point_data[key][:, :2], z[key]), key
+        for key in ("phi", "psi", "divergence", "curl"):
+            assert np.array_equal(mesh.point_data[key], z[key]), key
+
+
 def test_components_match_library(decomposed, gaussian_files):
     assert decomposed["rc"] == 0
     res = thh.decompose(gaussian_files["points"], gaussian_files["vectors"],
@@ -126,10 +138,10 @@ def test_decompose_summary_and_progress(decomposed, gaussian_files):
 def test_csv_input_gives_the_same_components(decomposed, gaussian_files):
     out = gaussian_files["dir"] / "dec_csv"
     rc, stdout, stderr = run(["decompose", gaussian_files["csv"], "--domain", "0,0,1,1", "-o",
-                              out, "--no-figures", "-q", *RUNTIME])
+                              out, "--no-figures", "--no-vtk", "-q", *RUNTIME])
     assert rc == 0, stderr
     assert stderr == ""                                   # --quiet
-    assert sorted(os.listdir(out)) == ["components.npz"]  # --no-figures
+    assert sorted(os.listdir(out)) == ["components.npz"]  # --no-figures --no-vtk
     with np.load(out / "components.npz") as a, \
             np.load(decomposed["out"] / "components.npz") as b:
         np.testing.assert_array_equal(a["points"], b["points"])

@@ -146,7 +146,7 @@ def test_mp4_without_ffmpeg_falls_back_to_gif(tmp_path, monkeypatch):
     msg = _io.StringIO()
     out = render.write_movie(_frames(3), str(tmp_path / "movie.mp4"), fps=5, stream=msg)
     assert out == str(tmp_path / "movie.gif")
-    assert "imageio-ffmpeg" in msg.getvalue() and msg.getvalue().count("\n") == 1
+    assert "taichi-hh[mp4]" in msg.getvalue() and msg.getvalue().count("\n") == 1
     assert iio.imread(out, index=None).shape[0] == 3
 
 

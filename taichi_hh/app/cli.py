@@ -93,7 +93,9 @@ def _add_common(p, command):
                     help=f"output directory, created if needed (default: "
                          f"outputs/<FIELD stem>_{command})")
     io.add_argument("--no-figures", action="store_true",
-                    help="write the .npz results only, no PNG figures")
+                    help="no PNG figures (the .npz and .vtu results only)")
+    io.add_argument("--vtk", action=argparse.BooleanOptionalAction, default=True,
+                    help="also write the results per point as VTU for ParaView")
     io.add_argument("-q", "--quiet", action="store_true",
                     help="no progress messages on stderr (the summary is still printed)")
 
@@ -160,7 +162,8 @@ def build_parser() -> argparse.ArgumentParser:
             "Decompose a 2D vector field v sampled at scattered points into v = d + r + h: "
             "d = grad phi (curl-free), r = J grad psi (divergence-free), h harmonic "
             "(SPH-HH, Petronetto et al. 2010). Writes DIR/components.npz (points, v, d, r, "
-            "h, phi, psi, divergence, curl and the critical points xs, ys, kinds) and the "
+            "h, phi, psi, divergence, curl and the critical points xs, ys, kinds), the same "
+            "per point as DIR/components.vtu for ParaView (--no-vtk: not), and the "
             "figures DIR/arrows.png and DIR/magnitude.png."),
         epilog="Exit status: 0 on success, 2 on bad input, bad options or a failed solve.")
     _add_common(dec, "decompose")
@@ -181,7 +184,8 @@ def build_parser() -> argparse.ArgumentParser:
             "at the solver tolerance and further passes change nothing; colin2006: their "
             "formulation, whose divergence decreases pass by pass. Writes DIR/projected.npz (points, vectors = the "
             "projected field, initial, divergence, per-pass max_divergence, "
-            "sum_sq_divergence, iterations), DIR/measures.csv and the figures "
+            "sum_sq_divergence, iterations), DIR/projection.vtu (per point, for ParaView), "
+            "DIR/measures.csv and the figures "
             "DIR/projection_arrows.png and DIR/projection_measures.png. Only the "
             "collocation, colin and none boundary treatments apply."),
         epilog="Exit status: 0 on success, 2 on bad input, bad options or a failed solve.")
@@ -323,6 +327,11 @@ def _cmd_decompose(args) -> int:
     written = [os.path.join(out, "components.npz")]
     say(f"writing {written[0]}")
     io.write_components(written[0], res, critical_points=critical)
+    if args.vtk:
+        from .particle_files import write_vtu
+        written.append(write_vtu(os.path.join(out, "components.vtu"), res.points, {
+            "v": res.vectors, "d": res.curl_free, "r": res.div_free, "h": res.harmonic,
+            "phi": res.phi, "psi": res.psi, "divergence": res.divergence, "curl": res.curl}))
     if not args.no_figures:
         from .figures import decomposition_figures
         say("drawing figures")
@@ -367,6 +376,10 @@ def _cmd_project(args) -> int:
     written = [os.path.join(out, "projected.npz"), os.path.join(out, "measures.csv")]
     say(f"writing {written[0]}")
     io.write_projection(written[0], res)
+    if args.vtk:
+        from .particle_files import write_vtu
+        written.append(write_vtu(os.path.join(out, "projection.vtu"), res.points, {
+            "vectors": res.vectors, "initial": res.initial, "divergence": res.divergence}))
     iters = list(res.stats.get("iterations", []))
     io.atomic_write_csv(written[1], [
         {"pass": k, "max_abs_divergence": float(m), "sum_sq_divergence": float(q),

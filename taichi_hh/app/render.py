@@ -461,7 +461,7 @@ def _read_frame(frame) -> np.ndarray:
 
 
 def have_mp4() -> bool:
-    """Whether MP4 writing is available (needs the imageio-ffmpeg package)."""
+    """Whether MP4 writing is available (the ``mp4`` extra: imageio-ffmpeg)."""
     return importlib.util.find_spec("imageio_ffmpeg") is not None
 
 
@@ -469,7 +469,7 @@ def write_movie(frames, path: str, fps: float = 20.0, *, stream=None) -> str:
     """Write frames (a glob pattern, or a list of PNG paths or u8 arrays) as a GIF
     or MP4 movie, chosen by the extension of ``path``; atomic.
 
-    MP4 needs imageio-ffmpeg; without it a GIF is written next to ``path``
+    MP4 needs the ``mp4`` extra (imageio-ffmpeg); without it a GIF is written next to ``path``
     (same name, ``.gif``) and one message says so.  Returns the path written.
     GIF stores frame durations in 1/100 s, so fps above 50 are not honoured by
     most viewers; identical consecutive frames are merged by Pillow.
@@ -485,7 +485,8 @@ def write_movie(frames, path: str, fps: float = 20.0, *, stream=None) -> str:
     if ext == ".mp4" and not have_mp4():
         path = os.path.splitext(path)[0] + ".gif"
         ext = ".gif"
-        print(f"taichi_hh: MP4 needs the imageio-ffmpeg package (pip install imageio-ffmpeg); "
+        print(f"taichi_hh: MP4 needs the mp4 extra (pip install 'taichi-hh[mp4]', which brings "
+              f"imageio-ffmpeg); "
               f"writing a GIF instead: {path}", file=stream)
     with atomic_path(path, suffix=ext) as tmp:
         if ext == ".gif":

@@ -470,7 +470,7 @@ def add_common_arguments(parser: argparse.ArgumentParser, defaults: dict | None 
                         help="continue from the checkpoint in --out instead of starting afresh"
                              " (default: start afresh)")
     parser.add_argument("--movie", choices=("none", "gif", "mp4"), default=d["movie"],
-                        help="also write a movie of the frames (mp4 needs imageio-ffmpeg, "
+                        help="also write a movie of the frames (mp4 needs the mp4 extra, "
                              "else a GIF is written)" + dflt)
     parser.add_argument("--fps", type=positive_float, default=d["fps"],
                         help="movie frames per second" + dflt)
