@@ -407,3 +407,17 @@ def test_help_names_each_default_once(scene_module):
     options = text.split(" --")
     assert not [o for o in options if o.count("(default") > 1]
     assert "(default: 10500)" in text                            # a plain default is shown
+
+
+def test_scene_subcommand_runs_the_installed_scene(tmp_path):
+    """``taichi-hh scene NAME`` runs the scene defined in the package (what the
+    scripts in scenes/ run), with the scene's own options."""
+    rc, _, err = run(["scene", "rayleigh-taylor", "--particles", "800", "--end-time", "0.1",
+                      "--out", tmp_path / "rt", "--quiet", "--frame-width", "100", "--no-vtk"])
+    assert rc == 0, err
+    assert sorted(p.name for p in (tmp_path / "rt").glob("frame_*.png")) == \
+        ["frame_00000.png", "frame_00001.png"]
+    with open(tmp_path / "rt" / "diagnostics.csv") as fh:
+        assert "mode_amplitude" in fh.readline()
+    rc, _, err = run(["scene", "no-such-scene"])
+    assert rc == 2 and "invalid choice" in err

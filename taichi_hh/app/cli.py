@@ -6,6 +6,7 @@ only parses arguments, calls the library and writes files.
 ``decompose FIELD``  Helmholtz-Hodge decomposition -> DIR/components.npz + figures
 ``project FIELD``    null-divergence projection    -> DIR/projected.npz, measures.csv + figures
 ``info``             version and Taichi arch
+``scene NAME ...``   a two-phase scene (rising-droplet, rayleigh-taylor) -> frames, particles
 
 Errors in the input or in the numerics (:class:`~taichi_hh.errors.InputError`,
 :class:`~taichi_hh.errors.SolverError`, :class:`~taichi_hh.errors.NeighbourError`,
@@ -202,6 +203,19 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("--precision", default="f64", choices=("f32", "f64"),
                       help="floating-point precision (default: f64)")
     info.set_defaults(func=_cmd_info)
+
+    from .scenes import SCENES
+    scene = sub.add_parser(
+        "scene", help="run a two-phase scene (the same as the scripts in scenes/)",
+        description="Run a two-phase SPH scene headless: PNG frames, particle files, "
+                    "diagnostics.csv and a checkpoint in --out. The options after NAME are "
+                    "the scene's: 'taichi-hh scene NAME --help' lists them.",
+        add_help=True)
+    scene.add_argument("name", metavar="NAME", choices=tuple(SCENES),
+                       help=f"one of {', '.join(SCENES)}")
+    scene.add_argument("scene_args", nargs=argparse.REMAINDER, metavar="...",
+                       help="the scene's options")
+    scene.set_defaults(func=_cmd_scene)
     return ap
 
 
@@ -309,6 +323,12 @@ class _captured_output:
         self.text = self._file.read().decode(errors="replace")
         self._file.close()
         return False
+
+
+def _cmd_scene(args) -> int:
+    from .scene import main as run_scene_main
+    from .scenes import get
+    return run_scene_main(get(args.name), args.scene_args)
 
 
 def _cmd_decompose(args) -> int:
