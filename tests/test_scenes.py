@@ -166,3 +166,31 @@ def test_docs_option_writes_the_montage_into_the_checkout(tmp_path, monkeypatch)
     figure = tmp_path / "checkout" / "docs" / "figures" / "rising_droplet.png"
     assert figure.exists()
     assert np.array_equal(iio.imread(figure), iio.imread(tmp_path / "run" / "montage.png"))
+
+
+def test_config_file_round_trip_and_errors(tmp_path, capsys):
+    mod = load("rising_droplet")
+    first = tmp_path / "first"
+    assert mod.main(mod.SCENE, ["--particles", "800", "--end-time", "0.1", "--quiet",
+                                "--frame-width", "100", "--no-vtk", "--viscosity", "0.003",
+                                "--out", str(first)]) == 0
+    written = (first / "config.toml").read_text()
+    assert "viscosity = 0.003" in written and "vtk = false" in written
+    # the written file repeats the run; the command line overrides it (--out)
+    again = tmp_path / "again"
+    assert mod.main(mod.SCENE, ["--config", str(first / "config.toml"), "--out", str(again)]) == 0
+    assert (again / "diagnostics.csv").read_text() == (first / "diagnostics.csv").read_text()
+    assert not (again / "particles.pvd").exists()                 # vtk = false came from the file
+    assert "viscosity = 0.003" in (again / "config.toml").read_text()
+    # bad files: one line naming the problem, argparse's exit status 2
+    for text, message in (('viscosityy = 1.0\n', "unknown option 'viscosityy'"),
+                          ('particles = -5\n', "must be a positive integer"),
+                          ('vtk = "yes"\n', "vtk must be true or false"),
+                          ('particles = \n', "not valid TOML")):
+        bad = tmp_path / "bad.toml"
+        bad.write_text(text)
+        with pytest.raises(SystemExit) as exc:
+            mod.main(mod.SCENE, ["--config", str(bad), "--out", str(tmp_path / "never")])
+        assert exc.value.code == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "never").exists()

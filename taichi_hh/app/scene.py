@@ -15,6 +15,7 @@ import numpy as np
 from .. import runtime
 from ..flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
 from ..validation.layouts import lattice_in_box  # noqa: F401  (the scenes' initial lattice)
+from .config import config_tokens, write_config
 from .overlay import FrameLabels, label_frame
 from .particle_files import PvdSeries, write_particles
 from .render import STYLES, FrameRenderer, frame_path, write_movie, write_png
@@ -81,6 +82,17 @@ class SceneRun:
     frames: int = 0
 
 
+def _config_argument(argv: list) -> str | None:
+    """The value of ``--config`` in ``argv`` (the last one), else None."""
+    path = None
+    for k, token in enumerate(argv):
+        if token == "--config" and k + 1 < len(argv):
+            path = argv[k + 1]
+        elif token.startswith("--config="):
+            path = token.split("=", 1)[1]
+    return path
+
+
 def main(scene: Scene, argv=None) -> int:
     """Run a scene from the command line (``argv``); returns the exit status."""
     run_scene(scene, argv)
@@ -120,11 +132,26 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
                          "||div v*|| (default: the pressure solver's tolerance; a looser one "
                          "is cheaper)")
     scene.add_arguments(ap)
+    ap.add_argument("--config", metavar="FILE.toml",
+                    help="read options from a TOML file (option = value, named as here without "
+                         "the dashes); options given on the command line win. Every run "
+                         "writes its options to OUT/config.toml, so --config OUT/config.toml "
+                         "repeats it")
+    argv = list(sys.argv[1:] if argv is None else argv)
+    config_path = _config_argument(argv)
+    if config_path is not None:
+        try:
+            argv = config_tokens(ap, config_path) + argv
+        except ValueError as exc:
+            ap.error(str(exc))
     args = ap.parse_args(argv)
     if args.cleanup_tol is not None and not args.exact_projection:
         ap.error("--cleanup-tol needs --exact-projection")
     runtime.init(arch=args.arch, precision=args.precision)
     os.makedirs(args.out, exist_ok=True)
+    write_config(os.path.join(args.out, "config.toml"), ap, args,
+                 header=f"{scene.name}: the options of this run; "
+                        f"python scenes/{scene.name}.py --config this-file repeats it")
     ckpt_path = os.path.join(args.out, "checkpoint.npz")
     points, phases, spacing, params = scene.build(args)
     if args.exact_projection:
