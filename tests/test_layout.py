@@ -88,7 +88,7 @@ def _private_names_of_the_package() -> set:
 
 def _violations():
     found = []
-    ours = _private_names_of_the_package()
+    package_private = _private_names_of_the_package()
     for path in _sources():
         tree = ast.parse(path.read_text(), filename=str(path))
         rel = path.relative_to(ROOT)
@@ -119,7 +119,7 @@ def _violations():
                 continue
             if isinstance(base, ast.Name) and base.id in foreign_modules:
                 continue          # another library's business (checked where it matters)
-            if node.attr in own or node.attr not in ours:
+            if node.attr in own or node.attr not in package_private:
                 continue          # its own, or another library's (argparse's _actions)
             found.append(f"{rel}:{node.lineno} reads {ast.unparse(node)}")
     return found
