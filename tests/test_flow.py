@@ -379,3 +379,28 @@ def test_unknown_wall_condition_is_refused():
     pts, dx = tank(8, 16)
     with pytest.raises(Exception, match="walls must be one of"):
         TwoPhaseFlow(pts, np.zeros(len(pts), int), dx, FlowParams(box=(0, 0, 1, 2), walls="slip"))
+
+
+@pytest.mark.parametrize("dt", [0.0, -0.05, float("nan"), float("inf")])
+def test_a_step_that_would_not_advance_time_is_refused(dt):
+    from taichi_hh.errors import InputError
+    pts, dx = tank(8, 16)
+    flow = TwoPhaseFlow(pts, np.zeros(len(pts), int), dx, FlowParams(box=(0, 0, 1, 2)))
+    with pytest.raises(InputError, match="time step must be a positive finite number"):
+        flow.step(dt)
+    assert flow.time == 0.0 and flow.step_count == 0
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("nu", -0.01, "FlowParams.nu must be a finite number >= 0"),
+    ("densities", (1.0, 0.0), "FlowParams.densities must be a finite number > 0"),
+    ("cfl", float("nan"), "FlowParams.cfl must be"),
+    ("projection_passes", 0, "projection_passes must be >= 1"),
+])
+def test_flow_parameters_no_flow_can_run_with_are_refused(field, value, message):
+    from dataclasses import replace
+    from taichi_hh.errors import InputError
+    pts, dx = tank(8, 16)
+    params = replace(FlowParams(box=(0, 0, 1, 2)), **{field: value})
+    with pytest.raises(InputError, match=message):
+        TwoPhaseFlow(pts, np.zeros(len(pts), int), dx, params)

@@ -194,3 +194,30 @@ def test_config_file_round_trip_and_errors(tmp_path, capsys):
         assert exc.value.code == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "never").exists()
+
+
+@pytest.mark.parametrize("scene, options, message", [
+    ("rising_droplet", ["--viscosity", "-0.01"], "--viscosity: must be a non-negative number"),
+    ("rising_droplet", ["--density-ratio", "0"], "--density-ratio: must be a positive number"),
+    ("rising_droplet", ["--density-ratio", "inf"], "--density-ratio: must be a positive number"),
+    ("rising_droplet", ["--width", "0"], "--width: must be a positive number"),
+    ("rising_droplet", ["--height", "-1"], "--height: must be a positive number"),
+    ("rising_droplet", ["--output-interval", "0"], "--output-interval: must be a positive"),
+    ("rising_droplet", ["--radius", "0"], "--radius: must be a positive number"),
+    ("rising_droplet", ["--radius", "0.6"], "--radius 0.6 does not fit"),
+    ("rising_droplet", ["--particles", "10"], "resolve no droplet"),
+    ("rayleigh_taylor", ["--amplitude", "1.5"], "--amplitude 1.5 does not fit"),
+    ("rayleigh_taylor", ["--wavelength", "-1"], "--wavelength: must be a positive number"),
+])
+def test_scene_options_that_cannot_run_stop_at_parse_time(tmp_path, capsys, scene, options,
+                                                           message):
+    """One line naming the option, exit status 2, nothing run or written (these
+    used to run to the end with NaN diagnostics, or end in a traceback)."""
+    mod = load(scene)
+    with pytest.raises(SystemExit) as exc:
+        mod.main(mod.SCENE, ["--particles", "800", "--end-time", "0.1", "--quiet",
+                             "--out", str(tmp_path / "run"), *options])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "run" / "diagnostics.csv").exists()

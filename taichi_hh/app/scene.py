@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .. import runtime
+from ..checks import positive_float
 from ..flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
 from ..validation.layouts import lattice_in_box  # noqa: F401  (the scenes' initial lattice)
 from .config import config_tokens, write_config
@@ -108,7 +109,7 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
                                  formatter_class=HelpFormatter)
     common = {k: v for k, v in scene.defaults.items() if k not in ("output_interval", "montage")}
     add_common_arguments(ap, common)
-    ap.add_argument("--output-interval", type=float, default=scene.defaults.get("output_interval", 0.1),
+    ap.add_argument("--output-interval", type=positive_float, default=scene.defaults.get("output_interval", 0.1),
                     help="simulated time between frames and diagnostics rows")
     ap.add_argument("--montage", default=scene.defaults.get("montage", ""),
                     help="comma-separated output times whose frames are put side by side "
@@ -153,7 +154,10 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
                  header=f"{scene.name}: the options of this run; "
                         f"python scenes/{scene.name}.py --config this-file repeats it")
     ckpt_path = os.path.join(args.out, "checkpoint.npz")
-    points, phases, spacing, params = scene.build(args)
+    try:
+        points, phases, spacing, params = scene.build(args)
+    except ValueError as exc:          # a set-up the options cannot make: one line, status 2
+        ap.error(str(exc))
     if args.exact_projection:
         params = replace(params, exact_projection=True, cleanup_tol=args.cleanup_tol)
     if args.resume:

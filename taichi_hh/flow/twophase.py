@@ -101,6 +101,7 @@ class TwoPhaseFlow:
             raise InputError(f"phases must have shape ({len(pts)},), got {phases.shape}")
         if phases.min() < 0 or phases.max() >= len(params.densities):
             raise InputError(f"phase indices must be in [0, {len(params.densities)})")
+        _check_params(params)
         if params.walls not in WALL_CONDITIONS:
             raise InputError(f"walls must be one of {WALL_CONDITIONS}, got {params.walls!r}")
         if params.cleanup_tol is not None and not 0 < params.cleanup_tol < 1:
@@ -217,6 +218,9 @@ class TwoPhaseFlow:
         ``div_norm`` (max and 2-norm of the measured divergence D w over the fluid
         before and after the projection, module doc), max speed and
         ``seconds`` (its wall time by stage, see :attr:`timings`)."""
+        if dt is not None and not (math.isfinite(dt) and dt > 0):
+            raise InputError(f"step(dt): the time step must be a positive finite number, "
+                             f"got {dt!r}")
         self.clock.start()
         try:
             return self._step(dt)
@@ -526,6 +530,25 @@ class TwoPhaseFlow:
         if lam is not None and len(lam) == len(flow.lam_by_id):
             flow.lam_by_id = np.asarray(lam, dtype=np.float64)
         return flow
+
+
+def _check_params(params) -> None:
+    """Refuse parameters no flow can run with, naming the first one."""
+    def finite(name, value, low, strict=True):
+        ok = math.isfinite(value) and (value > low if strict else value >= low)
+        if not ok:
+            raise InputError(f"FlowParams.{name} must be a finite number "
+                             f"{'>' if strict else '>='} {low:g}, got {value!r}")
+    finite("nu", float(params.nu), 0.0, strict=False)
+    for rho in params.densities:
+        finite("densities", float(rho), 0.0)
+    for name in ("support_ratio", "cfl", "viscous_cfl", "force_cfl", "dt_max", "solver_tol"):
+        finite(name, float(getattr(params, name)), 0.0)
+    finite("shifting", float(params.shifting), 0.0, strict=False)
+    if not all(math.isfinite(float(g)) for g in params.gravity):
+        raise InputError(f"FlowParams.gravity must be finite, got {params.gravity!r}")
+    if int(params.projection_passes) < 1:
+        raise InputError(f"FlowParams.projection_passes must be >= 1, got {params.projection_passes!r}")
 
 
 def _lattice_number_density(kernel: str, dx: float, support: float) -> float:

@@ -22,24 +22,25 @@ import sys
 import numpy as np
 
 from ...flow.twophase import FlowParams
+from ...checks import nonnegative_float, positive_float
 from ..scene import Scene, lattice_in_box, main
 
 LIGHT, HEAVY = 0, 1
 
 
 def add_arguments(ap):
-    ap.add_argument("--density-ratio", type=float, default=1.2, help="heavy / light density")
-    ap.add_argument("--amplitude", type=float, default=0.05, help="interface perturbation amplitude")
-    ap.add_argument("--wavelength", type=float, default=1.0, help="perturbation wavelength")
-    ap.add_argument("--gravity", type=float, default=1.0, help="gravity magnitude")
-    ap.add_argument("--viscosity", type=float, default=2e-3, help="kinematic viscosity")
-    ap.add_argument("--width", type=float, default=1.0, help="box width")
-    ap.add_argument("--height", type=float, default=2.0, help="box height")
+    ap.add_argument("--density-ratio", type=positive_float, default=1.2, help="heavy / light density")
+    ap.add_argument("--amplitude", type=nonnegative_float, default=0.05, help="interface perturbation amplitude")
+    ap.add_argument("--wavelength", type=positive_float, default=1.0, help="perturbation wavelength")
+    ap.add_argument("--gravity", type=nonnegative_float, default=1.0, help="gravity magnitude")
+    ap.add_argument("--viscosity", type=nonnegative_float, default=2e-3, help="kinematic viscosity")
+    ap.add_argument("--width", type=positive_float, default=1.0, help="box width")
+    ap.add_argument("--height", type=positive_float, default=2.0, help="box height")
     ap.add_argument("--walls", choices=("no-slip", "free-slip"), default="no-slip",
                     help="viscous wall condition: no-slip (the common SPH benchmark), or "
                          "free-slip (the setting of the linear theory: side walls at whole "
                          "wavelengths then act as periodic boundaries for the mode)")
-    ap.add_argument("--shifting", type=float, default=2.0,
+    ap.add_argument("--shifting", type=nonnegative_float, default=2.0,
                     help="particle-shifting coefficient (0 = off; without it the particles "
                          "line up in streaks behind the interface: docs/notes/flow.md)")
 
@@ -51,7 +52,12 @@ def interface(x, args):
 def build(args):
     box = (0.0, 0.0, args.width, args.height)
     pts, dx = lattice_in_box(args.particles, box)
+    if args.amplitude >= 0.5 * args.height:
+        raise ValueError(f"--amplitude {args.amplitude:g} does not fit: the interface at "
+                         f"half the height {args.height:g} would leave the box")
     phases = np.where(pts[:, 1] > interface(pts[:, 0], args), HEAVY, LIGHT)
+    if not (phases == LIGHT).any() or not (phases == HEAVY).any():
+        raise ValueError(f"{len(pts)} particles leave one fluid empty: use more --particles")
     params = FlowParams(box=box, gravity=(0.0, -args.gravity), nu=args.viscosity,
                         densities=(1.0, args.density_ratio), shifting=args.shifting,
                         walls=args.walls)

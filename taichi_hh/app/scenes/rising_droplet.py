@@ -18,20 +18,21 @@ import sys
 import numpy as np
 
 from ...flow.twophase import FlowParams
+from ...checks import nonnegative_float, positive_float
 from ..scene import Scene, lattice_in_box, main
 
 LIGHT, HEAVY = 0, 1
 
 
 def add_arguments(ap):
-    ap.add_argument("--radius", type=float, default=0.25, help="droplet radius")
-    ap.add_argument("--density-ratio", type=float, default=2.0,
+    ap.add_argument("--radius", type=positive_float, default=0.25, help="droplet radius")
+    ap.add_argument("--density-ratio", type=positive_float, default=2.0,
                     help="surrounding density / droplet density")
-    ap.add_argument("--gravity", type=float, default=1.0, help="gravity magnitude")
-    ap.add_argument("--viscosity", type=float, default=2e-3, help="kinematic viscosity")
-    ap.add_argument("--width", type=float, default=1.0, help="box width")
-    ap.add_argument("--height", type=float, default=2.0, help="box height")
-    ap.add_argument("--shifting", type=float, default=2.0,
+    ap.add_argument("--gravity", type=nonnegative_float, default=1.0, help="gravity magnitude")
+    ap.add_argument("--viscosity", type=nonnegative_float, default=2e-3, help="kinematic viscosity")
+    ap.add_argument("--width", type=positive_float, default=1.0, help="box width")
+    ap.add_argument("--height", type=positive_float, default=2.0, help="box height")
+    ap.add_argument("--shifting", type=nonnegative_float, default=2.0,
                     help="particle-shifting coefficient (0 = off; without it the particles "
                          "line up in streaks behind the interface: docs/notes/flow.md)")
 
@@ -40,7 +41,14 @@ def build(args):
     box = (0.0, 0.0, args.width, args.height)
     pts, dx = lattice_in_box(args.particles, box)
     centre = np.array([0.5 * args.width, 0.25 * args.height])
+    if not 0 < args.radius < min(0.5 * args.width, 0.25 * args.height):
+        raise ValueError(f"--radius {args.radius:g} does not fit: the droplet, centred at "
+                         f"({centre[0]:g}, {centre[1]:g}), needs a radius below "
+                         f"{min(0.5 * args.width, 0.25 * args.height):g} in this box")
     phases = np.where(np.linalg.norm(pts - centre, axis=1) < args.radius, LIGHT, HEAVY)
+    if not (phases == LIGHT).any() or not (phases == HEAVY).any():
+        raise ValueError(f"{len(pts)} particles resolve no droplet of radius {args.radius:g} "
+                         f"(spacing {dx:.3g}): use more --particles or a larger --radius")
     params = FlowParams(box=box, gravity=(0.0, -args.gravity), nu=args.viscosity,
                         densities=(1.0, args.density_ratio), shifting=args.shifting)
     return pts, phases, dx, params
