@@ -198,7 +198,7 @@ class TwoPhaseFlow:
             self._neighbours()
         c, scratch = self.buffers.number_density, self.buffers.volume
         number_density(self.ops.kernel_id, p.position, p.volume, p.n, self.pairs.offsets,
-                       self.pairs.neighbours, self.support, c, scratch)
+                       self.pairs.neighbours, *self.ops.support_args(), c, scratch)
         C = c.to_numpy()[: p.n]
         if not hasattr(self, "_c0"):
             self._c0 = _lattice_number_density(self.params.kernel, self.dx, self.support)

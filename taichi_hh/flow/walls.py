@@ -57,7 +57,8 @@ def wall_velocity(kernel_id: ti.template(), n: ti.i32, offsets: ti.types.ndarray
         if kind[i] == FLUID:
             out[i] = v[i]
         else:
-            num, den = shepard_sums(kernel_id, i, offsets, nbrs, pos, vol, kind, H, 1 << FLUID, v,
+            # fixed support: the adaptive flag 0 (vol stands in for the unused supports)
+            num, den = shepard_sums(kernel_id, i, offsets, nbrs, pos, vol, kind, H, 0, vol, 1 << FLUID, v,
                                     ti.Vector.zero(float, 2), 0.0)
             out[i] = ti.Vector.zero(float, 2)
             if den > 0.0:

@@ -107,8 +107,10 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
     say("setup")
     t = time.perf_counter()
     boundary, ghosts = _extra_particles(domain, pts, opts, spacing, support)
-    ps = PointSet(pts, kernel=opts.kernel, support=support, area=domain.area,
-                  boundary=boundary, ghosts=ghosts)
+    ps = PointSet(pts, kernel=opts.kernel, support_ratio=opts.support_ratio,
+                  support=None if opts.adaptive_support else support, area=domain.area,
+                  boundary=boundary, ghosts=ghosts,
+                  support_neighbours=opts.support_neighbours if opts.adaptive_support else None)
     ops = ps.ops
     p = ps.particles
     kind = p.get("kind")

@@ -43,6 +43,8 @@ class HHDOptions:
     """Numerical choices of :func:`~taichi_hh.hhd.decompose.decompose` (bundles: :data:`METHODS`)."""
     kernel: str = "wendland"
     support_ratio: float = 2.5          # kernel support / mean spacing sqrt(area / N)
+    adaptive_support: bool = False      # per-point support from the local spacing (sph.support)
+    support_neighbours: int = 12        # k of that local spacing estimate
     divergence: str = "quadratic"       # gradient variant for div v and curl v
     gradient: str = "quadratic"         # gradient variant for d = grad phi, r = J grad psi
     laplacian: str = "corrected"        # Laplacian variant of the Poisson rows
@@ -62,6 +64,8 @@ class HHDOptions:
             raise ValueError(f"boundary must be one of {BOUNDARY_METHODS}, got {self.boundary!r}")
         if not (self.support_ratio > 0):
             raise ValueError(f"support_ratio must be positive, got {self.support_ratio}")
+        if not 1 <= self.support_neighbours <= 24:
+            raise ValueError(f"support_neighbours must be 1..24, got {self.support_neighbours}")
         if not (self.tol > 0):
             raise ValueError(f"tol must be positive, got {self.tol}")
         if self.preconditioner not in PRECONDITIONERS:

@@ -31,6 +31,7 @@ from . import krylov as solvers
 from ..errors import InputError, NeighbourError
 from ..sph.operators import GradientStencil, LaplacianStencil, shepard_sums, shepard_weight
 from ..sph.particles import BOUNDARY, FLUID, GHOST
+from ..sph.support import pair_support
 
 
 @ti.kernel
@@ -38,8 +39,8 @@ def _assemble(kernel_id: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
               nbrs: ti.types.ndarray(), pos: ti.types.ndarray(), vol: ti.types.ndarray(),
               kind: ti.types.ndarray(), normal: ti.types.ndarray(), near: ti.types.ndarray(),
               C: ti.types.ndarray(), sC: ti.types.ndarray(), G: ti.types.ndarray(),
-              sG: ti.types.ndarray(), kappa: float, H: float,
-              K: ti.types.ndarray(), D: ti.types.ndarray(), orphan: ti.types.ndarray()):
+              sG: ti.types.ndarray(), kappa: float, H: float, adaptive: ti.template(),
+              hs: ti.types.ndarray(), K: ti.types.ndarray(), D: ti.types.ndarray(), orphan: ti.types.ndarray()):
     for i in range(n):
         ki = kind[i]
         if ki == FLUID:
@@ -60,8 +61,8 @@ def _assemble(kernel_id: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
             D[i] = d
         else:
             # the Shepard row (Petronetto Eq. 14): phi_g - sum_k S_gk phi_k = 0
-            _num, den = shepard_sums(kernel_id, i, offsets, nbrs, pos, vol, kind, H, 1 << FLUID,
-                                     vol, 0.0, 0.0)
+            _num, den = shepard_sums(kernel_id, i, offsets, nbrs, pos, vol, kind, H, adaptive, hs,
+                                     1 << FLUID, vol, 0.0, 0.0)
             if den <= 0.0:
                 ti.atomic_max(orphan[0], i)
                 den = 1.0
@@ -69,7 +70,8 @@ def _assemble(kernel_id: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
                 j = nbrs[k]
                 c = 0.0
                 if kind[j] == FLUID:
-                    c = -shepard_weight(kernel_id, pos, vol, i, j, H) / den
+                    c = -shepard_weight(kernel_id, pos, vol, i, j,
+                                        pair_support(adaptive, hs, i, j, H)) / den
                 K[k] = c
             D[i] = 1.0
 
@@ -228,7 +230,7 @@ class PoissonMatrix:
         pr = ops.pairs
         _assemble(ops.kernel_id, p.n, pr.offsets, pr.neighbours, p.position, p.volume, p.kind,
                   p.normal, near, self.lap.C, self.lap.s, self.grad.G, self.grad.s, self.kappa,
-                  ops.support, self.K, self.D, orphan)
+                  *ops.support_args(), self.K, self.D, orphan)
         bad = int(orphan.to_numpy()[0])
         if bad >= 0:
             raise NeighbourError(

@@ -216,10 +216,22 @@ def _row_ranges(p, lo_x, lo_y, inv_cell, nx, ny):
     return ti.max(cx - 1, 0), ti.min(cx + 1, nx - 1), ti.max(cy - 1, 0), ti.min(cy + 1, ny - 1)
 
 
+@ti.func
+def _pair_support2(adaptive: ti.template(), hq: ti.template(), hs: ti.template(), i, j,
+                   support2):
+    # squared pair support: fixed, or max(H_i, H_j) (taichi_hh.sph.support)
+    h2 = support2
+    if ti.static(adaptive):
+        h = ti.max(hq[i], hs[j])
+        h2 = h * h
+    return h2
+
+
 @ti.kernel
 def _count_pairs(qpos: ti.types.ndarray(), nq: ti.i32, spos: ti.types.ndarray(),
                  cell_start: ti.types.ndarray(), lo_x: float, lo_y: float, inv_cell: float,
                  nx: ti.i32, ny: ti.i32, support2: float, exclude_self: ti.i32,
+                 adaptive: ti.template(), hq: ti.types.ndarray(), hs: ti.types.ndarray(),
                  count: ti.types.ndarray(), dup_tol2: float, dup: ti.types.ndarray()):
     for i in range(nq):
         p = qpos[i]
@@ -234,7 +246,7 @@ def _count_pairs(qpos: ti.types.ndarray(), nq: ti.i32, spos: ti.types.ndarray(),
             for j in range(cell_start[row + x0], cell_start[row + x1 + 1]):
                 d = spos[j] - p
                 r2 = d.dot(d)
-                ok = (r2 < support2) & (j != skip)
+                ok = (r2 < _pair_support2(adaptive, hq, hs, i, j, support2)) & (j != skip)
                 k += ti.select(ok, 1, 0)
                 ndup += ti.select(ok & (r2 <= dup_tol2), 1, 0)
         if ndup > 0:
@@ -246,6 +258,7 @@ def _count_pairs(qpos: ti.types.ndarray(), nq: ti.i32, spos: ti.types.ndarray(),
 def _fill_pairs(qpos: ti.types.ndarray(), nq: ti.i32, spos: ti.types.ndarray(),
                 cell_start: ti.types.ndarray(), lo_x: float, lo_y: float, inv_cell: float,
                 nx: ti.i32, ny: ti.i32, support2: float, exclude_self: ti.i32,
+                adaptive: ti.template(), hq: ti.types.ndarray(), hs: ti.types.ndarray(),
                 offsets: ti.types.ndarray(), neighbours: ti.types.ndarray()):
     for i in range(nq):
         p = qpos[i]
@@ -262,7 +275,8 @@ def _fill_pairs(qpos: ti.types.ndarray(), nq: ti.i32, spos: ti.types.ndarray(),
                 r2 = d.dot(d)
                 if k < end:          # never past the row: the next row is another thread's
                     neighbours[k] = j
-                k += ti.select((r2 < support2) & (j != skip), 1, 0)
+                k += ti.select((r2 < _pair_support2(adaptive, hq, hs, i, j, support2))
+                               & (j != skip), 1, 0)
 
 
 @ti.kernel
@@ -306,12 +320,18 @@ class PairList:
         self._cap_p = 0
         self._count = None
         self._dup = ti.ndarray(ti.i32, shape=(1,))
+        self._no_supports = ti.ndarray(runtime.real_dtype(), shape=(1,))   # fixed support
         self._reverse = None
 
     def build(self, qpos, nq: int, spos, grid: CellGrid, support: float, *,
-              exclude_self: bool = True, duplicate_tolerance: float = 0.0) -> "PairList":
+              exclude_self: bool = True, duplicate_tolerance: float = 0.0,
+              supports=None) -> "PairList":
         """Find all source points within ``support`` of each query point.
 
+        supports: optional per-point supports ``(query, source)`` (Taichi
+        arrays): pair (i, j) is then kept within ``max(H_i, H_j)``
+        (:mod:`taichi_hh.sph.support`), and ``support`` (the grid's cell
+        size) must be at least the largest of them.
         duplicate_tolerance: pairs closer than this raise :class:`InputError`
         (coincident points make every SPH operator singular).
         """
@@ -320,7 +340,13 @@ class PairList:
             self.offsets = ti.ndarray(ti.i32, shape=(self._cap_q,))
             self._count = ti.ndarray(ti.i32, shape=(self._cap_q,))
         s = grid.spec
-        args = (s.lo_x, s.lo_y, s.inv_cell, s.nx, s.ny, support * support, int(exclude_self))
+        if supports is None:
+            hq = hs = self._no_supports
+            adaptive = 0
+        else:
+            (hq, hs), adaptive = supports, 1
+        args = (s.lo_x, s.lo_y, s.inv_cell, s.nx, s.ny, support * support, int(exclude_self),
+                adaptive, hq, hs)
         self._dup.fill(-1)
         tol2 = duplicate_tolerance ** 2 if duplicate_tolerance > 0 else -1.0
         _count_pairs(qpos, nq, spos, grid.cell_start, *args, self._count, tol2, self._dup)

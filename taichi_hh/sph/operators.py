@@ -59,6 +59,7 @@ from .. import runtime
 from ..errors import NeighbourError
 from .kernels import kernel_id, kernel_terms
 from .particles import BOUNDARY, FLUID, GHOST
+from .support import pair_support
 
 ALL_KINDS = (FLUID, BOUNDARY, GHOST)
 
@@ -106,14 +107,17 @@ def _variant_id(name: str, table) -> int:
 @ti.kernel
 def number_density(kernel_id: ti.template(), pos: ti.types.ndarray(), mass: ti.types.ndarray(),
              n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
+             adaptive: ti.template(), hs: ti.types.ndarray(),
              rho: ti.types.ndarray(), vol: ti.types.ndarray()):
-    """rho_i = sum_j m_j W_ij including j = i (Petronetto Sec. 5a); V_i = m_i / rho_i."""
+    """rho_i = sum_j m_j W_ij including j = i (Petronetto Sec. 5a); V_i = m_i / rho_i.
+    ``H`` the support, or (``adaptive``) per particle ``hs`` (:mod:`taichi_hh.sph.support`)."""
     for i in range(n):
-        W0, _F0, _L0 = kernel_terms(kernel_id, 0.0, H)
+        W0, _F0, _L0 = kernel_terms(kernel_id, 0.0, pair_support(adaptive, hs, i, i, H))
         s = mass[i] * W0
         for k in range(offsets[i], offsets[i + 1]):
             j = nbrs[k]
-            W, _F, _L = kernel_terms(kernel_id, (pos[i] - pos[j]).norm(), H)
+            W, _F, _L = kernel_terms(kernel_id, (pos[i] - pos[j]).norm(),
+                                     pair_support(adaptive, hs, i, j, H))
             s += mass[j] * W
         rho[i] = s
         vol[i] = mass[i] / s
@@ -147,14 +151,14 @@ def _src_mass(mass: ti.template(), kind: ti.template(), j, src_kinds):
 @ti.func
 def _correction_matrix(kernel_id: ti.template(), i, pos: ti.template(), mass: ti.template(),
                        rho: ti.template(), offsets: ti.template(), nbrs: ti.template(), H,
-                       kind: ti.template(), src_kinds):
+                       adaptive: ti.template(), hs: ti.template(), kind: ti.template(), src_kinds):
     """M_i = sum_j V_j grad W_ij (x) (x_j - x_i); symmetric positive for these kernels."""
     M = ti.Matrix.zero(float, 2, 2)
     for k in range(offsets[i], offsets[i + 1]):
         j = nbrs[k]
         mj = _src_mass(mass, kind, j, src_kinds)
         x = pos[j] - pos[i]
-        _W, F, _L = kernel_terms(kernel_id, x.norm(), H)
+        _W, F, _L = kernel_terms(kernel_id, x.norm(), pair_support(adaptive, hs, i, j, H))
         M += (mj / rho[j]) * (-F) * x.outer_product(x)
     return M
 
@@ -162,17 +166,19 @@ def _correction_matrix(kernel_id: ti.template(), i, pos: ti.template(), mass: ti
 @ti.func
 def _quadratic_fit_rows(kernel_id: ti.template(), i, pos: ti.template(), mass: ti.template(),
                         rho: ti.template(), offsets: ti.template(), nbrs: ti.template(), H,
-                        kind: ti.template(), src_kinds):
+                        adaptive: ti.template(), hs: ti.template(), kind: ti.template(),
+                        src_kinds):
     """Cholesky factor of M = sum_j V_j W_ij p_j p_j^T, p = (x, y, x^2, xy, y^2)(x_ji / H);
     returns (factor, ok).  ok is False when a pivot falls below SINGULAR_RATIO of the
     diagonal scale (fewer than five neighbours, or all on one conic)."""
     M = ti.Matrix.zero(float, 5, 5)
+    Hi = pair_support(adaptive, hs, i, i, H)      # the monomials' length scale
     for k in range(offsets[i], offsets[i + 1]):
         j = nbrs[k]
         mj = _src_mass(mass, kind, j, src_kinds)
         x = pos[j] - pos[i]
-        W, _F, _L = kernel_terms(kernel_id, x.norm(), H)
-        u = x / H
+        W, _F, _L = kernel_terms(kernel_id, x.norm(), pair_support(adaptive, hs, i, j, H))
+        u = x / Hi
         p = ti.Vector([u[0], u[1], u[0] * u[0], u[0] * u[1], u[1] * u[1]])
         M += (mj / rho[j]) * W * p.outer_product(p)
     scale = 0.0
@@ -216,6 +222,7 @@ def _cholesky_solve5(Lf, rhs):
 def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
                      mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
                      offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
+                     adaptive: ti.template(), hs: ti.types.ndarray(),
                      G: ti.types.ndarray(), s: ti.types.ndarray(), bad: ti.types.ndarray(),
                      kind: ti.types.ndarray(), row_kinds: ti.i32, src_kinds: ti.i32):
     for i in range(n):
@@ -228,19 +235,22 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
         Lf = ti.Matrix.identity(float, 5)
         linear = 0
         if ti.static(variant == GradientVariant.QUADRATIC):
-            Lf, ok = _quadratic_fit_rows(kernel_id, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
+            Lf, ok = _quadratic_fit_rows(kernel_id, i, pos, mass, rho, offsets, nbrs, H, adaptive, hs,
+                                           kind, src_kinds)
             if not ok:
                 # Too few neighbours for a quadratic fit (e.g. a corner): this
                 # particle falls back to the linearly corrected gradient, and only
                 # if that is singular too is the set refused.
-                M = _correction_matrix(kernel_id, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
+                M = _correction_matrix(kernel_id, i, pos, mass, rho, offsets, nbrs, H, adaptive, hs,
+                                       kind, src_kinds)
                 if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
                     ti.atomic_max(bad[0], i)
                 else:
                     L = M.inverse()
                     linear = 1
         if ti.static(variant == GradientVariant.CORRECTED):
-            M = _correction_matrix(kernel_id, i, pos, mass, rho, offsets, nbrs, H, kind, src_kinds)
+            M = _correction_matrix(kernel_id, i, pos, mass, rho, offsets, nbrs, H, adaptive, hs,
+                                       kind, src_kinds)
             if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
                 ti.atomic_max(bad[0], i)
             else:
@@ -250,7 +260,8 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
             j = nbrs[k]
             mj = _src_mass(mass, kind, j, src_kinds)
             xij = pos[i] - pos[j]
-            _W, F, _L = kernel_terms(kernel_id, xij.norm(), H)
+            Hij = pair_support(adaptive, hs, i, j, H)
+            _W, F, _L = kernel_terms(kernel_id, xij.norm(), Hij)
             gw = F * xij
             coef = ti.Vector.zero(float, 2)
             if ti.static(variant == GradientVariant.BASIC or variant == GradientVariant.DIFFERENCE):
@@ -268,11 +279,12 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
                     coef = (mj / rho[j]) * (L @ gw)
                 else:
                     # rows 0-1 of M^-1 (V_j W_ij p_j) / H: the fitted gradient's weights
-                    W, _F2, _L2 = kernel_terms(kernel_id, xij.norm(), H)
-                    u = -xij / H
+                    W, _F2, _L2 = kernel_terms(kernel_id, xij.norm(), Hij)
+                    Hi = pair_support(adaptive, hs, i, i, H)
+                    u = -xij / Hi
                     p = ti.Vector([u[0], u[1], u[0] * u[0], u[0] * u[1], u[1] * u[1]])
                     z = _cholesky_solve5(Lf, (mj / rho[j]) * W * p)
-                    coef = ti.Vector([z[0], z[1]]) / H
+                    coef = ti.Vector([z[0], z[1]]) / Hi
             G[k] = coef
             if ti.static(variant == GradientVariant.BASIC):
                 gsum += coef   # sum_j G f_j = sum_j G (f_j - f_i) + (sum_j G) f_i
@@ -283,6 +295,7 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
 def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
                       mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
                       offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
+                      adaptive: ti.template(), hs: ti.types.ndarray(),
                       C: ti.types.ndarray(), s: ti.types.ndarray(), bad: ti.types.ndarray(),
                       kind: ti.types.ndarray(), row_kinds: ti.i32, src_kinds: ti.i32):
     for i in range(n):
@@ -293,12 +306,13 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
             continue
         selfc = 0.0
         if ti.static(variant == LaplacianVariant.BASIC):
-            _W0, _F0, L0 = kernel_terms(kernel_id, 0.0, H)
+            _W0, _F0, L0 = kernel_terms(kernel_id, 0.0, pair_support(adaptive, hs, i, i, H))
             csum = 0.0
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
                 mj = _src_mass(mass, kind, j, src_kinds)
-                _W, _F, Lw = kernel_terms(kernel_id, (pos[i] - pos[j]).norm(), H)
+                _W, _F, Lw = kernel_terms(kernel_id, (pos[i] - pos[j]).norm(),
+                                          pair_support(adaptive, hs, i, j, H))
                 c = (mj / rho[j]) * Lw
                 C[k] = c
                 csum += c
@@ -309,19 +323,20 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
                 j = nbrs[k]
                 mj = _src_mass(mass, kind, j, src_kinds)
                 xij = pos[i] - pos[j]
-                _W, F, _L = kernel_terms(kernel_id, xij.norm(), H)
+                _W, F, _L = kernel_terms(kernel_id, xij.norm(), pair_support(adaptive, hs, i, j, H))
                 grho += mj * F * xij
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
                 mj = _src_mass(mass, kind, j, src_kinds)
                 xij = pos[i] - pos[j]
-                _W, F, Lw = kernel_terms(kernel_id, xij.norm(), H)
+                _W, F, Lw = kernel_terms(kernel_id, xij.norm(), pair_support(adaptive, hs, i, j, H))
                 C[k] = (mj / rho[i]) * (Lw - 2.0 / rho[i] * F * xij.dot(grho))
         elif ti.static(variant == LaplacianVariant.BROOKSHAW):
             for k in range(offsets[i], offsets[i + 1]):
                 j = nbrs[k]
                 mj = _src_mass(mass, kind, j, src_kinds)
-                _W, F, _L = kernel_terms(kernel_id, (pos[i] - pos[j]).norm(), H)
+                _W, F, _L = kernel_terms(kernel_id, (pos[i] - pos[j]).norm(),
+                                         pair_support(adaptive, hs, i, j, H))
                 C[k] = -2.0 * (mj / rho[j]) * F
         else:                                # renormalised, exact on quadratics
             M = ti.Matrix.zero(float, 2, 2)
@@ -333,7 +348,7 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
                 mj = _src_mass(mass, kind, j, src_kinds)
                 x = pos[j] - pos[i]
                 r = x.norm()
-                _W, F, _L = kernel_terms(kernel_id, r, H)
+                _W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
                 V = mj / rho[j]
                 gw = -F * x                     # grad_i W_ij = F x_ij = -F x_ji
                 M += V * gw.outer_product(x)
@@ -379,7 +394,7 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
                 mj = _src_mass(mass, kind, j, src_kinds)
                 x = pos[j] - pos[i]
                 r = x.norm()
-                _W, F, _L = kernel_terms(kernel_id, r, H)
+                _W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
                 e = x / r
                 a_ij = -2.0 * (mj / rho[j]) * F * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
                                                    + 2.0 * Bxy * e[0] * e[1])
@@ -390,7 +405,7 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
                 j = nbrs[k]
                 mj = _src_mass(mass, kind, j, src_kinds)
                 x = pos[j] - pos[i]
-                _W, F, _L = kernel_terms(kernel_id, x.norm(), H)
+                _W, F, _L = kernel_terms(kernel_id, x.norm(), pair_support(adaptive, hs, i, j, H))
                 # C_ij = a_ij - V_j beta . grad W_ij,  grad W_ij = -F x_ji
                 C[k] += (mj / rho[j]) * F * beta.dot(x)
         s[i] = selfc
@@ -462,15 +477,17 @@ def _laplacian_diagonal(n: ti.i32, offsets: ti.types.ndarray(), C: ti.types.ndar
 
 @ti.func
 def shepard_weight(kernel_id: ti.template(), pos: ti.template(), vol: ti.template(), i, j, H):
-    """V_j W_ij: the weight of particle j in the Shepard sum at i (Petronetto Eq. 14)."""
+    """V_j W_ij: the weight of particle j in the Shepard sum at i (Petronetto Eq. 14);
+    ``H`` the pair's support."""
     W, _F, _L = kernel_terms(kernel_id, (pos[i] - pos[j]).norm(), H)
     return vol[j] * W
 
 
 @ti.func
 def shepard_sums(kernel_id: ti.template(), i, offsets: ti.template(), nbrs: ti.template(),
-                 pos: ti.template(), vol: ti.template(), kind: ti.template(), H, src_kinds,
-                 f: ti.template(), num, den):
+                 pos: ti.template(), vol: ti.template(), kind: ti.template(), H,
+                 adaptive: ti.template(), hs: ti.template(), src_kinds, f: ti.template(), num,
+                 den):
     """(num + sum_j V_j W_ij f_j, den + sum_j V_j W_ij) over the neighbours j of i
     whose kind is in the bit mask ``src_kinds``: the numerator and denominator of
     the Shepard-normalised sum of ``f`` (scalar or vector), continued from
@@ -478,7 +495,7 @@ def shepard_sums(kernel_id: ti.template(), i, offsets: ti.template(), nbrs: ti.t
     for k in range(offsets[i], offsets[i + 1]):
         j = nbrs[k]
         if (src_kinds >> kind[j]) & 1:
-            w = shepard_weight(kernel_id, pos, vol, i, j, H)
+            w = shepard_weight(kernel_id, pos, vol, i, j, pair_support(adaptive, hs, i, j, H))
             num += w * f[j]
             den += w
     return num, den
@@ -487,18 +504,20 @@ def shepard_sums(kernel_id: ti.template(), i, offsets: ti.template(), nbrs: ti.t
 @ti.kernel
 def _shepard(kernel_id: ti.template(), pos: ti.types.ndarray(), vol: ti.types.ndarray(), n: ti.i32,
              offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
+             adaptive: ti.template(), hs: ti.types.ndarray(),
              f: ti.types.ndarray(), out: ti.types.ndarray(), kind: ti.types.ndarray(),
              src_kinds: ti.i32):
     """Shepard-normalised interpolation (Petronetto Eq. 14) from the neighbours of
     the given kinds, the particle itself included when its kind is one of them."""
     for i in range(n):
-        W0, _F0, _L0 = kernel_terms(kernel_id, 0.0, H)
+        W0, _F0, _L0 = kernel_terms(kernel_id, 0.0, pair_support(adaptive, hs, i, i, H))
         num = out[i] * 0.0
         den = 0.0
         if (src_kinds >> kind[i]) & 1:
             num += vol[i] * W0 * f[i]
             den += vol[i] * W0
-        num, den = shepard_sums(kernel_id, i, offsets, nbrs, pos, vol, kind, H, src_kinds, f, num, den)
+        num, den = shepard_sums(kernel_id, i, offsets, nbrs, pos, vol, kind, H, adaptive, hs,
+                                src_kinds, f, num, den)
         if den > 0.0:
             out[i] = num / den
         else:
@@ -532,9 +551,13 @@ class Operators:
 
     ``particles`` must carry mass; call :meth:`compute_density` (summation)
     or fill ``density``/``volume`` yourself before building coefficients.
+    supports: optional per-slot kernel supports (a Taichi array, slot order),
+    the adaptive support of :mod:`taichi_hh.sph.support` (pairs then use
+    ``max(H_i, H_j)``; ``support`` is their largest); default the fixed ``support``.
     """
 
-    def __init__(self, particles, pairs, support: float, kernel: str = "wendland"):
+    def __init__(self, particles, pairs, support: float, kernel: str = "wendland",
+                 supports=None):
         runtime.ensure_init()
         self.particles = particles
         self.pairs = pairs
@@ -542,6 +565,15 @@ class Operators:
         self.kernel = kernel
         self.kernel_id = int(kernel_id(kernel))    # a plain int: the kernels take it as a template
         self._bad = ti.ndarray(ti.i32, shape=(1,))
+        self.supports = supports
+        if supports is None:                       # fixed support: never read by the kernels
+            supports = ti.ndarray(runtime.real_dtype(), shape=(1,))
+        self.adaptive = int(self.supports is not None)
+        self._hs = supports
+
+    def support_args(self):
+        """``(H, adaptive, hs)``: the support arguments of the operator kernels."""
+        return self.support, self.adaptive, self._hs
 
     @property
     def n(self) -> int:
@@ -552,8 +584,8 @@ class Operators:
 
     def compute_density(self) -> None:
         p = self.particles
-        number_density(self.kernel_id, p.position, p.mass, p.n, *self._pair_args(), self.support,
-                 p.density, p.volume)
+        number_density(self.kernel_id, p.position, p.mass, p.n, *self._pair_args(),
+                       *self.support_args(), p.density, p.volume)
 
     def _check_bad(self, what: str) -> None:
         bad = int(self._bad.to_numpy()[0])
@@ -562,10 +594,12 @@ class Operators:
             pos = p.position.to_numpy()[bad]
             orig = int(p.original_index.to_numpy()[bad])
             count = int(self.pairs.counts()[bad])
+            support = (self.support if self.supports is None
+                       else float(self.supports.to_numpy()[bad]))
             raise NeighbourError(
                 f"{what}: the correction matrix of particle {orig} at ({pos[0]:.6g}, {pos[1]:.6g}) "
                 f"is singular: it has {count} neighbours within the kernel support "
-                f"{self.support:.6g}, too few or all on one line. Increase the support "
+                f"{support:.6g}, too few or all on one line. Increase the support "
                 "(support_ratio) or use an uncorrected variant.")
 
     def gradient_coefficients(self, variant: str = "corrected",
@@ -590,7 +624,7 @@ class Operators:
                                  f"particle rows for {self.pairs.n_pairs} pairs, {p.n} particles")
         self._bad.fill(-1)
         _gradient_coeffs(self.kernel_id, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
-                         self.support, G, s, self._bad, p.kind, kind_bits(row_kinds),
+                         *self.support_args(), G, s, self._bad, p.kind, kind_bits(row_kinds),
                          kind_bits(source_kinds))
         self._check_bad(f"{variant} gradient")
         if density_weighted:
@@ -613,7 +647,7 @@ class Operators:
         s = ti.ndarray(real, shape=(max(p.n, 1),))
         self._bad.fill(-1)
         _laplacian_coeffs(self.kernel_id, vid, p.position, p.mass, p.density, p.n, *self._pair_args(),
-                          self.support, C, s, self._bad, p.kind, kind_bits(row_kinds),
+                          *self.support_args(), C, s, self._bad, p.kind, kind_bits(row_kinds),
                          kind_bits(source_kinds))
         self._check_bad(f"{variant} Laplacian")
         if density_weighted:
@@ -653,5 +687,5 @@ class Operators:
         """Shepard interpolation of f (scalar or vector) at every particle from the
         neighbours of the given kinds; 0 where there are none."""
         p = self.particles
-        _shepard(self.kernel_id, p.position, p.volume, p.n, *self._pair_args(), self.support, f, out,
-                 p.kind, kind_bits(source_kinds))
+        _shepard(self.kernel_id, p.position, p.volume, p.n, *self._pair_args(), *self.support_args(),
+                 f, out, p.kind, kind_bits(source_kinds))

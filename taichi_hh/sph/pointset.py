@@ -43,6 +43,11 @@ class PointSet:
     mass: particle mass (default ``area / N``, Petronetto Sec. 5a).
     boundary: optional ``(points, outward normals)`` of boundary particles.
     ghosts: optional (G, 2) fake particles outside the domain.
+    support_neighbours: k for an adaptive support (:mod:`taichi_hh.sph.support`):
+    every particle's support is ``support_ratio`` local spacings, estimated
+    from its k nearest neighbours, and pairs use the larger of their two
+    supports; None (default) for the fixed support.  ``support`` (explicit)
+    always means a fixed support.
 
     Boundary and ghost particles get the data points' mass, join the neighbour
     search and the density summation, and are what the Poisson rows of
@@ -52,7 +57,8 @@ class PointSet:
 
     def __init__(self, points, *, kernel: str = DEFAULT_KERNEL,
                  support_ratio: float = DEFAULT_SUPPORT_RATIO, support: float | None = None,
-                 area: float | None = None, mass=None, boundary=None, ghosts=None):
+                 area: float | None = None, mass=None, boundary=None, ghosts=None,
+                 support_neighbours: int | None = None):
         pts = check_points(points)
         if kernel not in KERNELS:
             raise ValueError(f"unknown kernel {kernel!r}; choose one of {KERNELS}")
@@ -79,12 +85,25 @@ class PointSet:
             p.append(check_points(ghosts, "ghost points"), mass=mass, kind=GHOST)
         allpts = p.get("position")
         self.n_total = p.n
+        supports = None           # per particle, input order (data, boundary, ghosts)
+        if support_neighbours is not None and support is None:
+            from .support import adaptive_supports
+            supports = adaptive_supports(allpts, support_ratio, int(support_neighbours),
+                                         self.area)
+            self.support = float(supports.max())
         self.grid = bin_particles(p, GridSpec.covering(allpts.min(axis=0), allpts.max(axis=0),
                                                        self.support))
         self.pairs = PairList()
+        hs = None
+        if supports is not None:
+            hs = ti.ndarray(runtime.real_dtype(), shape=(max(p.n, 1),))
+            hs.from_numpy(np.resize(supports[p.get("original_index")],
+                                    max(p.n, 1)).astype(runtime.np_real()))
+        self.supports = supports[:n] if supports is not None else np.full(n, self.support)
         try:
             self.pairs.build(p.position, p.n, p.position, self.grid, self.support,
-                             duplicate_tolerance=DUPLICATE_FRACTION * self.spacing)
+                             duplicate_tolerance=DUPLICATE_FRACTION * self.spacing,
+                             supports=None if hs is None else (hs, hs))
         except InputError as exc:
             if getattr(self.pairs, "duplicate_query", None) is None:
                 raise
@@ -100,10 +119,10 @@ class PointSet:
             i = int(lonely[0])
             raise NeighbourError(
                 f"point {i} at {pts[i].tolist()} has no neighbour within the kernel support "
-                f"{self.support:.6g}; {lonely.size} point(s) are isolated. "
+                f"{self.supports[i]:.6g}; {lonely.size} point(s) are isolated. "
                 "Increase support_ratio.")
         self.neighbour_counts = counts[self.slot_of]
-        self.ops = Operators(p, self.pairs, self.support, kernel)
+        self.ops = Operators(p, self.pairs, self.support, kernel, supports=hs)
         self.ops.compute_density()
         self._stencils: dict = {}
 

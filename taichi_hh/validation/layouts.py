@@ -12,7 +12,10 @@ import math
 import numpy as np
 
 #: The samplings :func:`sample` knows (``jitterX`` takes any X).
-SAMPLINGS = ("lattice", "jitterX", "poisson", "random", "clustered")
+SAMPLINGS = ("lattice", "jitterX", "poisson", "random", "clustered", "clusters", "gradient")
+
+#: density ratio across x of the ``gradient`` sampling
+GRADIENT_RATIO = 10.0
 
 #: Centres of the four Gaussian clusters of the ``clustered`` sampling.
 CLUSTER_CENTRES = ((0.3, 0.3), (0.7, 0.35), (0.4, 0.75), (0.75, 0.8))
@@ -53,8 +56,10 @@ def jittered_lattice(n_target: int, jitter: float = 0.3, seed: int = 12345) -> n
 def sample(domain, n: int, sampling: str, seed: int) -> np.ndarray:
     """About ``n`` points inside ``domain``.  sampling: ``poisson`` (blue noise),
     ``lattice``, ``jitterX`` (lattice, each point moved uniformly in a square of
-    side X spacings), ``random`` (uniform) or ``clustered`` (half blue noise, half
-    in four Gaussian clusters of width 0.05: local density up to ~20x the mean)."""
+    side X spacings), ``random`` (uniform), ``clustered`` (half blue noise, half
+    in four Gaussian clusters of width 0.05: local density up to ~20x the mean),
+    ``clusters`` (the same with a uniformly random half) or ``gradient``
+    (uniformly random, density rising 1:10 across x)."""
     if sampling in ("poisson", "random"):
         return domain.sample_interior(n, kind=sampling, seed=seed)
     if sampling == "lattice":
@@ -64,12 +69,33 @@ def sample(domain, n: int, sampling: str, seed: int) -> np.ndarray:
     if sampling == "clustered":
         rng = np.random.default_rng(seed)
         bg = domain.sample_interior(n // 2, kind="poisson", seed=seed)
-        centres = np.array(CLUSTER_CENTRES)
-        need = n - len(bg)
-        out = []
-        while sum(len(o) for o in out) < need:
-            c = centres[rng.integers(0, len(centres), size=need)]
-            p = c + CLUSTER_WIDTH * rng.standard_normal((need, 2))
-            out.append(p[domain.contains(p)])
-        return np.vstack([bg, np.vstack(out)[:need]])
+        return np.vstack([bg, _cluster_points(domain, n - len(bg), rng)])
+    if sampling == "clusters":
+        # scattered data as measured: half uniformly random, half in the clusters
+        rng = np.random.default_rng(seed)
+        bg = domain.sample_interior(n // 2, kind="random", seed=seed)
+        return np.vstack([bg, _cluster_points(domain, n - len(bg), rng)])
+    if sampling == "gradient":
+        # uniformly random with a density rising linearly 1 : GRADIENT_RATIO across x
+        rng = np.random.default_rng(seed)
+        (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=float).reshape(2, 2)
+        out, have = [], 0
+        while have < n:
+            p = rng.random((2 * n, 2)) * [x1 - x0, y1 - y0] + [x0, y0]
+            t = (p[:, 0] - x0) / (x1 - x0)
+            keep = rng.random(2 * n) * GRADIENT_RATIO < 1.0 + (GRADIENT_RATIO - 1.0) * t
+            p = p[keep & domain.contains(p)]
+            out.append(p)
+            have += len(p)
+        return np.vstack(out)[:n]
     raise ValueError(f"unknown sampling {sampling!r}; choose one of {SAMPLINGS}")
+
+
+def _cluster_points(domain, need: int, rng) -> np.ndarray:
+    centres = np.array(CLUSTER_CENTRES)
+    out = []
+    while sum(len(o) for o in out) < need:
+        c = centres[rng.integers(0, len(centres), size=need)]
+        p = c + CLUSTER_WIDTH * rng.standard_normal((need, 2))
+        out.append(p[domain.contains(p)])
+    return np.vstack(out)[:need]

@@ -1,0 +1,98 @@
+"""Adaptive support (taichi_hh.sph.support): k-th neighbour distances against
+brute force, the pair list against the max(H_i, H_j) rule, and the operators'
+consistency (exactness on the polynomials each variant promises) on points
+whose density varies, where one fixed support fails."""
+import math
+
+import numpy as np
+import pytest
+
+from taichi_hh.errors import InputError
+from taichi_hh.geometry.domain import Box
+from taichi_hh.sph.pointset import PointSet
+from taichi_hh.sph.support import adaptive_supports, kth_neighbour_distance
+from taichi_hh.validation import layouts
+
+UNIT = Box((0, 0), (1, 1))
+
+
+def brute_kth(points, k):
+    d = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
+    np.fill_diagonal(d, np.inf)
+    return np.sort(d, axis=1)[:, k - 1]
+
+
+@pytest.mark.parametrize("sampling", ["random", "clusters", "gradient"])
+@pytest.mark.parametrize("k", [1, 6, 12, 24])
+def test_kth_distance_matches_brute_force(sampling, k):
+    pts = layouts.sample(UNIT, 1500, sampling, seed=3)
+    np.testing.assert_allclose(kth_neighbour_distance(pts, k, 1.0), brute_kth(pts, k),
+                               rtol=1e-12)
+
+
+def test_isolated_points_get_their_neighbours_by_widening():
+    # a dense blob and a few far points: the first search radius misses the far ones
+    rng = np.random.default_rng(0)
+    pts = np.vstack([0.5 + 0.01 * rng.standard_normal((500, 2)),
+                     [[0.01, 0.01], [0.99, 0.02], [0.02, 0.98], [0.97, 0.99]]])
+    np.testing.assert_allclose(kth_neighbour_distance(pts, 4, 1.0), brute_kth(pts, 4),
+                               rtol=1e-12)
+
+
+def test_too_few_points_or_bad_k_is_refused():
+    pts = np.random.default_rng(1).random((5, 2))
+    with pytest.raises(InputError, match="too few"):
+        kth_neighbour_distance(pts, 6, 1.0)
+    with pytest.raises(InputError, match="1..24"):
+        kth_neighbour_distance(pts, 0, 1.0)
+
+
+def test_uniform_lattice_gets_the_fixed_support():
+    pts, dx = layouts.lattice_in_box(2500, (0, 0, 1, 1))
+    h = adaptive_supports(pts, 2.5, 12, 1.0)
+    interior = np.all((pts > 0.1) & (pts < 0.9), axis=1)
+    # the 12th neighbour of a lattice point is at distance 2 dx (the 12 closest:
+    # 4 at dx, 4 at sqrt2 dx, 4 at 2 dx): support 2.5 * 2 dx sqrt(pi/12)
+    np.testing.assert_allclose(h[interior], 2.5 * 2 * dx * math.sqrt(math.pi / 12), rtol=1e-9)
+
+
+def test_pairs_follow_the_max_rule():
+    pts = layouts.sample(UNIT, 1200, "gradient", seed=2)
+    ps = PointSet(pts, area=1.0, support_ratio=2.5, support_neighbours=12)
+    h = ps.supports
+    d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2)
+    want = (d < np.maximum(h[:, None], h[None, :])) & ~np.eye(len(pts), dtype=bool)
+    off, nb = ps.pairs.to_numpy()
+    got = np.zeros_like(want)
+    rows = np.repeat(np.arange(ps.n_total), np.diff(off))
+    orig = ps.particles.get("original_index")
+    got[orig[rows], orig[nb]] = True
+    assert np.array_equal(got, want)
+    # every point keeps at least its k nearest neighbours
+    assert ps.neighbour_counts.min() >= 12
+
+
+@pytest.mark.parametrize("sampling", ["random", "clusters", "gradient"])
+def test_operators_stay_exact_with_adaptive_support(sampling):
+    pts = layouts.sample(UNIT, 3000, sampling, seed=5)
+    ps = PointSet(pts, area=1.0, support_ratio=3.0, support_neighbours=12)
+    x, y = pts[:, 0], pts[:, 1]
+    lin = 0.3 + 2.0 * x - 1.5 * y
+    quad = lin + 0.7 * x * x - 1.1 * x * y + 0.4 * y * y
+    np.testing.assert_allclose(ps.gradient(lin, "corrected"), np.tile([2.0, -1.5], (len(pts), 1)),
+                               atol=1e-9)
+    g = ps.gradient(quad, "quadratic")
+    np.testing.assert_allclose(g[:, 0], 2.0 + 1.4 * x - 1.1 * y, atol=1e-8)
+    np.testing.assert_allclose(g[:, 1], -1.5 - 1.1 * x + 0.8 * y, atol=1e-8)
+    np.testing.assert_allclose(ps.laplacian(quad, "corrected"), 2 * 0.7 + 2 * 0.4, atol=1e-7)
+
+
+def test_fixed_support_is_unchanged_by_the_adaptive_path():
+    """support_neighbours=None keeps the one support: same pairs and densities
+    as an explicit support."""
+    pts = layouts.sample(UNIT, 2000, "poisson", seed=4)
+    a = PointSet(pts, area=1.0, support_ratio=2.5)
+    b = PointSet(pts, area=1.0, support=a.support)
+    assert np.array_equal(a.pairs.to_numpy()[1], b.pairs.to_numpy()[1])
+    assert np.array_equal(a.density(), b.density())
+    assert np.all(a.supports == a.support)
