@@ -96,3 +96,18 @@ def test_fixed_support_is_unchanged_by_the_adaptive_path():
     assert np.array_equal(a.pairs.to_numpy()[1], b.pairs.to_numpy()[1])
     assert np.array_equal(a.density(), b.density())
     assert np.all(a.supports == a.support)
+
+
+@pytest.mark.parametrize("sampling", ["poisson", "random", "clusters"])
+def test_cubic_gradient_is_exact_on_cubics(sampling):
+    pts = layouts.sample(UNIT, 3000, sampling, seed=6)
+    ps = PointSet(pts, area=1.0, support_ratio=3.0, support_neighbours=12)
+    x, y = pts[:, 0], pts[:, 1]
+    f = 0.2 + x - 2 * y + 0.5 * x * x + x * y - y * y + 0.3 * x ** 3 - 0.6 * x * x * y \
+        + 0.9 * x * y * y + 0.4 * y ** 3
+    gx = 1 + x + y + 0.9 * x * x - 1.2 * x * y + 0.9 * y * y
+    gy = -2 + x - 2 * y - 0.6 * x * x + 1.8 * x * y + 1.2 * y * y
+    g = ps.gradient(f, "cubic")
+    np.testing.assert_allclose(g, np.c_[gx, gy], atol=1e-8)
+    # and the quadratic fit is not (the test could fail)
+    assert np.abs(ps.gradient(f, "quadratic") - np.c_[gx, gy]).max() > 1e-4

@@ -30,6 +30,13 @@ Gradient variants (``V_j = m_j / rho_j``, ``grad W_ij = grad_i W(x_i - x_j)``):
                      dominate the whole solution.  A particle whose neighbours do
                      not determine a quadratic (fewer than five, or all on one
                      conic: a sparse corner) falls back to ``corrected``.
+``cubic``            the same fit with the cubic monomials too (a 9x9 moment matrix):
+                     exact on cubics, so the gradient's error is third order.  On
+                     uniformly random points the quadratic fit's second-order error
+                     is noise that the divergence of a decomposition carries into the
+                     potentials (docs/notes/scattered.md); the cubic fit removes it.
+                     A particle whose neighbours do not determine a cubic falls back
+                     to ``quadratic``, then to ``corrected``.
 
 Laplacian variants:
 
@@ -75,6 +82,7 @@ class GradientVariant(IntEnum):
     SYMMETRIC = 3           # Colin Eq. 17 (SGAF)
     CORRECTED = 4           # Bonet & Lok 1999: exact on linear fields
     QUADRATIC = 5           # least-squares quadratic fit: exact on quadratics
+    CUBIC = 6               # least-squares cubic fit: exact on cubics
 
 
 class LaplacianVariant(IntEnum):
@@ -163,15 +171,32 @@ def _correction_matrix(kernel_id: ti.template(), i, pos: ti.template(), mass: ti
     return M
 
 
+def _n_monomials(order) -> int:
+    return 5 if order == 2 else 9
+
+
 @ti.func
-def _quadratic_fit_rows(kernel_id: ti.template(), i, pos: ti.template(), mass: ti.template(),
-                        rho: ti.template(), offsets: ti.template(), nbrs: ti.template(), H,
-                        adaptive: ti.template(), hs: ti.template(), kind: ti.template(),
-                        src_kinds):
-    """Cholesky factor of M = sum_j V_j W_ij p_j p_j^T, p = (x, y, x^2, xy, y^2)(x_ji / H);
-    returns (factor, ok).  ok is False when a pivot falls below SINGULAR_RATIO of the
-    diagonal scale (fewer than five neighbours, or all on one conic)."""
-    M = ti.Matrix.zero(float, 5, 5)
+def _monomials(order: ti.template(), u):
+    """(x, y, x^2, xy, y^2) of u, and for order 3 the cubics after them."""
+    if ti.static(order == 2):
+        return ti.Vector([u[0], u[1], u[0] * u[0], u[0] * u[1], u[1] * u[1]])
+    else:
+        return ti.Vector([u[0], u[1], u[0] * u[0], u[0] * u[1], u[1] * u[1],
+                          u[0] * u[0] * u[0], u[0] * u[0] * u[1], u[0] * u[1] * u[1],
+                          u[1] * u[1] * u[1]])
+
+
+@ti.func
+def _mls_fit_rows(order: ti.template(), kernel_id: ti.template(), i, pos: ti.template(),
+                  mass: ti.template(), rho: ti.template(), offsets: ti.template(),
+                  nbrs: ti.template(), H, adaptive: ti.template(), hs: ti.template(),
+                  kind: ti.template(), src_kinds):
+    """Cholesky factor of M = sum_j V_j W_ij p_j p_j^T with p the monomials of
+    ``order`` (2 or 3) of x_ji / H_i; returns (factor, ok).  ok is False when a
+    pivot falls below SINGULAR_RATIO of the diagonal scale (too few neighbours,
+    or all on one conic (cubic))."""
+    m = ti.static(_n_monomials(order))
+    M = ti.Matrix.zero(float, m, m)
     Hi = pair_support(adaptive, hs, i, i, H)      # the monomials' length scale
     for k in range(offsets[i], offsets[i + 1]):
         j = nbrs[k]
@@ -179,14 +204,14 @@ def _quadratic_fit_rows(kernel_id: ti.template(), i, pos: ti.template(), mass: t
         x = pos[j] - pos[i]
         W, _F, _L = kernel_terms(kernel_id, x.norm(), pair_support(adaptive, hs, i, j, H))
         u = x / Hi
-        p = ti.Vector([u[0], u[1], u[0] * u[0], u[0] * u[1], u[1] * u[1]])
+        p = _monomials(order, u)
         M += (mj / rho[j]) * W * p.outer_product(p)
     scale = 0.0
-    for a in ti.static(range(5)):
+    for a in ti.static(range(m)):
         scale = ti.max(scale, M[a, a])
-    Lf = ti.Matrix.zero(float, 5, 5)
+    Lf = ti.Matrix.zero(float, m, m)
     ok = scale > 0.0
-    for a in ti.static(range(5)):
+    for a in ti.static(range(m)):
         for b in ti.static(range(a + 1)):
             acc = M[a, b]
             for c in ti.static(range(b)):
@@ -202,17 +227,18 @@ def _quadratic_fit_rows(kernel_id: ti.template(), i, pos: ti.template(), mass: t
 
 
 @ti.func
-def _cholesky_solve5(Lf, rhs):
-    y = ti.Vector.zero(float, 5)
-    for a in ti.static(range(5)):
+def _cholesky_solve(order: ti.template(), Lf, rhs):
+    m = ti.static(_n_monomials(order))
+    y = ti.Vector.zero(float, m)
+    for a in ti.static(range(m)):
         acc = rhs[a]
         for c in ti.static(range(a)):
             acc -= Lf[a, c] * y[c]
         y[a] = acc / Lf[a, a]
-    z = ti.Vector.zero(float, 5)
-    for a in ti.static(range(4, -1, -1)):
+    z = ti.Vector.zero(float, m)
+    for a in ti.static(range(m - 1, -1, -1)):
         acc = y[a]
-        for c in ti.static(range(a + 1, 5)):
+        for c in ti.static(range(a + 1, m)):
             acc -= Lf[c, a] * z[c]
         z[a] = acc / Lf[a, a]
     return z
@@ -233,10 +259,19 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
             continue
         L = ti.Matrix.identity(float, 2)
         Lf = ti.Matrix.identity(float, 5)
+        # the cubic fit's factor (a 1 x 1 placeholder for the other variants)
+        Lc = ti.Matrix.identity(float, ti.static(9 if variant == GradientVariant.CUBIC else 1))
         linear = 0
-        if ti.static(variant == GradientVariant.QUADRATIC):
-            Lf, ok = _quadratic_fit_rows(kernel_id, i, pos, mass, rho, offsets, nbrs, H, adaptive, hs,
-                                           kind, src_kinds)
+        cubic = 0
+        if ti.static(variant == GradientVariant.CUBIC):
+            Lc, ok3 = _mls_fit_rows(3, kernel_id, i, pos, mass, rho, offsets, nbrs, H, adaptive,
+                                    hs, kind, src_kinds)
+            cubic = ti.select(ok3, 1, 0)
+        if ti.static(variant == GradientVariant.QUADRATIC or variant == GradientVariant.CUBIC):
+            ok = True
+            if cubic == 0:
+                Lf, ok = _mls_fit_rows(2, kernel_id, i, pos, mass, rho, offsets, nbrs, H, adaptive,
+                                       hs, kind, src_kinds)
             if not ok:
                 # Too few neighbours for a quadratic fit (e.g. a corner): this
                 # particle falls back to the linearly corrected gradient, and only
@@ -282,9 +317,16 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
                     W, _F2, _L2 = kernel_terms(kernel_id, xij.norm(), Hij)
                     Hi = pair_support(adaptive, hs, i, i, H)
                     u = -xij / Hi
-                    p = ti.Vector([u[0], u[1], u[0] * u[0], u[0] * u[1], u[1] * u[1]])
-                    z = _cholesky_solve5(Lf, (mj / rho[j]) * W * p)
-                    coef = ti.Vector([z[0], z[1]]) / Hi
+                    if ti.static(variant == GradientVariant.CUBIC):
+                        if cubic:
+                            z3 = _cholesky_solve(3, Lc, (mj / rho[j]) * W * _monomials(3, u))
+                            coef = ti.Vector([z3[0], z3[1]]) / Hi
+                        else:
+                            z = _cholesky_solve(2, Lf, (mj / rho[j]) * W * _monomials(2, u))
+                            coef = ti.Vector([z[0], z[1]]) / Hi
+                    else:
+                        z = _cholesky_solve(2, Lf, (mj / rho[j]) * W * _monomials(2, u))
+                        coef = ti.Vector([z[0], z[1]]) / Hi
             G[k] = coef
             if ti.static(variant == GradientVariant.BASIC):
                 gsum += coef   # sum_j G f_j = sum_j G (f_j - f_i) + (sum_j G) f_i
