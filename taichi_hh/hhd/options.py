@@ -3,16 +3,21 @@
 
 :data:`METHODS`:
 
-``default``         Wendland C2, support 2.5 spacings (the most accurate
-                    support: docs/notes/hhd.md); div v and curl v by the
-                    quadratic (MLS) gradient over the data points; corrected
+``default``         Wendland C2 with an adaptive support: 3.5 local spacings,
+                    the spacing estimated from each point's 12 nearest
+                    neighbours (:mod:`taichi_hh.sph.support`), so that uniformly
+                    random, clustered and varying-density data keep well-posed
+                    rows (docs/notes/scattered.md); div v and curl v by the
+                    cubic (MLS) gradient over the data points (the quadratic
+                    fit's error on random points is noise that the potentials
+                    inherit); corrected
                     Laplacian (exact on quadratics) on the data points and
                     Neumann rows on boundary particles sampled along the
                     boundary, with the quadratic gradient (second order up to
                     the boundary); bordered system for the pure-Neumann
                     compatibility; BiCGSTAB to 1e-8 preconditioned by the
                     multilevel cycle (Jacobi below 1000 particles); d, r by
-                    the quadratic gradient.
+                    the cubic gradient.
 ``petronetto2010``  as published: quartic kernel, difference gradient and
                     divergence (Petronetto Eqs. 8, 9), Brookshaw Laplacian
                     (Eq. 10), fake particles outside the boundary by
@@ -42,11 +47,11 @@ PRECONDITIONERS = ("auto", "multilevel", "jacobi")
 class HHDOptions:
     """Numerical choices of :func:`~taichi_hh.hhd.decompose.decompose` (bundles: :data:`METHODS`)."""
     kernel: str = "wendland"
-    support_ratio: float = 2.5          # kernel support / mean spacing sqrt(area / N)
-    adaptive_support: bool = False      # per-point support from the local spacing (sph.support)
+    support_ratio: float = 3.5          # kernel support / (local) mean spacing
+    adaptive_support: bool = True       # per-point support from the local spacing (sph.support)
     support_neighbours: int = 12        # k of that local spacing estimate
-    divergence: str = "quadratic"       # gradient variant for div v and curl v
-    gradient: str = "quadratic"         # gradient variant for d = grad phi, r = J grad psi
+    divergence: str = "cubic"           # gradient variant for div v and curl v
+    gradient: str = "cubic"             # gradient variant for d = grad phi, r = J grad psi
     laplacian: str = "corrected"        # Laplacian variant of the Poisson rows
     neumann_gradient: str = "quadratic"  # gradient variant of the Neumann rows
     boundary: str = "collocation"       # collocation | petronetto | colin | none
@@ -77,12 +82,14 @@ class HHDOptions:
 
 METHODS = {
     "default": HHDOptions(),
-    "petronetto2010": HHDOptions(kernel="quartic", support_ratio=2.0, divergence="difference",
+    "petronetto2010": HHDOptions(kernel="quartic", support_ratio=2.0, adaptive_support=False,
+                                 divergence="difference",
                                  gradient="difference", laplacian="brookshaw",
                                  neumann_gradient="difference", boundary="petronetto",
                                  kappa=1e-3, bordered=False, tol=1e-6,
                                  preconditioner="jacobi"),
-    "colin2006": HHDOptions(kernel="poly6", support_ratio=2.0, divergence="colin_difference",
+    "colin2006": HHDOptions(kernel="poly6", support_ratio=2.0, adaptive_support=False,
+                            divergence="colin_difference",
                             gradient="colin_difference", laplacian="colin_difference",
                             neumann_gradient="colin_difference", boundary="colin",
                             bordered=False, solver="cgnr", preconditioner="jacobi", tol=1e-4,
@@ -93,7 +100,12 @@ METHODS = {
 #: Colin solves the plain (not bordered) stacked system by CG on the normal
 #: equations, here to the least-squares solution with normal residual 1e-4
 #: (tighter tolerances stall: docs/notes/hhd.md)
-PROJECT_OVERRIDES = {"colin2006": {"bordered": False, "tol": 1e-4, "max_iterations": 20000}}
+PROJECT_OVERRIDES = {"colin2006": {"bordered": False, "tol": 1e-4, "max_iterations": 20000},
+                     # the projection keeps the fixed support and quadratic fits it was
+                     # measured with (Colin Table 1 on lattices); scattered data is the
+                     # decomposition's default for now
+                     "default": {"support_ratio": 2.5, "adaptive_support": False,
+                                 "divergence": "quadratic", "gradient": "quadratic"}}
 
 
 def options_for(method: str = "default", **overrides) -> HHDOptions:
