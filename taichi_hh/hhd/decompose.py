@@ -195,7 +195,7 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
         extra = {"least_squares": True} if opts.solver == "cgnr" else {}
         res = A.solve(rhs, method=opts.solver, tol=opts.tol,
                       max_iterations=opts.max_iterations, preconditioner=opts.preconditioner,
-                      **extra)
+                      multilevel_options=dict(opts.multilevel_options), **extra)
         seconds[f"solve_{name}"] = time.perf_counter() - t
         potentials[name] = res.x
         stats[f"iterations_{name}"] = res.iterations

@@ -60,11 +60,17 @@ class HHDOptions:
     remove_mean: bool = False           # subtract the volume-weighted mean of div v, curl v
     solver: str = "bicgstab"            # bicgstab | cgnr
     preconditioner: str = "auto"        # auto | multilevel | jacobi (see PoissonMatrix.solve)
+    # MultilevelPreconditioner options, as (name, value) pairs (a dict is accepted):
+    # l1 smoothing, two post-sweeps, omega 0.85 for the default's rows (docs/notes/linalg.md)
+    multilevel_options: tuple = (("l1", True), ("post", 2), ("omega", 0.85))
     tol: float = 1e-8
     max_iterations: int | None = None
     seed: int = 0                       # for sampled fake/boundary particles
 
     def __post_init__(self):
+        if isinstance(self.multilevel_options, dict):
+            object.__setattr__(self, "multilevel_options",
+                               tuple(sorted(self.multilevel_options.items())))
         if self.boundary not in BOUNDARY_METHODS:
             raise ValueError(f"boundary must be one of {BOUNDARY_METHODS}, got {self.boundary!r}")
         if not (self.support_ratio > 0):

@@ -192,7 +192,9 @@ class PoissonStep:
         rhs[ps.slot_of] = b
         res = self.matrix.solve(rhs, x0=None, method=opts.solver, tol=opts.tol,
                                 max_iterations=opts.max_iterations,
-                                preconditioner=opts.preconditioner, **self.solve_options)
+                                preconditioner=opts.preconditioner,
+                                multilevel_options=dict(opts.multilevel_options),
+                                **self.solve_options)
         self.potential_nd.from_numpy(res.x.astype(self.real))
         ps.ops.gradient(self.gradient_stencil, self.potential_nd, self.gradient_nd)
         return w - ps.download(self.gradient_nd), res.iterations
