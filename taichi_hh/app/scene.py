@@ -230,7 +230,7 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
                          "is cheaper)")
     ap.add_argument("--cfl", type=positive_float, default=None,
                     help="advective time-step limit dt <= CFL dx / max|v| (default: "
-                         f"{FlowParams.cfl}; stable runs measured to 1: docs/notes/flow.md)")
+                         f"{FlowParams.cfl}; accurate up to 0.5: docs/notes/app.md)")
     ap.add_argument("--dt-max", type=positive_float, default=None, metavar="DT",
                     help=f"largest time step (default: {FlowParams.dt_max})")
     ap.add_argument("--solver-tol", type=positive_float, default=None, metavar="TOL",

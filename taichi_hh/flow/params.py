@@ -7,7 +7,7 @@ from enum import IntEnum
 from ..errors import AccuracyWarning
 
 #: Largest time-step factors of the measured stable, accurate range
-#: (docs/notes/flow.md, "Time-step limits beyond the measured range"): beyond
+#: (docs/notes/app.md, "Hostile input"): beyond
 #: them :class:`FlowParams` warns (:class:`~taichi_hh.errors.AccuracyWarning`).
 STABLE_LIMITS = {"cfl": 0.5, "force_cfl": 1.0, "viscous_cfl": 0.66}
 
@@ -74,4 +74,4 @@ class FlowParams:
         if beyond:
             warnings.warn("time-step limits beyond the measured stable range: "
                           + ", ".join(beyond) + "; expect large volume errors or a blow-up "
-                          "(docs/notes/flow.md)", AccuracyWarning, stacklevel=3)
+                          "(docs/notes/app.md)", AccuracyWarning, stacklevel=3)

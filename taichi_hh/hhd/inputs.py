@@ -10,7 +10,7 @@ from ..errors import AccuracyWarning, InputError
 from ..sph.pointset import check_points, check_values
 
 #: fewer points than this are refused by decompose: the components are noise
-#: (median error 100-200% on the smoothest test field, docs/notes/hhd.md)
+#: (median error 100-200% on the smoothest test field, docs/notes/app.md)
 MIN_POINTS = 10
 #: fewer points than this are flagged: nearly every particle's kernel support
 #: reaches the boundary (median error 35-70% below, 9-12% from 140 points on)
