@@ -9,16 +9,30 @@ classes load on first use (they import Taichi), which pdoc does not trigger.
 """
 import argparse
 import pathlib
+import re
 import sys
 
 SUBPACKAGES = ["sph", "geometry", "linalg", "hhd", "flow", "validation", "app"]
 MODULES = ["taichi_hh"] + [f"taichi_hh.{name}" for name in SUBPACKAGES]
 
 
+def _sphinx_tilde(rst):
+    """Wrap pdoc's reST conversion: Sphinx's ``:class:`~a.b.C``` (shown as ``C``)
+    becomes ``:class:`a.b.C```, which pdoc shows and links; without this the
+    tilde is printed."""
+    def convert(contents, *args, **kwargs):
+        return rst(re.sub(r"(:[a-z]+:`)~", r"\1", contents), *args, **kwargs)
+    return convert
+
+
 def build(output_directory):
     """Write the HTML reference of :data:`MODULES` into ``output_directory``."""
     import pdoc
+    import pdoc.docstrings
     import pdoc.render
+
+    if hasattr(pdoc.docstrings, "rst"):
+        pdoc.docstrings.rst = _sphinx_tilde(pdoc.docstrings.rst)
 
     import taichi_hh
     for name in taichi_hh.__all__:
