@@ -496,8 +496,10 @@ def add_common_arguments(parser: argparse.ArgumentParser, defaults: dict | None 
                         help="movie frames per second" + dflt)
     parser.add_argument("--frame-width", type=positive_int, default=d["frame_width"], metavar="PX",
                         help="frame width in pixels; the height keeps the box's aspect ratio" + dflt)
-    parser.add_argument("--color", choices=("phase", "speed"), default=d["color"],
-                        help="colour particles by phase or by speed" + dflt)
+    parser.add_argument("--color", "--color-by", choices=("phase", "speed", "vorticity"),
+                        default=d["color"],
+                        help="colour particles by phase, speed or vorticity (a diverging "
+                             "colour bar with symmetric limits)" + dflt)
     parser.add_argument("--precision", choices=("f32", "f64"), default=d["precision"],
                         help="floating-point precision of the Taichi kernels" + dflt)
     parser.add_argument("--quiet", action="store_true",

@@ -20,7 +20,7 @@ from .config import config_tokens, write_config
 from .overlay import FrameLabels, label_frame
 from .io import remove_stale_temp_files
 from .particle_files import PvdSeries, write_particles
-from .render import STYLES, FrameRenderer, frame_path, write_movie, write_png
+from .render import COLORMAPS, STYLES, FrameRenderer, frame_colouring, frame_path, write_movie, write_png
 from .runloop import Checkpoint, DiagnosticsWriter, HelpFormatter, add_common_arguments, run
 
 #: the checkout this module runs from (``--docs`` writes the README's figures there)
@@ -293,7 +293,7 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     x0, y0, x1, y1 = params.box
     wall_px = max(2, args.frame_width // 200)       # the walls' grey frame around the box
     renderer = FrameRenderer(max(args.frame_width - 2 * wall_px, 1), None, (x0, y0), (x1, y1),
-                             style=args.style)
+                             style=args.style, colormap=COLORMAPS[args.color])
     legend = [(name, renderer.colour_of_phase(k)) for k, name in enumerate(scene.phase_names)]
     series = PvdSeries(os.path.join(args.out, "particles.pvd"),
                        resume_time=flow.time if args.resume else None) if args.vtk else None
@@ -318,12 +318,11 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     def on_output(t, step, info):
         t0 = time.perf_counter()
         pos, vel, ph, _ = flow.fluid_state()
-        if args.color == "speed":
-            scalar = np.linalg.norm(vel, axis=1)
-            vmax = float(scalar.max()) if scalar.size else 1.0
-            labels = FrameLabels(colorbar=("speed", 0.0, vmax, renderer.table_np[:256]),
+        scalar, vmin, vmax, name = frame_colouring(args.color, pos, vel, flow.dx, flow.support)
+        if scalar is not None:
+            labels = FrameLabels(colorbar=(name, vmin, vmax, renderer.table_np[:256]),
                                  wall_px=wall_px)
-            image = renderer.draw(pos, phase=ph, scalar=scalar, vmin=0.0, vmax=vmax)
+            image = renderer.draw(pos, phase=ph, scalar=scalar, vmin=vmin, vmax=vmax)
         else:
             labels = FrameLabels(legend=legend, wall_px=wall_px)
             image = renderer.draw(pos, phase=ph)

@@ -6,11 +6,11 @@ of squared div (their Table 1).
 Two steps and three schemes built from them (``scheme``; each method has its
 own default).  Measurements of each: docs/notes/hhd.md.
 
-The Poisson step (:class:`PoissonStep`)
+* The Poisson step (:class:`PoissonStep`):
     Colin's algorithm: solve ``lap q = div w`` with ``dq/dn = 0`` (Colin Eqs.
     28-29, 31-38) and update ``w <- w - grad q`` (Eqs. 25, 41).
 
-The orthogonal step (:class:`OrthogonalStep`)
+* The orthogonal step (:class:`OrthogonalStep`):
     The discrete orthogonal projection onto the null space of the divergence
     operator ``D`` itself.  With ``V`` the particle volumes,
 
@@ -45,7 +45,7 @@ The orthogonal step (:class:`OrthogonalStep`)
     the normal velocity: the continuous analogue is the Leray projection with
     ``q = 0`` on the boundary, which changes the normal flux.
 
-``neumann`` (``method="default"``, :class:`NeumannProjection`)
+* ``neumann`` (``method="default"``, :class:`NeumannProjection`):
     Each pass is one Poisson step with our consistent operators (corrected
     Laplacian, quadratic gradient, ``dq/dn = 0`` rows on boundary particles
     along the boundary), which gives the projection its meaning (the normal
@@ -62,10 +62,10 @@ The orthogonal step (:class:`OrthogonalStep`)
     keeping their normal flux is divergence-free: there the orthogonal step
     changes the flux as little as it can.
 
-``orthogonal`` (:class:`OrthogonalProjection`)
+* ``orthogonal`` (:class:`OrthogonalProjection`):
     The orthogonal step alone.  Measured divergence: ``D`` as for ``neumann``.
 
-``poisson`` (``method="colin2006"``, :class:`PoissonProjection`)
+* ``poisson`` (``method="colin2006"``, :class:`PoissonProjection`):
     The Poisson step alone, Colin's algorithm.  With ``method="colin2006"``:
     poly6, DGAF (Eq. 13) divergence and gradient, Laplacian Eq. 21, a layer of
     wall particles at rest as wide as the support, continuing the lattice for
