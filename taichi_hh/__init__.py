@@ -11,17 +11,21 @@ __version__ = "0.1.0"
 
 
 def __getattr__(name):
-    # Heavy submodules (they import taichi) load on first use.
+    # Heavy submodules (they import taichi) load on first use; the name is then
+    # kept in the module, as an eager import would have (tools that read the
+    # module's namespace, like pdoc, see it).
     if name == "PointSet":
-        from .sph.pointset import PointSet
-        return PointSet
-    if name in ("decompose", "HHDResult", "METHODS"):
+        from .sph.pointset import PointSet as value
+    elif name in ("decompose", "HHDResult", "METHODS"):
         from .hhd import decompose as hhd
-        return getattr(hhd, name)
-    if name in ("project", "ProjectionResult"):
+        value = getattr(hhd, name)
+    elif name in ("project", "ProjectionResult"):
         from .hhd import project as projection
-        return getattr(projection, name)
-    raise AttributeError(f"module 'taichi_hh' has no attribute {name!r}")
+        value = getattr(projection, name)
+    else:
+        raise AttributeError(f"module 'taichi_hh' has no attribute {name!r}")
+    globals()[name] = value
+    return value
 
 
 __all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError", "AccuracyWarning"]

@@ -221,3 +221,18 @@ def test_scene_options_that_cannot_run_stop_at_parse_time(tmp_path, capsys, scen
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
     assert not (tmp_path / "run" / "diagnostics.csv").exists()
+
+
+def test_scene_frames_coloured_by_vorticity(tmp_path):
+    mod = load("rising_droplet")
+    out = tmp_path / "vort"
+    assert mod.main(mod.SCENE, ["--particles", "800", "--end-time", "0.2", "--output-interval",
+                                "0.2", "--out", str(out), "--quiet", "--frame-width", "200",
+                                "--no-vtk", "--color-by", "vorticity"]) == 0
+    img = iio.imread(out / "frame_00001.png")[..., :3].astype(int)
+    band = header_height(200)
+    box = img[band + 2:-2, 2:-2]
+    # the rising droplet turns both ways: red (counter-clockwise) and blue parts
+    assert ((box[..., 0] - box[..., 2]) > 60).any() and ((box[..., 2] - box[..., 0]) > 60).any()
+    assert (img[:band] != 255).any(axis=2).sum() > 50            # the time and the colour bar
+    assert 'color = "vorticity"' in (out / "config.toml").read_text()

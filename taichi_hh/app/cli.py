@@ -10,9 +10,12 @@ only parses arguments, calls the library and writes files.
 
 Errors in the input or in the numerics (:class:`~taichi_hh.errors.InputError`,
 :class:`~taichi_hh.errors.SolverError`, :class:`~taichi_hh.errors.NeighbourError`,
-bad option values) print one line ``taichi-hh CMD: error: ...`` on stderr and
-exit with status 2 (as argparse does for bad usage); set ``TAICHI_HH_DEBUG=1``
-to get the traceback instead.
+bad option values, an --out that cannot be written) print one line
+``taichi-hh CMD: error: ...`` on stderr and exit with status 2 (as argparse
+does for bad usage), leaving no result file of the failed command; an
+unexpected error prints one line naming a file with the full report (status
+1); set ``TAICHI_HH_DEBUG=1`` to get the traceback instead
+(:mod:`taichi_hh.app.errors_report`).
 """
 from __future__ import annotations
 
@@ -326,9 +329,56 @@ class _captured_output:
 
 
 def _cmd_scene(args) -> int:
-    from .scene import main as run_scene_main
+    from .scene import run_scene
     from .scenes import get
-    return run_scene_main(get(args.name), args.scene_args)
+    run_scene(get(args.name), args.scene_args)
+    return 0
+
+
+def _prepare_out(out: str) -> None:
+    """Refuse an --out that is a file or cannot be created or written, before
+    any work; remove temporary files a killed earlier run left there."""
+    from ..errors import InputError
+    from .io import remove_stale_temp_files
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise InputError(f"--out {out}: is a file, not a directory")
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot create the directory "
+                         f"({exc.strerror or exc})") from None
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise InputError(f"--out {out}: the directory is not writable")
+    remove_stale_temp_files(out)
+
+
+class _WrittenOnSuccess:
+    """Files in ``out`` written (or rewritten) inside the block are removed if
+    the block raises: a command that exits with an error leaves no result
+    files of its own behind (e.g. components.npz when a figure fails)."""
+
+    def __init__(self, out: str):
+        self.out = out
+
+    def _files(self) -> dict:
+        try:
+            return {e.name: e.stat().st_mtime_ns for e in os.scandir(self.out) if e.is_file()}
+        except OSError:
+            return {}
+
+    def __enter__(self):
+        self.before = self._files()
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is not None:
+            for name, mtime in self._files().items():
+                if self.before.get(name) != mtime:
+                    try:
+                        os.remove(os.path.join(self.out, name))
+                    except OSError:
+                        pass
+        return False
 
 
 def _cmd_decompose(args) -> int:
@@ -338,24 +388,27 @@ def _cmd_decompose(args) -> int:
     say = _Progress("decompose", args.quiet)
     overrides = _numeric_overrides(args)
     options_for(args.method, **overrides)           # bad combinations fail before any work
+    out = _out_dir(args)
+    _prepare_out(out)
     points, vectors, domain = _read_inputs(args, say)
     st = _init(args, say)
     res = decompose(points, vectors, domain, method=args.method, progress=say, **overrides)
     say("critical points")
     critical = res.critical_points(threshold=args.critical_threshold)
-    out = _out_dir(args)
     written = [os.path.join(out, "components.npz")]
     say(f"writing {written[0]}")
-    io.write_components(written[0], res, critical_points=critical)
-    if args.vtk:
-        from .particle_files import write_vtu
-        written.append(write_vtu(os.path.join(out, "components.vtu"), res.points, {
-            "v": res.vectors, "d": res.curl_free, "r": res.div_free, "h": res.harmonic,
-            "phi": res.phi, "psi": res.psi, "divergence": res.divergence, "curl": res.curl}))
-    if not args.no_figures:
-        from .figures import decomposition_figures
-        say("drawing figures")
-        written += decomposition_figures(res, domain, out, critical=critical)
+    with _WrittenOnSuccess(out):
+        io.write_components(written[0], res, critical_points=critical)
+        if args.vtk:
+            from .particle_files import write_vtu
+            written.append(write_vtu(os.path.join(out, "components.vtu"), res.points, {
+                "v": res.vectors, "d": res.curl_free, "r": res.div_free, "h": res.harmonic,
+                "phi": res.phi, "psi": res.psi, "divergence": res.divergence,
+                "curl": res.curl}))
+        if not args.no_figures:
+            from .figures import decomposition_figures
+            say("drawing figures")
+            written += decomposition_figures(res, domain, out, critical=critical)
     s = res.stats
     mean = {k: float(np.linalg.norm(a, axis=1).mean()) for k, a in
             (("v", res.vectors), ("d", res.curl_free), ("r", res.div_free),
@@ -387,28 +440,30 @@ def _cmd_project(args) -> int:
     say = _Progress("project", args.quiet)
     overrides = _numeric_overrides(args)
     options_for(args.method, **overrides)
+    out = _out_dir(args)
+    _prepare_out(out)
     points, vectors, domain = _read_inputs(args, say)
     st = _init(args, say)
     say("setup")
     res = project(points, vectors, domain, iterations=args.iterations, method=args.method,
                   progress=say, **overrides)
-    out = _out_dir(args)
     written = [os.path.join(out, "projected.npz"), os.path.join(out, "measures.csv")]
     say(f"writing {written[0]}")
-    io.write_projection(written[0], res)
-    if args.vtk:
-        from .particle_files import write_vtu
-        written.append(write_vtu(os.path.join(out, "projection.vtu"), res.points, {
-            "vectors": res.vectors, "initial": res.initial, "divergence": res.divergence}))
     iters = list(res.stats.get("iterations", []))
-    io.atomic_write_csv(written[1], [
-        {"pass": k, "max_abs_divergence": float(m), "sum_sq_divergence": float(q),
-         "solver_iterations": iters[k - 1] if k >= 1 else ""}
-        for k, (m, q) in enumerate(zip(res.max_divergence, res.sum_sq_divergence))])
-    if not args.no_figures:
-        from .figures import projection_figures
-        say("drawing figures")
-        written += projection_figures(res, domain, out)
+    with _WrittenOnSuccess(out):
+        io.write_projection(written[0], res)
+        if args.vtk:
+            from .particle_files import write_vtu
+            written.append(write_vtu(os.path.join(out, "projection.vtu"), res.points, {
+                "vectors": res.vectors, "initial": res.initial, "divergence": res.divergence}))
+        io.atomic_write_csv(written[1], [
+            {"pass": k, "max_abs_divergence": float(m), "sum_sq_divergence": float(q),
+             "solver_iterations": iters[k - 1] if k >= 1 else ""}
+            for k, (m, q) in enumerate(zip(res.max_divergence, res.sum_sq_divergence))])
+        if not args.no_figures:
+            from .figures import projection_figures
+            say("drawing figures")
+            written += projection_figures(res, domain, out)
     print(_paragraph(
         f"Projected {len(res.points)} points of {args.field} (method {args.method}"
         f"{', ' + ', '.join(f'{k}={v}' for k, v in overrides.items()) if overrides else ''}; "
@@ -421,28 +476,22 @@ def _cmd_project(args) -> int:
 
 
 # --------------------------------------------------------------------------- entry point
+def _solver_hint(exc):
+    from ..errors import SolverError
+    if isinstance(exc, SolverError):
+        return "(try a larger --tol, a larger --max-iterations or another --method)"
+    return None
+
+
 def main(argv=None) -> int:
     # importing taichi (for the option choices) prints a banner on stdout; keep
     # stdout for results unless the user asked for the banner
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
     parser = build_parser()
     args = parser.parse_args(argv)
-    from ..errors import SolverError, TaichiHHError
-    try:
-        return args.func(args)
-    except (TaichiHHError, ValueError, OSError) as exc:
-        if os.environ.get("TAICHI_HH_DEBUG"):
-            raise
-        msg = " ".join(str(exc).split()) or type(exc).__name__
-        if isinstance(exc, SolverError):
-            msg += " (try a larger --tol, a larger --max-iterations or another --method)"
-        elif isinstance(exc, OSError) and not isinstance(exc, TaichiHHError):
-            msg = f"{type(exc).__name__}: {msg}"
-        print(f"taichi-hh {args.command}: error: {msg}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"taichi-hh {args.command}: interrupted", file=sys.stderr)
-        return 130
+    from .errors_report import run_reporting
+    return run_reporting(f"taichi-hh {args.command}", lambda: args.func(args),
+                         error_hint=_solver_hint)
 
 
 if __name__ == "__main__":

@@ -25,13 +25,20 @@ def _umask() -> int:
     return _UMASK
 
 
+#: temporary files are named ``.tmp-<pid>-<random><suffix>``: a process killed
+#: mid-write (SIGKILL, power loss) leaves one behind, which
+#: :func:`remove_stale_temp_files` recognises by its dead process id
+TEMP_PREFIX = ".tmp-"
+
+
 @contextmanager
 def atomic_path(path: str, suffix: str = ""):
-    """Yield a temporary path next to ``path``; rename it to ``path`` on success."""
+    """Yield a temporary path next to ``path``; rename it to ``path`` on success.
+    On any exception (or exit) Python sees, the temporary file is removed."""
     directory = os.path.dirname(os.path.abspath(path)) or "."
     os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix or os.path.splitext(path)[1],
-                               dir=directory)
+    fd, tmp = tempfile.mkstemp(prefix=f"{TEMP_PREFIX}{os.getpid()}-",
+                               suffix=suffix or os.path.splitext(path)[1], dir=directory)
     os.close(fd)
     try:
         yield tmp
@@ -42,6 +49,46 @@ def atomic_path(path: str, suffix: str = ""):
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True                       # exists (another user's) or cannot tell: keep
+    return True
+
+
+def remove_stale_temp_files(directory: str, *, legacy_age: float = 3600.0) -> list:
+    """Remove the temporary files of :func:`atomic_path` that a killed process
+    left in ``directory`` (not recursive): those whose process id is no longer
+    running, and unnumbered ones (older versions) older than ``legacy_age``
+    seconds.  Returns the removed paths.  A missing directory is fine."""
+    import time
+    removed = []
+    try:
+        names = os.listdir(directory)
+    except OSError:
+        return removed
+    now = time.time()
+    for name in names:
+        if not name.startswith(TEMP_PREFIX):
+            continue
+        path = os.path.join(directory, name)
+        head = name[len(TEMP_PREFIX):].split("-", 1)[0]
+        try:
+            if head.isdigit() and "-" in name[len(TEMP_PREFIX):]:
+                stale = not _pid_alive(int(head))
+            else:
+                stale = now - os.path.getmtime(path) > legacy_age
+            if stale and os.path.isfile(path):
+                os.remove(path)
+                removed.append(path)
+        except OSError:
+            pass
+    return removed
 
 
 def atomic_write_csv(path: str, rows: list[dict]) -> None:
@@ -101,6 +148,9 @@ def read_field(path):
 def _read_field_npz(path):
     import numpy as np
     from ..errors import InputError
+    problem = npz_problem(path)
+    if problem:
+        raise InputError(f"{path}: not a readable .npz file ({problem})")
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
@@ -133,6 +183,31 @@ def _read_field_npz(path):
     if len(points) == 0:
         raise InputError(f"{path}: the field has no points")
     return points, vectors
+
+
+def npz_problem(path) -> str | None:
+    """What makes ``path`` unreadable as a .npz archive, in words, or None when
+    it is a complete zip archive.  (numpy alone would call garbage "pickled
+    data", and a truncated archive a bad zip file.)"""
+    import zipfile
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+    except OSError as exc:
+        return f"cannot read it: {exc.strerror or exc}"
+    if not head:
+        return "the file is empty"
+    if head[:2] != b"PK":
+        return (f"it is not a zip archive: it starts with bytes {head.hex(' ')}, "
+                "a .npz file with 50 4b (PK)")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            bad = zf.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+        return f"a truncated or damaged zip archive: {exc}"
+    if bad is not None:
+        return f"a damaged zip archive: member {bad} fails its checksum"
+    return None
 
 
 def _read_field_csv(path):

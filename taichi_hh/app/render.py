@@ -10,7 +10,7 @@ whole draw (docs/notes/app.md).
 How a frame is drawn (one kernel, two parallel loops, no float atomics).  On
 the host, numpy turns positions into pixel coordinates (f32, y up) and gives
 every particle its colour-table row: its phase's palette entry, the wall grey,
-or the colormap entry of its scalar (speed).  Then, in the kernel:
+or the colormap entry of its scalar (speed, vorticity).  Then, in the kernel:
 
 1. per particle, every pixel whose centre lies inside its disc gets
    ``atomic_max(key)`` where ``key = closeness << 9 | colour``: closeness is
@@ -46,6 +46,7 @@ import taichi as ti
 from .. import runtime
 from .io import atomic_path
 from ..sph.particles import FLUID
+from ..sph.pointset import PointSet
 
 # colour table layout (rows of RGB u8)
 _CMAP_ROWS = 256                    # rows 0..255: the scalar colormap
@@ -65,6 +66,11 @@ WALL_COLOUR = (150, 150, 150)
 
 #: frame styles: particles as discs, or the smooth interpolated colour field
 STYLES = ("discs", "smooth")
+#: what frames can be coloured by (the scenes' ``--color``)
+COLOURINGS = ("phase", "speed", "vorticity")
+#: matplotlib colormap of each colouring: sequential for speed, diverging
+#: (white at zero, red counter-clockwise, blue clockwise) for vorticity
+COLORMAPS = {"phase": "viridis", "speed": "viridis", "vorticity": "RdBu_r"}
 #: disc radius in particle spacings: well above sqrt(2)/2, so that the discs of a
 #: lattice cover its cells' centres, and most gaps of a disordered set (overlaps
 #: go to the nearest centre, so larger discs do not blur)
@@ -195,6 +201,48 @@ def _draw_smooth(px: ti.types.ndarray(), colour: ti.types.ndarray(), n: ti.i32,
                         for ch in ti.static(range(3)):
                             image[base + col, ch] = ti.cast(
                                 ti.min(ti.max(val[ch] + ti.cast(0.5, ti.f32), 0.0), 255.0), ti.u8)
+
+def vorticity(positions, velocities, spacing: float, support: float) -> np.ndarray:
+    """Vorticity ``dv_y/dx - dv_x/dy`` of each particle, from the particles alone.
+
+    The corrected SPH curl (:meth:`taichi_hh.PointSet.curl`, Bonet & Lok 1999:
+    exact on linear velocity fields, so a rigid rotation at angular velocity
+    omega gives 2 omega at every particle, up to the free edges' one-sided
+    neighbourhoods too) over the given particles only, with kernel support
+    ``support`` and particle area ``spacing**2``.  Walls are not included: at a
+    no-slip wall the value is the one-sided estimate from the fluid side.
+    """
+    pos = np.asarray(positions, dtype=np.float64)
+    vel = np.asarray(velocities, dtype=np.float64)
+    if len(pos) == 0:
+        return np.zeros(0)
+    points = PointSet(pos, support=float(support), area=len(pos) * float(spacing) ** 2)
+    return points.curl(vel, "corrected")
+
+
+def frame_colouring(color: str, positions, velocities, spacing: float, support: float):
+    """What a frame coloured by ``color`` (one of :data:`COLOURINGS`) shows:
+    ``(scalar per particle or None, vmin, vmax, colour bar name)``.
+
+    ``"phase"``: no scalar (the phase palette).  ``"speed"``: ``|v|`` over
+    ``[0, max]``.  ``"vorticity"``: :func:`vorticity` over symmetric limits
+    ``[-a, a]``, ``a`` its largest magnitude, so zero sits at the diverging
+    colormap's white centre.  Limits are per frame (a frame's colours compare
+    within it; the colour bar gives the scale)."""
+    if color == "phase":
+        return None, 0.0, 1.0, ""
+    vel = np.asarray(velocities, dtype=np.float64)
+    if color == "speed":
+        scalar = np.linalg.norm(vel, axis=1)
+        return scalar, 0.0, float(scalar.max()) if scalar.size else 1.0, "speed"
+    if color == "vorticity":
+        scalar = vorticity(positions, vel, spacing, support)
+        finite = scalar[np.isfinite(scalar)]
+        a = float(np.abs(finite).max()) if finite.size else 0.0
+        a = a if a > 0 else 1.0
+        return scalar, -a, a, "vorticity"
+    raise ValueError(f"color must be one of {COLOURINGS}, got {color!r}")
+
 
 def colormap_table(name: str = "viridis") -> np.ndarray:
     """A (256, 3) u8 table of a matplotlib colormap."""

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..checks import positive_float, positive_int
 from ..errors import BlowUp, SolverError
-from .io import atomic_path
+from .io import atomic_path, npz_problem
 
 
 def check_finite(**arrays) -> None:
@@ -80,7 +80,9 @@ class ProgressBar:
 
     On a terminal the line is redrawn in place at most every ``min_interval``
     seconds (default 0.2: 5 times a second); otherwise (a log file, a pipe) a
-    full line is printed each time another 10% of the simulated time is done.
+    full line is printed each time another 10% of the simulated time is done,
+    and at least every ``log_interval`` wall seconds (default 30) while a slow
+    stretch is under way, so a piped run never looks hung.
     The ETA is the steps left at the recent time step times the recent wall
     time per step (both over the last third of the elapsed wall time): the
     time step of a flow that speeds up shrinks, so the run's average rate
@@ -88,15 +90,17 @@ class ProgressBar:
     """
 
     def __init__(self, total_time: float, stream=None, *, t_start: float = 0.0,
-                 step_start: int = 0, min_interval: float = 0.2, width: int = 20):
+                 step_start: int = 0, min_interval: float = 0.2, width: int = 20,
+                 log_interval: float = 30.0):
         self.stream = sys.stderr if stream is None else stream
         self.total = float(total_time)
         self.t_start, self.step_start = float(t_start), int(step_start)
-        self.min_interval, self.width = min_interval, width
+        self.min_interval, self.width, self.log_interval = min_interval, width, log_interval
         isatty = getattr(self.stream, "isatty", None)
         self.tty = bool(isatty and isatty())
         self._wall0 = time.monotonic()
         self._last_draw = -math.inf
+        self._last_log = self._wall0
         self._decile = int(self._fraction(self.t_start) * 10)
         self._shown = 0          # length of the line on screen (tty)
         self.t, self.step = self.t_start, self.step_start
@@ -146,8 +150,10 @@ class ProgressBar:
                 self._shown = len(text)
         else:
             decile = int(self._fraction(self.t) * 10 + 1e-9)
-            if force or decile > self._decile:
-                self._decile = decile
+            now = time.monotonic()
+            if force or decile > self._decile or now - self._last_log >= self.log_interval:
+                self._decile = max(decile, self._decile)
+                self._last_log = now
                 self.stream.write(self.line() + "\n")
                 self.stream.flush()
 
@@ -201,6 +207,10 @@ class Checkpoint:
     def load(cls, path: str) -> dict:
         if not os.path.exists(path):
             raise FileNotFoundError(f"no checkpoint at {path}: nothing to resume (run without --resume)")
+        problem = npz_problem(path)
+        if problem:
+            raise ValueError(f"{path} is not a readable checkpoint ({problem}); "
+                             "start afresh without --resume")
         with np.load(path, allow_pickle=False) as data:
             if cls._VERSION_KEY not in data.files:
                 raise ValueError(f"{path} is not a taichi_hh checkpoint (no format version)")
@@ -346,7 +356,8 @@ def _takes_argument(fn) -> bool:
 
 def run(step_fn, *, t0: float, t_end: float, output_interval: float, on_output, checkpoint_fn,
         progress: bool = True, step0: int = 0, output_at_start: bool = True,
-        blowup_types: tuple = (), stream=None):
+        blowup_types: tuple = (), stream=None,
+        blowup_advice: str = "--resume restarts from it (e.g. with a smaller time step)"):
     """Advance ``step_fn`` from ``t0`` to ``t_end``, with outputs and checkpoints.
 
     step_fn() -> (t, dt, info): one time step; returns the new time, the step
@@ -360,6 +371,9 @@ def run(step_fn, *, t0: float, t_end: float, output_interval: float, on_output, 
     then ``checkpoint_fn()``, which saves the state and returns its path.
     Resuming: pass the checkpoint's time and step as ``t0``/``step0`` and
     ``output_at_start=False`` (its output was written before it was saved).
+
+    blowup_advice: what the blow-up message suggests after naming the kept
+    checkpoint: a string, or ``callable(t, step, cause) -> str``.
 
     Returns ``(t, step)`` at the end.  Stops (see the module docstring):
     Ctrl-C -> ``SystemExit(130)``; a blow-up -> ``SystemExit(2)``.
@@ -421,7 +435,7 @@ def run(step_fn, *, t0: float, t_end: float, output_interval: float, on_output, 
             cause = getattr(exc, "cause", "solver" if isinstance(exc, SolverError) else "")
             say(f"stopped: the simulation blew up in the step after t={t:.6g} (step {step})"
                 f"{' [' + cause + ']' if cause else ''}: {exc}\n{kept()}; "
-                "--resume restarts from it (e.g. with a smaller time step)")
+                f"{blowup_advice(t, step, cause) if callable(blowup_advice) else blowup_advice}")
             raise SystemExit(2) from None
     if bar:
         bar.close()
@@ -463,11 +477,17 @@ def add_common_arguments(parser: argparse.ArgumentParser, defaults: dict | None 
     parser.add_argument("--end-time", type=positive_float, default=d["end_time"], metavar="T",
                         help="simulated time to reach" + dflt)
     parser.add_argument("--out", default=d["out"], metavar="DIR",
-                        help="output directory: frames, diagnostics.csv, checkpoint, movie" + dflt)
+                        help="output directory: frames, diagnostics.csv, checkpoint, movie; "
+                             "a fresh run first removes the files an earlier run wrote there "
+                             "(frames, particles, diagnostics, checkpoint, movie), other files "
+                             "stay" + dflt)
     parser.add_argument("--arch", choices=("cpu", "gpu", "auto"), default=d["arch"],
                         help="Taichi arch; gpu falls back to the CPU when there is none" + dflt)
     parser.add_argument("--resume", action="store_true",
-                        help="continue from the checkpoint in --out instead of starting afresh"
+                        help="continue from the checkpoint in --out instead of starting afresh;"
+                             " the run keeps the checkpoint's options (a different value is "
+                             "refused) except --end-time, --cfl, --dt-max, --solver-tol and how "
+                             "it is shown (--quiet, --movie, --fps, --montage, --arch)"
                              " (default: start afresh)")
     parser.add_argument("--movie", choices=("none", "gif", "mp4"), default=d["movie"],
                         help="also write a movie of the frames (mp4 needs the mp4 extra, "
@@ -476,8 +496,10 @@ def add_common_arguments(parser: argparse.ArgumentParser, defaults: dict | None 
                         help="movie frames per second" + dflt)
     parser.add_argument("--frame-width", type=positive_int, default=d["frame_width"], metavar="PX",
                         help="frame width in pixels; the height keeps the box's aspect ratio" + dflt)
-    parser.add_argument("--color", choices=("phase", "speed"), default=d["color"],
-                        help="colour particles by phase or by speed" + dflt)
+    parser.add_argument("--color", "--color-by", choices=("phase", "speed", "vorticity"),
+                        default=d["color"],
+                        help="colour particles by phase, speed or vorticity (a diverging "
+                             "colour bar with symmetric limits)" + dflt)
     parser.add_argument("--precision", choices=("f32", "f64"), default=d["precision"],
                         help="floating-point precision of the Taichi kernels" + dflt)
     parser.add_argument("--quiet", action="store_true",

@@ -18,8 +18,9 @@ from ..flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
 from ..validation.layouts import lattice_in_box  # noqa: F401  (the scenes' initial lattice)
 from .config import config_tokens, write_config
 from .overlay import FrameLabels, label_frame
+from .io import remove_stale_temp_files
 from .particle_files import PvdSeries, write_particles
-from .render import STYLES, FrameRenderer, frame_path, write_movie, write_png
+from .render import COLORMAPS, STYLES, FrameRenderer, frame_colouring, frame_path, write_movie, write_png
 from .runloop import Checkpoint, DiagnosticsWriter, HelpFormatter, add_common_arguments, run
 
 #: the checkout this module runs from (``--docs`` writes the README's figures there)
@@ -94,10 +95,105 @@ def _config_argument(argv: list) -> str | None:
     return path
 
 
+#: options a --resume may change: when and how the run is watched, the time step
+#: (the blow-up message's advice) and the pressure solver's tolerance; every
+#: other option comes from the checkpoint (a different value is refused)
+RESUME_MAY_CHANGE = frozenset({"end_time", "out", "resume", "quiet", "arch", "movie", "fps",
+                               "montage", "docs", "config", "cfl", "dt_max", "solver_tol"})
+
+#: the pressure solver's relative tolerance when --solver-tol is not given: f32
+#: cannot reach f64's (stagnation near 2e-4 on the droplet: docs/notes/app.md)
+SOLVER_TOL = {"f64": 1e-6, "f32": 1e-3}
+
+
 def main(scene: Scene, argv=None) -> int:
-    """Run a scene from the command line (``argv``); returns the exit status."""
-    run_scene(scene, argv)
-    return 0
+    """Run a scene from the command line (``argv``); returns the exit status.
+    Bad input and failed writes end in one line and status 2; an unexpected
+    error in one line plus the path of a file with the full report."""
+    from .errors_report import run_reporting
+    def job():
+        run_scene(scene, argv)
+        return 0
+    return run_reporting(f"{scene.name}.py", job)
+
+
+def _given_options(ap: argparse.ArgumentParser, argv: list) -> set:
+    """The dests of the options ``argv`` gives explicitly (not by default)."""
+    saved = [(a, a.default) for a in ap._actions]
+    for a, _ in saved:
+        a.default = argparse.SUPPRESS
+    try:
+        return set(vars(ap.parse_args(argv)))
+    finally:
+        for a, d in saved:
+            a.default = d
+
+
+def _check_out_dir(ap, path: str) -> None:
+    """--out must be a directory this process can create and write to."""
+    if os.path.exists(path) and not os.path.isdir(path):
+        ap.error(f"--out {path}: is a file, not a directory")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as exc:
+        ap.error(f"--out {path}: cannot create the directory ({exc.strerror or exc})")
+    if not os.access(path, os.W_OK | os.X_OK):
+        ap.error(f"--out {path}: the directory is not writable")
+
+
+def owned_files(out: str, scene_name: str) -> list:
+    """The files a run of ``scene_name`` writes into ``out`` (that exist)."""
+    import glob
+    names = ["diagnostics.csv", "checkpoint.npz", "particles.pvd", "montage.png",
+             "config.toml", f"{scene_name}.gif", f"{scene_name}.mp4"]
+    found = [os.path.join(out, n) for n in names if os.path.isfile(os.path.join(out, n))]
+    found += glob.glob(os.path.join(out, "frame_[0-9]*.png"))
+    found += glob.glob(os.path.join(out, "particles", "particles_[0-9]*.npz"))
+    found += glob.glob(os.path.join(out, "particles", "particles_[0-9]*.vtu"))
+    return sorted(found)
+
+
+def _clear_previous_run(out: str, scene_name: str, quiet: bool) -> None:
+    """A fresh run removes what an earlier run wrote into ``out`` (frames,
+    particles, diagnostics, checkpoint, movie), so nothing of it mixes into
+    this one's files or movie; other files are left alone."""
+    old = owned_files(out, scene_name)
+    for path in old:
+        os.remove(path)
+    if old and not quiet:
+        print(f"fresh run: removed {len(old)} files of an earlier run in {out} "
+              "(--resume continues a run instead)", file=sys.stderr)
+
+
+def _resume_options(ap, scene, args, given: set, state: dict) -> None:
+    """Take the checkpoint's options for those not given; refuse given ones
+    that differ (only :data:`RESUME_MAY_CHANGE` may)."""
+    import json
+    name = state.pop("run_scene", None)
+    stored = state.pop("run_options", None)
+    if name is not None and name != scene.name:
+        ap.error(f"--resume: {args.out} holds a {name} run, not {scene.name}: choose another "
+                 "--out or run that scene")
+    if stored is None:             # an older checkpoint: its options were not recorded
+        return
+    stored = json.loads(stored)
+    conflicts = [k for k, v in stored.items() if k in given and k not in RESUME_MAY_CHANGE
+                 and getattr(args, k, v) != v]
+    if conflicts:
+        ap.error("--resume keeps the checkpoint's options; "
+                 + ", ".join(f"--{k.replace('_', '-')} {getattr(args, k)} differs from its "
+                             f"{v}" for k, v in ((k, stored[k]) for k in conflicts))
+                 + " (drop the option, or start afresh without --resume)")
+    for k, v in stored.items():
+        if k not in given and k not in RESUME_MAY_CHANGE and hasattr(args, k):
+            setattr(args, k, v)
+
+
+def _recorded_options(args) -> str:
+    import json
+    return json.dumps({k: v for k, v in sorted(vars(args).items())
+                       if k not in RESUME_MAY_CHANGE and k != "func"
+                       and (v is None or isinstance(v, (bool, int, float, str)))})
 
 
 def run_scene(scene: Scene, argv=None) -> SceneRun:
@@ -132,6 +228,15 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
                     help="with --exact-projection: stop the clean-up at ||div v|| <= TOL "
                          "||div v*|| (default: the pressure solver's tolerance; a looser one "
                          "is cheaper)")
+    ap.add_argument("--cfl", type=positive_float, default=None,
+                    help="advective time-step limit dt <= CFL dx / max|v| (default: "
+                         f"{FlowParams.cfl}; accurate up to 0.5: docs/notes/app.md)")
+    ap.add_argument("--dt-max", type=positive_float, default=None, metavar="DT",
+                    help=f"largest time step (default: {FlowParams.dt_max})")
+    ap.add_argument("--solver-tol", type=positive_float, default=None, metavar="TOL",
+                    help="relative residual of the pressure solve (default: "
+                         f"{SOLVER_TOL['f64']:g} with --precision f64, {SOLVER_TOL['f32']:g} "
+                         "with f32, whose rounding stops the solve near 2e-4)")
     scene.add_arguments(ap)
     ap.add_argument("--config", metavar="FILE.toml",
                     help="read options from a TOML file (option = value, named as here without "
@@ -146,32 +251,49 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
         except ValueError as exc:
             ap.error(str(exc))
     args = ap.parse_args(argv)
+    given = _given_options(ap, argv)
     if args.cleanup_tol is not None and not args.exact_projection:
         ap.error("--cleanup-tol needs --exact-projection")
-    runtime.init(arch=args.arch, precision=args.precision)
-    os.makedirs(args.out, exist_ok=True)
-    write_config(os.path.join(args.out, "config.toml"), ap, args,
-                 header=f"{scene.name}: the options of this run; "
-                        f"python scenes/{scene.name}.py --config this-file repeats it")
+    _check_out_dir(ap, args.out)
     ckpt_path = os.path.join(args.out, "checkpoint.npz")
+    state = None
+    if args.resume:
+        if not os.path.exists(ckpt_path):
+            ap.error(f"--resume: no checkpoint in {args.out}: nothing to resume "
+                     "(run without --resume)")
+        try:
+            state = Checkpoint.load(ckpt_path)
+        except (ValueError, OSError) as exc:
+            ap.error(f"--resume: {exc}")
+        _resume_options(ap, scene, args, given, state)
+    else:
+        _clear_previous_run(args.out, scene.name, args.quiet)
+    for folder in (args.out, os.path.join(args.out, "particles")):
+        remove_stale_temp_files(folder)
     try:
         points, phases, spacing, params = scene.build(args)
     except ValueError as exc:          # a set-up the options cannot make: one line, status 2
         ap.error(str(exc))
     if args.exact_projection:
         params = replace(params, exact_projection=True, cleanup_tol=args.cleanup_tol)
-    if args.resume:
-        if not os.path.exists(ckpt_path):
-            print(f"--resume: no checkpoint in {args.out}", file=sys.stderr)
-            return 2
-        state = Checkpoint.load(ckpt_path)
-        flow = TwoPhaseFlow.from_state(state, params)
+    steps = {k: getattr(args, k) for k in ("cfl", "dt_max") if getattr(args, k) is not None}
+    params = replace(params, solver_tol=args.solver_tol or SOLVER_TOL[args.precision], **steps)
+    runtime.init(arch=args.arch, precision=args.precision)
+    write_config(os.path.join(args.out, "config.toml"), ap, args,
+                 header=f"{scene.name}: the options of this run; "
+                        f"python scenes/{scene.name}.py --config this-file repeats it")
+    if state is not None:
+        try:
+            flow = TwoPhaseFlow.from_state(state, params)
+        except (KeyError, ValueError) as exc:
+            ap.error(f"--resume: {ckpt_path} does not hold a {scene.name} state ({exc})")
     else:
         flow = TwoPhaseFlow(points, phases, spacing, params)
+    recorded = {"run_scene": scene.name, "run_options": _recorded_options(args)}
     x0, y0, x1, y1 = params.box
     wall_px = max(2, args.frame_width // 200)       # the walls' grey frame around the box
     renderer = FrameRenderer(max(args.frame_width - 2 * wall_px, 1), None, (x0, y0), (x1, y1),
-                             style=args.style)
+                             style=args.style, colormap=COLORMAPS[args.color])
     legend = [(name, renderer.colour_of_phase(k)) for k, name in enumerate(scene.phase_names)]
     series = PvdSeries(os.path.join(args.out, "particles.pvd"),
                        resume_time=flow.time if args.resume else None) if args.vtk else None
@@ -196,12 +318,11 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     def on_output(t, step, info):
         t0 = time.perf_counter()
         pos, vel, ph, _ = flow.fluid_state()
-        if args.color == "speed":
-            scalar = np.linalg.norm(vel, axis=1)
-            vmax = float(scalar.max()) if scalar.size else 1.0
-            labels = FrameLabels(colorbar=("speed", 0.0, vmax, renderer.table_np[:256]),
+        scalar, vmin, vmax, name = frame_colouring(args.color, pos, vel, flow.dx, flow.support)
+        if scalar is not None:
+            labels = FrameLabels(colorbar=(name, vmin, vmax, renderer.table_np[:256]),
                                  wall_px=wall_px)
-            image = renderer.draw(pos, phase=ph, scalar=scalar, vmin=0.0, vmax=vmax)
+            image = renderer.draw(pos, phase=ph, scalar=scalar, vmin=vmin, vmax=vmax)
         else:
             labels = FrameLabels(legend=legend, wall_px=wall_px)
             image = renderer.draw(pos, phase=ph)
@@ -227,9 +348,18 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
 
     def checkpoint_fn():
         t0 = time.perf_counter()
-        path = Checkpoint.save(ckpt_path, flow.state_dict())
+        path = Checkpoint.save(ckpt_path, {**flow.state_dict(), **recorded})
         spent["checkpoint"] += time.perf_counter() - t0
         return path
+
+    def advice(t, step, cause):
+        if cause == "solver":
+            tol = params.solver_tol
+            return (f"'--resume --solver-tol {10 * tol:.0e}' continues from it with a looser "
+                    f"pressure-solver tolerance (now {tol:.0e})")
+        dt = result.dts[-1] if result.dts else flow.suggested_dt()
+        return (f"'--resume --dt-max {0.5 * dt:.3g}' continues from it with half the last "
+                f"time step ({dt:.3g}); --cfl lowers the velocity limit")
 
     flow.reset_timings()
     loop0 = time.perf_counter()
@@ -237,7 +367,7 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
         run(step_fn, t0=flow.time, t_end=args.end_time, output_interval=args.output_interval,
             on_output=on_output, checkpoint_fn=checkpoint_fn, progress=not args.quiet,
             step0=flow.step_count, output_at_start=not args.resume,
-            blowup_types=(BlowUpError,))
+            blowup_types=(BlowUpError,), blowup_advice=advice)
     finally:
         writer.close()
         result.loop = time.perf_counter() - loop0

@@ -1,6 +1,15 @@
 """The flow's settings (:class:`FlowParams`) and the wall conditions they name."""
+import math
+import warnings
 from dataclasses import dataclass
 from enum import IntEnum
+
+from ..errors import AccuracyWarning
+
+#: Largest time-step factors of the measured stable, accurate range
+#: (docs/notes/app.md, "Hostile input"): beyond
+#: them :class:`FlowParams` warns (:class:`~taichi_hh.errors.AccuracyWarning`).
+STABLE_LIMITS = {"cfl": 0.5, "force_cfl": 1.0, "viscous_cfl": 0.66}
 
 #: The viscous wall conditions (``FlowParams.walls``).
 WALL_CONDITIONS = ("no-slip", "free-slip")
@@ -56,3 +65,13 @@ class FlowParams:
     exact_projection: bool = False
     cleanup_tol: float | None = None            # of the clean-up; None: solver_tol
     cleanup_warm_start: bool = True             # start the clean-up CG from last step's lam
+
+    def __post_init__(self):
+        beyond = [f"{name} = {getattr(self, name):g} (measured up to {limit:g})"
+                  for name, limit in STABLE_LIMITS.items()
+                  if isinstance(getattr(self, name), (int, float))
+                  and math.isfinite(getattr(self, name)) and getattr(self, name) > limit]
+        if beyond:
+            warnings.warn("time-step limits beyond the measured stable range: "
+                          + ", ".join(beyond) + "; expect large volume errors or a blow-up "
+                          "(docs/notes/app.md)", AccuracyWarning, stacklevel=3)

@@ -23,6 +23,11 @@ def _corner(value, name):
     return arr
 
 
+#: sides and corner coordinates of a Box stay within [1/LIMIT, LIMIT]: its
+#: geometry squares lengths (areas, projections), which overflow near 1e154
+COORDINATE_LIMIT = 1e150
+
+
 class Box(Polygon):
     """Axis-aligned rectangle ``[lo[0], hi[0]] x [lo[1], hi[1]]``.
 
@@ -37,6 +42,13 @@ class Box(Polygon):
         if not (lo < hi).all():
             raise InputError(f"a Box needs lo < hi in both coordinates, got lo={lo.tolist()}, "
                              f"hi={hi.tolist()}")
+        size = hi - lo
+        if max(np.abs(lo).max(), np.abs(hi).max(), size.max()) > COORDINATE_LIMIT \
+                or size.min() < 1.0 / COORDINATE_LIMIT:
+            raise InputError(f"a Box of {size[0]:.3g} x {size[1]:.3g} at lo={lo.tolist()} is "
+                             f"beyond the floating-point range of its geometry (squared "
+                             f"lengths and areas must stay finite and normal: sides and "
+                             f"coordinates within 1e-150 .. 1e150); rescale the coordinates")
         object.__setattr__(self, "lo", (float(lo[0]), float(lo[1])))
         object.__setattr__(self, "hi", (float(hi[0]), float(hi[1])))
         super().__init__(np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]],

@@ -25,7 +25,7 @@ from ..sph.particles import BOUNDARY, FLUID, GHOST
 from ..sph.pointset import PointSet
 from ..linalg.poisson import PoissonMatrix
 from .boundary import collocation_particles, far_from
-from .inputs import validate_input
+from .inputs import check_point_count, validate_input
 from .options import BOUNDARY_METHODS, METHODS, PRECONDITIONERS, HHDOptions, options_for
 from .rotation import J
 
@@ -183,6 +183,7 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     say = progress or (lambda stage: None)
     problems = poisson_problems(points, vectors, domain, method=method, progress=progress,
                                 **options)
+    check_point_count(len(problems.points), problems.stats)    # refused or flagged: few points
     opts, ps, A, vec, kind = problems.opts, problems.ps, problems.A, problems.vectors, problems.kind
     pts, div_slots, curl_slots = problems.points, problems.rhs["phi"], -problems.rhs["psi"]
     ops, seconds, stats = ps.ops, problems.seconds, problems.stats

@@ -6,11 +6,11 @@ of squared div (their Table 1).
 Two steps and three schemes built from them (``scheme``; each method has its
 own default).  Measurements of each: docs/notes/hhd.md.
 
-The Poisson step (:class:`PoissonStep`)
+* The Poisson step (:class:`PoissonStep`):
     Colin's algorithm: solve ``lap q = div w`` with ``dq/dn = 0`` (Colin Eqs.
     28-29, 31-38) and update ``w <- w - grad q`` (Eqs. 25, 41).
 
-The orthogonal step (:class:`OrthogonalStep`)
+* The orthogonal step (:class:`OrthogonalStep`):
     The discrete orthogonal projection onto the null space of the divergence
     operator ``D`` itself.  With ``V`` the particle volumes,
 
@@ -45,7 +45,7 @@ The orthogonal step (:class:`OrthogonalStep`)
     the normal velocity: the continuous analogue is the Leray projection with
     ``q = 0`` on the boundary, which changes the normal flux.
 
-``neumann`` (``method="default"``, :class:`NeumannProjection`)
+* ``neumann`` (``method="default"``, :class:`NeumannProjection`):
     Each pass is one Poisson step with our consistent operators (corrected
     Laplacian, quadratic gradient, ``dq/dn = 0`` rows on boundary particles
     along the boundary), which gives the projection its meaning (the normal
@@ -62,10 +62,10 @@ The orthogonal step (:class:`OrthogonalStep`)
     keeping their normal flux is divergence-free: there the orthogonal step
     changes the flux as little as it can.
 
-``orthogonal`` (:class:`OrthogonalProjection`)
+* ``orthogonal`` (:class:`OrthogonalProjection`):
     The orthogonal step alone.  Measured divergence: ``D`` as for ``neumann``.
 
-``poisson`` (``method="colin2006"``, :class:`PoissonProjection`)
+* ``poisson`` (``method="colin2006"``, :class:`PoissonProjection`):
     The Poisson step alone, Colin's algorithm.  With ``method="colin2006"``:
     poly6, DGAF (Eq. 13) divergence and gradient, Laplacian Eq. 21, a layer of
     wall particles at rest as wide as the support, continuing the lattice for
@@ -84,6 +84,7 @@ The orthogonal step (:class:`OrthogonalStep`)
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -91,7 +92,7 @@ import numpy as np
 from .. import runtime
 
 from ..linalg import krylov as solvers
-from ..errors import InputError, SolverError
+from ..errors import AccuracyWarning, InputError, SolverError
 from .boundary import collocation_particles
 from .inputs import validate_input
 from .options import PROJECT_OVERRIDES, options_for
@@ -392,6 +393,7 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
     done = max(opts.tol * max(math.sqrt(first[1]), scale), floor)
     iters, stage_iters, residuals = [], [], []
     fields = [vec.copy()] if history else None
+    flags = []
     for k in range(iterations):
         say(f"projection {k + 1}/{iterations}")
         w, div, counts = projection.pass_(w, div, done)
@@ -403,8 +405,11 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
         sum_sq.append(q)
         if history:
             fields.append(w.copy())
-        _check_pass(k + 1, w, vec, max_div, method, scheme)
-    stats = {"iterations": iters, "stage_iterations": stage_iters,
+        grew = _check_pass(k + 1, w, vec, max_div, method, scheme, floor)
+        if grew and not flags:
+            flags.append(grew)
+            warnings.warn(grew, AccuracyWarning, stacklevel=2)
+    stats = {"flags": flags, "iterations": iters, "stage_iterations": stage_iters,
              "divergence_norm": residuals, "seconds": time.perf_counter() - t0,
              "scheme": scheme, "n_boundary": projection.n_boundary,
              "support": projection.support, "spacing": projection.spacing,
@@ -420,11 +425,17 @@ DIVERGENCE_GROWTH = 10.0
 SPEED_GROWTH = 100.0
 
 
-def _check_pass(k, w, vec, max_div, method, scheme):
+#: growth of max |div| by less than this factor is rounding, not a diverging pass
+DIVERGENCE_NOISE = 1.01
+
+
+def _check_pass(k, w, vec, max_div, method, scheme, floor=0.0):
     """Raise SolverError('divergence') when pass k made things worse instead of
     returning the garbage: e.g. Colin's operators on disordered points, where the
     discrete Laplacian is not the divergence of the discrete gradient and
-    repeated passes amplify the mismatch (stability map, benchmarks/)."""
+    repeated passes amplify the mismatch (stability map, benchmarks/).  Growth
+    below that (max |div| above the smallest so far, and above the rounding
+    ``floor``) is returned as a message: the caller flags the result with it."""
     speed_in = float(np.abs(vec).max())
     speed = float(np.abs(w).max())
     best = min(max_div[:-1])
@@ -436,7 +447,14 @@ def _check_pass(k, w, vec, max_div, method, scheme):
     elif speed > SPEED_GROWTH * max(speed_in, 1e-300):
         why = f"max |w| reached {speed:.3e}, {speed / speed_in:.0f} times the input's"
     else:
-        return
+        if max_div[-1] > DIVERGENCE_NOISE * best and max_div[-1] > floor:
+            return (f"projection pass {k} raised max |div| from {best:.3e} to "
+                    f"{max_div[-1]:.3e} (input: {max_div[0]:.3e}; method {method!r}, scheme "
+                    f"{scheme!r}): these operators are not stable on these points and "
+                    "further passes may diverge ("
+                    + ("use method='default')" if method != "default"
+                       else "use the default scheme)"))
+        return None
     raise SolverError(f"projection diverged at pass {k} (method {method!r}, scheme "
                       f"{scheme!r}): {why}; these operators are not stable on these points "
                       "(use method='default')", reason="divergence", iteration=k,

@@ -1,0 +1,106 @@
+"""How the command lines end: one line on stderr, never a traceback.
+
+:func:`run_reporting` runs a command's body and turns what it raises into an
+exit status and one line: bad input, bad numerics and failed writes
+(:class:`~taichi_hh.errors.TaichiHHError`, ``ValueError``, ``OSError``) into
+``PROG: error: ...`` and status 2; anything else (a bug) into ``PROG: internal
+error: ...`` naming a file with the full report, status 1; Ctrl-C into status
+130; SIGTERM into a normal exit (status 143) so that temporary files are
+removed on the way out.  Warnings (e.g. :class:`~taichi_hh.errors.AccuracyWarning`)
+print as ``PROG: warning: ...``.  ``TAICHI_HH_DEBUG=1`` lets exceptions through
+with their tracebacks.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+import traceback
+import warnings
+from contextlib import contextmanager
+
+EXIT_ERROR, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_TERMINATED = 2, 1, 130, 143
+
+
+def one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def write_report(prog: str, exc: BaseException) -> str:
+    """Write the traceback of ``exc`` (with the command line and versions) to a
+    new file in the temporary directory; returns its path."""
+    import platform
+    import tempfile
+    from .. import __version__
+    fd, path = tempfile.mkstemp(prefix="taichi-hh-error-", suffix=".txt")
+    with os.fdopen(fd, "w") as fh:
+        fh.write(f"{prog}: internal error\ncommand line: {' '.join(sys.argv)}\n"
+                 f"taichi_hh {__version__}, Python {platform.python_version()}, "
+                 f"{platform.platform()}\n\n")
+        fh.write("".join(traceback.format_exception(type(exc), exc, exc.__traceback__)))
+    return path
+
+
+@contextmanager
+def _one_line_warnings(prog: str):
+    old = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"{prog}: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = old
+
+
+@contextmanager
+def _sigterm_exits():
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise SystemExit(EXIT_TERMINATED)
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def run_reporting(prog: str, job, *, error_hint=None) -> int:
+    """``job()`` -> its exit status, with the module doc's endings.
+    ``error_hint(exc)``: optional advice appended to an expected error's line."""
+    from ..errors import TaichiHHError
+    debug = bool(os.environ.get("TAICHI_HH_DEBUG"))
+    try:
+        with _one_line_warnings(prog), _sigterm_exits():
+            return job()
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (TaichiHHError, ValueError, OSError) as exc:
+        if debug:
+            raise
+        msg = one_line(exc)
+        if isinstance(exc, OSError) and not isinstance(exc, TaichiHHError):
+            msg = f"{type(exc).__name__}: {msg}"
+        hint = error_hint(exc) if error_hint else None
+        print(f"{prog}: error: {msg}{' ' + hint if hint else ''}", file=sys.stderr)
+        return EXIT_ERROR
+    except Exception as exc:           # a bug: one line, the traceback in a file
+        if debug:
+            raise
+        try:
+            where = f"full report in {write_report(prog, exc)}"
+        except OSError as werr:
+            where = f"the report could not be written: {werr}"
+        print(f"{prog}: internal error: {type(exc).__name__}: {one_line(exc)} ({where}; "
+              "please report it)", file=sys.stderr)
+        return EXIT_INTERNAL
