@@ -44,3 +44,29 @@ def test_second_order_convergence_on_random_points():
     # error ~ spacing^p = N^(-p/2): fitted slope in log N
     slope = -2 * np.polyfit(np.log(ns), np.log(errs), 1)[0]
     assert slope >= 1.8, (errs, slope)
+
+
+def test_data_short_of_the_boundary_are_named_with_the_remedy():
+    from taichi_hh.errors import InputError
+    from taichi_hh.geometry.domain import Box
+    F = fields.get("gaussian")
+    pts = Box((0.2, 0.2), (0.8, 0.8)).sample_interior(3000, kind="poisson", seed=1)
+    v = F.evaluate(pts).v
+    with pytest.raises(InputError, match="do not reach the domain's boundary.*domain='bbox'"):
+        thh.decompose(pts, v, F.domain)
+    # the remedies: the domain the data cover
+    for domain in ("bbox", "hull"):
+        res = thh.decompose(pts, v, domain)
+        assert not res.stats["flags"]
+        assert np.isfinite(res.harmonic).all()
+
+
+def test_convex_hull_of_points():
+    from taichi_hh.geometry.from_points import convex_hull
+    rng = np.random.default_rng(0)
+    pts = rng.random((500, 2))
+    corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0]], float)   # (0.5, 0) on an edge
+    hull = convex_hull(np.vstack([pts, corners]))
+    assert {tuple(p) for p in hull} == {(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)}
+    x, y = hull[:, 0], hull[:, 1]
+    assert 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0      # counter-clockwise

@@ -88,11 +88,12 @@ def _add_common(p, command):
                          "'vectors' (N,2), or a .csv file with columns x,y,u,v (header "
                          "naming them in any order, extra columns ignored; or no header "
                          "and exactly 4 columns)")
-    io.add_argument("--domain", metavar="x0,y0,x1,y1|FILE.json",
+    io.add_argument("--domain", metavar="x0,y0,x1,y1|FILE.json|bbox|hull",
                     help="the domain: a box x0,y0,x1,y1 (write --domain=-1,-1,1,1 when it "
-                         "starts with a minus sign) or a JSON polygon {\"outer\": [[x,y],...], "
-                         "\"holes\": [[[x,y],...],...]}; every point must lie inside "
-                         "(default: the points' bounding box)")
+                         "starts with a minus sign), a JSON polygon {\"outer\": [[x,y],...], "
+                         "\"holes\": [[[x,y],...],...]}, or from the points: bbox (their "
+                         "bounding box, the default) or hull (their convex hull); every "
+                         "point must lie inside")
     io.add_argument("-o", "--out", metavar="DIR",
                     help=f"output directory, created if needed (default: "
                          f"outputs/<FIELD stem>_{command})")
@@ -258,6 +259,9 @@ def _read_inputs(args, say):
     from . import io
     say(f"reading {args.field}")
     points, vectors = io.read_field(args.field)
+    from ..geometry.from_points import DOMAINS_FROM_POINTS, domain_from_points
+    if args.domain is not None and args.domain.strip().lower() in DOMAINS_FROM_POINTS:
+        return points, vectors, domain_from_points(points, args.domain.strip().lower())
     domain = io.read_domain(args.domain)
     return points, vectors, domain
 

@@ -25,7 +25,7 @@ from ..sph.particles import BOUNDARY, FLUID, GHOST
 from ..sph.pointset import PointSet
 from ..linalg.poisson import PoissonMatrix
 from .boundary import collocation_particles, far_from
-from .inputs import check_point_count, validate_input
+from .inputs import check_data_reach_boundary, check_point_count, validate_input
 from .options import BOUNDARY_METHODS, METHODS, PRECONDITIONERS, HHDOptions, options_for
 from .rotation import J
 
@@ -111,6 +111,8 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
                   support=None if opts.adaptive_support else support, area=domain.area,
                   boundary=boundary, ghosts=ghosts,
                   support_neighbours=opts.support_neighbours if opts.adaptive_support else None)
+    if opts.boundary == "collocation":
+        check_data_reach_boundary(ps, BOUNDARY, FLUID)
     ops = ps.ops
     p = ps.particles
     kind = p.get("kind")

@@ -20,16 +20,14 @@ FEW_POINTS = 100
 def validate_input(points, vectors, domain):
     """``(points, vectors, domain)`` checked: (N, 2) finite arrays without
     duplicates, every point inside ``domain`` (a Box, a Polygon, ``(x0, y0, x1,
-    y1)`` or an (M, 2) vertex array; default: the points' bounding box).
+    y1)``, an (M, 2) vertex array, or ``"bbox"`` / ``"hull"``: the points'
+    bounding box (the default) or convex hull).
     Raises :class:`~taichi_hh.errors.InputError`."""
     pts = check_points(points)
     vec = check_values(vectors, len(pts), 2, "vectors")
-    if domain is None:
-        from ..geometry.domain import Box
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        if not np.all(hi > lo):
-            raise InputError("the points span no area (all on one line or one point)")
-        domain = Box(lo, hi)
+    if domain is None or isinstance(domain, str):
+        from ..geometry.from_points import domain_from_points
+        domain = domain_from_points(pts, "bbox" if domain is None else domain)
     else:
         from ..geometry.domain import as_domain
         domain = as_domain(domain)
@@ -57,3 +55,27 @@ def check_point_count(n: int, stats: dict, *, stacklevel: int = 3) -> None:
                f"and more against exact answers); sample the field more densely")
         stats["flags"].append(msg)
         warnings.warn(msg, AccuracyWarning, stacklevel=stacklevel)
+
+
+def check_data_reach_boundary(ps, boundary_kind: int, fluid_kind: int) -> None:
+    """Boundary particles whose kernel support holds no data point mean that the
+    data stop short of the domain's boundary by more than a support (the
+    boundary rows would have no data to read).  Raises
+    :class:`~taichi_hh.errors.InputError` saying where, and the remedy."""
+    off, nb = ps.pairs.to_numpy()
+    kind = ps.particles.get("kind")
+    rows = np.repeat(np.arange(ps.n_total), np.diff(off))
+    has_data = np.zeros(ps.n_total, dtype=bool)
+    has_data[rows[kind[nb] == fluid_kind]] = True
+    empty = np.flatnonzero((kind == boundary_kind) & ~has_data)
+    if empty.size == 0:
+        return
+    pos = ps.particles.get("position")
+    n_boundary = int((kind == boundary_kind).sum())
+    where = pos[empty[0]]
+    raise InputError(
+        f"the data do not reach the domain's boundary: {empty.size} of {n_boundary} boundary "
+        f"samples (first at ({where[0]:.4g}, {where[1]:.4g})) have no data point within the "
+        f"kernel support ({ps.support:.3g} at most). Give the domain the data cover: "
+        "domain='bbox' (the points' bounding box), domain='hull' (their convex hull), or a "
+        "Box/Polygon that fits them")
