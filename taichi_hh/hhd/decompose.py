@@ -113,6 +113,7 @@ class PoissonProblems:
     seconds: dict
     stats: dict
     domain: object = None
+    divergence_stencil: object = None    # of div v and curl v, over the data points
 
 
 def poisson_problems(points, vectors, domain=None, *, method: str = "default", progress=None,
@@ -193,7 +194,7 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
              "n_ghosts": int((kind == GHOST).sum()), "support": support, "spacing": spacing,
              "mean_neighbours": float(ps.neighbour_counts.mean())}
     return PoissonProblems(opts, pts, ps, A, {"phi": div_slots, "psi": -curl_slots}, vec, kind,
-                           seconds, stats, domain)
+                           seconds, stats, domain, st_div)
 
 
 def decompose(points, vectors, domain=None, *, method: str = "default", progress=None,
@@ -242,7 +243,7 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     seconds["total"] = time.perf_counter() - t_start
     stats["seconds"] = seconds
     _check_energy(stats, vec, d, r, h, ps.particles.get("volume")[ps.slot_of], opts)
-    _check_harmonic(stats, ps, opts, vec, h)
+    _check_harmonic(stats, problems, h)
     return HHDResult(points=pts, vectors=vec, curl_free=d, div_free=r, harmonic=h,
                      phi=phi, psi=psi, divergence=div_slots[ps.slot_of],
                      curl=curl_slots[ps.slot_of], stats=stats, options=opts, pointset=ps)
@@ -287,17 +288,33 @@ def _gradient(ps, opts, slots) -> np.ndarray:
 HARMONIC_LIMIT = 0.5
 
 
-def _check_harmonic(stats, ps, opts, v, h) -> None:
+def _divergence_curl(ps, st, w):
+    """div w and curl w at the data points by the stencil ``st``."""
+    w_nd, out = ps.upload(w), ps.new_array(1)
+    ps.ops.divergence(st, w_nd, out)
+    div = ps.download(out)
+    ps.ops.curl(st, w_nd, out)
+    return div, ps.download(out)
+
+
+def _check_harmonic(stats, problems, h) -> None:
     """How harmonic h is: ``stats["h_divergence"]``, ``stats["h_curl"]`` (mean |div h|
     and |curl h| over the mean of sqrt(div v^2 + curl v^2), the divergence operator
     over the data points); above :data:`HARMONIC_LIMIT` flagged as _check_energy does."""
     import warnings
     from ..errors import AccuracyWarning
-    variant = opts.divergence
-    div_v, curl_v = ps.divergence(v, variant), ps.curl(v, variant)
+    ps, opts = problems.ps, problems.opts
+    if opts.boundary == "petronetto" or opts.remove_mean:
+        # the right-hand sides are not div v and curl v over the data alone there
+        st = ps.gradient_stencil(opts.divergence)
+        div_v, curl_v = _divergence_curl(ps, st, problems.vectors)
+    else:                                   # the same operator as the right-hand sides'
+        st = problems.divergence_stencil
+        div_v = problems.rhs["phi"][ps.slot_of]
+        curl_v = -problems.rhs["psi"][ps.slot_of]
     scale = float(np.hypot(div_v, curl_v).mean())
     ratios = {}
-    for name, values in (("divergence", ps.divergence(h, variant)), ("curl", ps.curl(h, variant))):
+    for name, values in zip(("divergence", "curl"), _divergence_curl(ps, st, h)):
         mean = float(np.abs(values).mean())
         ratios[name] = mean / scale if scale > 0 else (0.0 if mean == 0 else math.inf)
         stats[f"h_{name}"] = ratios[name]

@@ -126,7 +126,7 @@ def mls_at(points, values, targets, k: int = MLS_NEIGHBOURS,
     tree = cKDTree(points)
     for s in range(0, len(targets), 65536):
         tg = targets[s:s + 65536]
-        dist, idx = tree.query(tg, k=k + 1 if exclude_self else k)
+        dist, idx = tree.query(tg, k=k + 1 if exclude_self else k, workers=-1)
         if exclude_self:
             dist, idx = dist[:, 1:], idx[:, 1:]
         scale = 1.5 * dist[:, -1:] + 1e-300
@@ -135,12 +135,144 @@ def mls_at(points, values, targets, k: int = MLS_NEIGHBOURS,
         dx = (points[idx] - tg[:, None, :]) / scale[..., None]
         B = np.stack([np.ones_like(q), dx[..., 0], dx[..., 1], dx[..., 0] ** 2,
                       dx[..., 0] * dx[..., 1], dx[..., 1] ** 2], axis=-1)     # (t, k, 6)
-        BW = B * w[..., None]
-        M = np.einsum("tki,tkj->tij", BW, B)
-        rhs = np.einsum("tki,tkm->tim", BW, values[idx])
+        BWt = (B * w[..., None]).transpose(0, 2, 1)                          # (t, 6, k)
+        M = BWt @ B
         M += 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(6)
-        coef = np.linalg.solve(M, rhs)
-        out[s:s + 65536] = coef[:, 0, :]
+        # only the constant coefficient is wanted: row 0 of M^-1 times BW^T values
+        e0 = np.linalg.solve(M, np.broadcast_to(np.eye(6)[:, :1], (len(tg), 6, 1)))[..., 0]
+        weights = np.einsum("ti,tik->tk", e0, BWt)                           # (t, k)
+        out[s:s + 65536] = np.einsum("tk,tkm->tm", weights, values[idx])
+    return out
+
+
+#: the reconstruction radius at a grid node, in cells: the first of these that
+#: holds ``MLS_MIN_POINTS`` data points (more near the boundary and corners)
+MLS_RADII = (2.5, 4.0, 6.0)
+MLS_MIN_POINTS = 15
+_N_RADII = len(MLS_RADII)
+
+
+@ti.func
+def _mls_weight(q):
+    return (1.0 - q) ** 4 * (1.0 + 4.0 * q) if q < 1.0 else 0.0
+
+
+@ti.kernel
+def _mls_nodes(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, x0: float, y0: float,
+               hx: float, hy: float, start: ti.types.ndarray(), pos: ti.types.ndarray(),
+               vals: ti.types.ndarray(), out: ti.types.ndarray()):
+    """Quadratic moving least squares of the two columns of ``vals`` at the
+    centres of the ``targets`` cells, from the points (sorted by cell, ``start``
+    the offsets) within the first radius of MLS_RADII holding MLS_MIN_POINTS;
+    one gather per node, the 6 x 6 normal equations by Cholesky."""
+    h = ti.max(hx, hy)
+    for t in range(targets.shape[0]):
+        c = targets[t]
+        ci = c // ny
+        cj = c - ci * ny
+        X = ti.Vector([x0 + ci * hx, y0 + cj * hy])
+        R = 0.0
+        for a in ti.static(range(_N_RADII)):
+            if R == 0.0:
+                r_try = MLS_RADII[a] * h
+                reach = ti.cast(ti.ceil(r_try / ti.min(hx, hy)), ti.i32)
+                count = 0
+                for i in range(ti.max(ci - reach, 0), ti.min(ci + reach + 1, nx)):
+                    for j in range(ti.max(cj - reach, 0), ti.min(cj + reach + 1, ny)):
+                        cell = i * ny + j
+                        for k in range(start[cell], start[cell + 1]):
+                            d = pos[k] - X
+                            if d.dot(d) < r_try * r_try:
+                                count += 1
+                if count >= MLS_MIN_POINTS or a == _N_RADII - 1:
+                    R = r_try
+        reach = ti.cast(ti.ceil(R / ti.min(hx, hy)), ti.i32)
+        M = ti.Matrix.zero(float, 6, 6)
+        rhs = ti.Matrix.zero(float, 6, 2)
+        for i in range(ti.max(ci - reach, 0), ti.min(ci + reach + 1, nx)):
+            for j in range(ti.max(cj - reach, 0), ti.min(cj + reach + 1, ny)):
+                cell = i * ny + j
+                for k in range(start[cell], start[cell + 1]):
+                    d = (pos[k] - X) / R
+                    w = _mls_weight(d.norm())
+                    if w > 0.0:
+                        b = ti.Vector([1.0, d[0], d[1], d[0] * d[0], d[0] * d[1], d[1] * d[1]])
+                        M += w * b.outer_product(b)
+                        rhs += w * b.outer_product(vals[k])
+        tr = 0.0
+        for a in ti.static(range(6)):
+            tr += M[a, a]
+        for a in ti.static(range(6)):
+            M[a, a] += 1e-12 * tr + 1e-300
+        # Cholesky M = L L^T, then L y = rhs, L^T x = y; only x[0, :] is wanted
+        L = ti.Matrix.zero(float, 6, 6)
+        for jj in ti.static(range(6)):
+            s = M[jj, jj]
+            for kk in ti.static(range(jj)):
+                s -= L[jj, kk] * L[jj, kk]
+            L[jj, jj] = ti.sqrt(ti.max(s, 1e-300))
+            for ii in ti.static(range(jj + 1, 6)):
+                s2 = M[ii, jj]
+                for kk in ti.static(range(jj)):
+                    s2 -= L[ii, kk] * L[jj, kk]
+                L[ii, jj] = s2 / L[jj, jj]
+        y = ti.Matrix.zero(float, 6, 2)
+        for ii in ti.static(range(6)):
+            r0 = rhs[ii, 0]
+            r1 = rhs[ii, 1]
+            for kk in ti.static(range(ii)):
+                r0 -= L[ii, kk] * y[kk, 0]
+                r1 -= L[ii, kk] * y[kk, 1]
+            y[ii, 0] = r0 / L[ii, ii]
+            y[ii, 1] = r1 / L[ii, ii]
+        x = ti.Matrix.zero(float, 6, 2)
+        for q in ti.static(range(6)):
+            ii = ti.static(5 - q)
+            r0 = y[ii, 0]
+            r1 = y[ii, 1]
+            for kk in ti.static(range(ii + 1, 6)):
+                r0 -= L[kk, ii] * x[kk, 0]
+                r1 -= L[kk, ii] * x[kk, 1]
+            x[ii, 0] = r0 / L[ii, ii]
+            x[ii, 1] = r1 / L[ii, ii]
+        out[t] = ti.Vector([x[0, 0], x[0, 1]])
+
+
+def reconstruct_on_grid(grid: "Grid", points, values, live) -> np.ndarray:
+    """(len(live), m) the columns of ``values`` (N, m) reconstructed at the centres
+    of the cells ``live`` (flat indices) by quadratic moving least squares
+    (:func:`_mls_nodes`, two columns per pass)."""
+    runtime.ensure_init()
+    real, npr = runtime.real_dtype(), runtime.np_real()
+    values = np.asarray(values, dtype=np.float64)
+    values = values[:, None] if values.ndim == 1 else values
+    lower = grid.origin - 0.5 * np.array([grid.hx, grid.hy])
+    ij = np.floor((points - lower) / [grid.hx, grid.hy]).astype(np.int64)
+    ij[:, 0] = np.clip(ij[:, 0], 0, grid.nx - 1)
+    ij[:, 1] = np.clip(ij[:, 1], 0, grid.ny - 1)
+    cell = ij[:, 0] * grid.ny + ij[:, 1]
+    order = np.argsort(cell, kind="stable")
+    start = np.zeros(grid.nx * grid.ny + 1, dtype=np.int32)
+    np.cumsum(np.bincount(cell, minlength=grid.nx * grid.ny), out=start[1:])
+    pos = ti.Vector.ndarray(2, real, shape=(len(points),))
+    pos.from_numpy(points[order].astype(npr))
+    start_nd = ti.ndarray(ti.i32, shape=(len(start),))
+    start_nd.from_numpy(start)
+    live = np.asarray(live, dtype=np.int32)
+    tg = ti.ndarray(ti.i32, shape=(max(len(live), 1),))
+    tg.from_numpy(np.resize(live, max(len(live), 1)))
+    out = np.zeros((len(live), values.shape[1]))
+    res = ti.Vector.ndarray(2, real, shape=(max(len(live), 1),))
+    vals = ti.Vector.ndarray(2, real, shape=(len(points),))
+    for m in range(0, values.shape[1], 2):
+        pair = np.zeros((len(points), 2))
+        cols = values[order, m:m + 2]
+        pair[:, :cols.shape[1]] = cols
+        vals.from_numpy(pair.astype(npr))
+        if len(live):
+            _mls_nodes(tg, grid.nx, grid.ny, float(grid.origin[0]), float(grid.origin[1]),
+                       grid.hx, grid.hy, start_nd, pos, vals, res)
+        out[:, m:m + cols.shape[1]] = res.to_numpy()[: len(live), : cols.shape[1]]
     return out
 
 
@@ -229,7 +361,7 @@ def natural_potentials(points, domain, sources: dict, spacing: float, *,
     live = np.flatnonzero(frac > 0)
     names = list(sources)
     vals = np.stack([np.asarray(sources[k], dtype=np.float64) for k in names], axis=1)
-    at_cells = mls_at(points, vals, grid.centres()[live])
+    at_cells = reconstruct_on_grid(grid, points, vals, live)
     convolve = convolve_fft if evaluation == "fft" else convolve_direct
     out = {}
     for m, name in enumerate(names):
