@@ -189,3 +189,4 @@ def test_cli_boundary_condition(tmp_path):
     got = np.load(out / "components.npz")
     assert np.linalg.norm(got["r"] - F.evaluate(pts).r, axis=1).mean() < 0.01
     assert list(got["kinds"]) == ["ccw_vortex"]            # the rotation's centre
+    assert got["strengths"].shape == (1,) and 0.5 < got["strengths"][0] <= 1.0

@@ -174,7 +174,8 @@ def build_parser() -> argparse.ArgumentParser:
             "Decompose a 2D vector field v sampled at scattered points into v = d + r + h: "
             "d = grad phi (curl-free), r = J grad psi (divergence-free), h harmonic "
             "(SPH-HH, Petronetto et al. 2010). Writes DIR/components.npz (points, v, d, r, "
-            "h, phi, psi, divergence, curl and the critical points xs, ys, kinds), the same "
+            "h, phi, psi, divergence, curl and the critical points xs, ys, kinds, "
+            "strengths), the same "
             "per point as DIR/components.vtu for ParaView (--no-vtk: not), and the "
             "figures DIR/arrows.png and DIR/magnitude.png."),
         epilog="Exit status: 0 on success, 2 on bad input, bad options or a failed solve.")

@@ -53,7 +53,8 @@ from .rotation import J
 
 # re-exported: importers of the options, the input checks and J from here
 __all__ = ["decompose", "poisson_problems", "PoissonProblems", "HHDResult", "ENERGY_LIMIT",
-           "HHDOptions", "METHODS", "BOUNDARY_METHODS", "BOUNDARY_CONDITIONS", "PRECONDITIONERS", "options_for",
+           "HHDOptions", "METHODS", "BOUNDARY_METHODS", "BOUNDARY_CONDITIONS", "PRECONDITIONERS",
+           "options_for",
            "validate_input", "far_from", "J"]
 
 
@@ -73,7 +74,8 @@ class HHDResult:
     pointset: PointSet = field(repr=False, default=None)
 
     def critical_points(self, threshold: float = 0.1, radius: float | None = None):
-        """Sources, sinks and vortices: ``[(x, y, kind)]`` (Petronetto Sec. 6c).
+        """Sources, sinks and vortices (Petronetto Sec. 6c), strongest first:
+        ``[CriticalPoint(x, y, kind, strength)]``, which unpack as ``(x, y, kind)``.
 
         See :func:`taichi_hh.hhd.critical.find_critical_points`."""
         from .critical import find_critical_points
@@ -236,7 +238,8 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
         phi, psi = (np.asarray(potentials[k])[ps.slot_of] for k in ("phi", "psi"))
         say("components")
         t = time.perf_counter()
-        d, grad_psi = (_gradient(ps, opts, potentials[k]) for k in ("phi", "psi"))
+        st_grad = ps.ops.gradient_coefficients(opts.gradient, row_kinds=(FLUID,))
+        d, grad_psi = (_gradient(ps, st_grad, potentials[k]) for k in ("phi", "psi"))
         seconds["components"] = time.perf_counter() - t
     r = J(grad_psi)
     h = vec - d - r
@@ -270,9 +273,8 @@ def _solve_potentials(problems, say) -> dict:
     return potentials
 
 
-def _gradient(ps, opts, slots) -> np.ndarray:
-    """Step (e): the gradient (opts.gradient) of per-slot values at the data points."""
-    st_grad = ps.ops.gradient_coefficients(opts.gradient, row_kinds=(FLUID,))
+def _gradient(ps, st_grad, slots) -> np.ndarray:
+    """Step (e): the gradient (stencil ``st_grad``) of per-slot values at the data points."""
     x_nd = ps.new_array(1)
     x_nd.from_numpy(slots.astype(runtime.np_real()))
     g_nd = ps.new_array(2)
@@ -323,11 +325,13 @@ def _check_harmonic(stats, problems, h) -> None:
     if not ratios[worst] <= HARMONIC_LIMIT:
         msg = (f"h is not harmonic: mean |{'div' if worst == 'divergence' else 'curl'} h| is "
                f"{ratios[worst]:.3g} of the field's mean derivative (limit {HARMONIC_LIMIT:g}); "
-               f"with boundary_condition={opts.boundary_condition!r}" +
-               ("; the usual cause: the field has net curl or divergence, which the "
-                "Neumann condition cannot put into d or r (boundary_condition="
-                "'normal-parallel' or 'natural' can)" if opts.boundary_condition == "neumann"
-                else ""))
+               f"with boundary_condition={opts.boundary_condition!r}")
+        if not stats.get("energy_ratio", 1.0) <= ENERGY_LIMIT:
+            msg += "; the operators are inconsistent on these points (see the energy flag)"
+        elif opts.boundary_condition == "neumann":
+            msg += ("; the usual cause: the field has net curl or divergence, which the "
+                    "Neumann condition cannot put into d or r (boundary_condition="
+                    "'normal-parallel' or 'natural' can)")
         stats["flags"].append(msg)
         warnings.warn(msg, AccuracyWarning, stacklevel=3)
 
