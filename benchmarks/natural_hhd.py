@@ -14,7 +14,9 @@ convolutions, gradients), the grid, mean errors of d, r, h over mean |v|;
 up to ``--direct-max`` points also the direct Taichi sum (same grid sum,
 O(M^2)) and the largest difference from the FFT; for comparison the Neumann
 decomposition's total up to 100k points.  One warm-up run at the smallest
-size excludes compilation.  Writes ``outputs/benchmarks/natural_hhd.csv``.
+size excludes compilation.  Writes ``outputs/benchmarks/natural_hhd.csv`` and
+``natural_hhd.png`` (seconds and errors against N, log-log, with an N log N
+guide).
 """
 from __future__ import annotations
 
@@ -87,6 +89,29 @@ def main(argv=None) -> int:
     path = os.path.join(args.out_dir, "natural_hhd.csv")
     _common.write_csv_atomic(path, rows, names)
     print(f"wrote {path}")
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    n = np.array([r["n"] for r in rows], dtype=float)
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    for key, label in (("total_s", "total"), ("natural_s", "natural step"),
+                       ("setup_s", "particles and neighbours")):
+        a.loglog(n, [r[key] for r in rows], "o-", label=label)
+    guide = n * np.log(n)
+    a.loglog(n, guide / guide[-1] * rows[-1]["total_s"], "k:", label="N log N")
+    a.set_xlabel("points N")
+    a.set_ylabel("seconds")
+    a.legend()
+    for key in ("err_d", "err_r", "err_h"):
+        b.loglog(n, [r[key] for r in rows], "o-", label=key[-1])
+    b.loglog(n, rows[0]["err_d"] * n[0] / n, "k:", label="second order")
+    b.set_xlabel("points N")
+    b.set_ylabel("mean error / mean |v|")
+    b.legend()
+    fig.suptitle("natural HHD (particle-mesh FFT), field 'natural'")
+    png = os.path.join(args.out_dir, "natural_hhd.png")
+    _common.save_figure_atomic(fig, png, dpi=120)
+    print(f"wrote {png}")
     return 0
 
 

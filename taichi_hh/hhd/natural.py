@@ -203,14 +203,14 @@ def _mls_nodes(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, x0: float, y
         for a in ti.static(range(6)):
             tr += M[a, a]
         for a in ti.static(range(6)):
-            M[a, a] += 1e-12 * tr + 1e-300
+            M[a, a] += 1e-12 * tr + 1e-30
         # Cholesky M = L L^T, then L y = rhs, L^T x = y; only x[0, :] is wanted
         L = ti.Matrix.zero(float, 6, 6)
         for jj in ti.static(range(6)):
             s = M[jj, jj]
             for kk in ti.static(range(jj)):
                 s -= L[jj, kk] * L[jj, kk]
-            L[jj, jj] = ti.sqrt(ti.max(s, 1e-300))
+            L[jj, jj] = ti.sqrt(ti.max(s, 1e-30))
             for ii in ti.static(range(jj + 1, 6)):
                 s2 = M[ii, jj]
                 for kk in ti.static(range(jj)):
