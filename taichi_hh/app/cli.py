@@ -56,6 +56,15 @@ _OPTION_HELP = {
                       "1000 particles on, Jacobi below and for cgnr)",
     "max_iterations": "iteration cap of each linear solve (none = max(1000, unknowns))",
     "seed": "random seed of sampled boundary/fake particles",
+    "boundary_condition": "boundary condition of the decomposition (decompose only): neumann = "
+                          "no flux of d and r through the boundary (Petronetto Eq. 6; a field "
+                          "with net curl or divergence, e.g. a rigid rotation, then lands in h, "
+                          "which is flagged as not harmonic); normal-parallel = phi = psi = 0 "
+                          "on the boundary (d normal, r tangent to it, all three parts "
+                          "orthogonal); natural = potentials from the free-space Green's "
+                          "function of div v and curl v (Bhatia et al. 2014), no condition",
+    "natural_evaluation": "how the natural condition's convolution is summed: fft "
+                          "(particle-mesh, O(N log N)) or direct (O(N^2), its reference)",
 }
 _SOLVERS = ("bicgstab", "cgnr")
 
@@ -80,6 +89,7 @@ def _method_defaults(name, methods):
 # --------------------------------------------------------------------------- parser
 def _add_common(p, command):
     from ..hhd.decompose import BOUNDARY_METHODS, METHODS, PRECONDITIONERS, HHDOptions
+    from ..hhd.options import BOUNDARY_CONDITIONS, NATURAL_EVALUATIONS
     from ..sph.kernels import KERNELS
     from ..sph.operators import GRADIENT_VARIANTS, LAPLACIAN_VARIANTS
     io = p.add_argument_group("input and output")
@@ -123,7 +133,8 @@ def _add_common(p, command):
     choices = {"kernel": KERNELS, "divergence": GRADIENT_VARIANTS,
                "gradient": GRADIENT_VARIANTS, "laplacian": LAPLACIAN_VARIANTS,
                "neumann_gradient": GRADIENT_VARIANTS, "boundary": BOUNDARY_METHODS,
-               "solver": _SOLVERS, "preconditioner": PRECONDITIONERS}
+               "solver": _SOLVERS, "preconditioner": PRECONDITIONERS,
+               "boundary_condition": BOUNDARY_CONDITIONS, "natural_evaluation": NATURAL_EVALUATIONS}
     types = {"support_ratio": (positive_float, "R"), "kappa": (nonnegative_float, "K"),
              "tol": (positive_float, "TOL"), "max_iterations": (positive_int, "N"),
              "seed": (nonnegative_int, "SEED")}
@@ -167,7 +178,8 @@ def build_parser() -> argparse.ArgumentParser:
             "Decompose a 2D vector field v sampled at scattered points into v = d + r + h: "
             "d = grad phi (curl-free), r = J grad psi (divergence-free), h harmonic "
             "(SPH-HH, Petronetto et al. 2010). Writes DIR/components.npz (points, v, d, r, "
-            "h, phi, psi, divergence, curl and the critical points xs, ys, kinds), the same "
+            "h, phi, psi, divergence, curl and the critical points xs, ys, kinds, "
+            "strengths), the same "
             "per point as DIR/components.vtu for ParaView (--no-vtk: not), and the "
             "figures DIR/arrows.png and DIR/magnitude.png."),
         epilog="Exit status: 0 on success, 2 on bad input, bad options or a failed solve.")
@@ -175,8 +187,9 @@ def build_parser() -> argparse.ArgumentParser:
     dec.add_argument_group("analysis").add_argument("--critical-threshold", type=nonnegative_float, default=0.1,
                      metavar="T",
                      help="critical points (sources, sinks, vortices: extrema of phi and "
-                          "psi) are kept when their |div v| or |curl v| is at least T times "
-                          "the largest in the field (default: 0.1)")
+                          "psi where d or r vanishes) are kept when their |div d| or |curl r| "
+                          "is at least T times the field's largest |div v| or |curl v| and "
+                          "well above the data's noise there (default: 0.1)")
     dec.set_defaults(func=_cmd_decompose)
 
     pro = sub.add_parser(
@@ -424,14 +437,20 @@ def _cmd_decompose(args) -> int:
              "cw_vortex": ("clockwise vortex", "clockwise vortices"),
              "ccw_vortex": ("counter-clockwise vortex", "counter-clockwise vortices")}
     found = ", ".join(_plural(counts[k], *names[k]) for k in names if k in counts)
+    if "iterations_phi" in s:
+        solved = (f"the phi and psi solves took {s['iterations_phi']} and "
+                  f"{s['iterations_psi']} iterations (relative residuals "
+                  f"{s['residual_phi']:.1e}, {s['residual_psi']:.1e})")
+    else:
+        solved = "free-space potentials on a {} x {} grid".format(*s["natural_grid"])
+    flags = "".join(f" Warning: {f}" for f in s.get("flags", []))
     print(_paragraph(
         f"Decomposed {len(res.points)} points of {args.field} (method {args.method}"
         f"{', ' + ', '.join(f'{k}={v}' for k, v in overrides.items()) if overrides else ''}; "
-        f"{st.arch}/{st.precision}): the phi and psi solves took {s['iterations_phi']} and "
-        f"{s['iterations_psi']} iterations (relative residuals {s['residual_phi']:.1e}, "
-        f"{s['residual_psi']:.1e}); decomposition {s['seconds']['total']:.2f} s, "
+        f"{st.arch}/{st.precision}): {solved}; decomposition {s['seconds']['total']:.2f} s, "
         f"{say.elapsed:.2f} s in all. Mean |v| = {mean['v']:.4g}, |d| = {mean['d']:.4g}, "
-        f"|r| = {mean['r']:.4g}, |h| = {mean['h']:.4g}. "
+        f"|r| = {mean['r']:.4g}, |h| = {mean['h']:.4g}; mean |div h|, |curl h| = "
+        f"{s['h_divergence']:.2g}, {s['h_curl']:.2g} of the field's.{flags} "
         f"Critical points: {len(critical)}{' (' + found + ')' if found else ''}. "
         f"Wrote {', '.join(written)}."))
     return 0

@@ -390,8 +390,10 @@ def write_components(path, result, critical_points=None, threshold: float = 0.1)
     Arrays: ``points``, ``v`` (the input), ``d`` (curl-free), ``r``
     (divergence-free), ``h`` (harmonic), ``phi``, ``psi``, ``divergence``,
     ``curl`` and the critical points as ``xs``, ``ys`` (float) and ``kinds``
-    (strings: source, sink, cw_vortex, ccw_vortex).  critical_points: a list of
-    ``(x, y, kind)``; default ``result.critical_points(threshold)``.
+    (strings: source, sink, cw_vortex, ccw_vortex) and ``strengths`` (NaN for
+    plain tuples).  critical_points: a list of ``(x, y, kind)`` or
+    :class:`~taichi_hh.hhd.critical.CriticalPoint`; default
+    ``result.critical_points(threshold)``.
     """
     import numpy as np
     if critical_points is None:
@@ -410,6 +412,7 @@ def write_components(path, result, critical_points=None, threshold: float = 0.1)
         "xs": np.array([c[0] for c in cps], dtype=np.float64),
         "ys": np.array([c[1] for c in cps], dtype=np.float64),
         "kinds": np.array([c[2] for c in cps], dtype="<U10"),
+        "strengths": np.array([getattr(c, "strength", np.nan) for c in cps], dtype=np.float64),
     })
 
 

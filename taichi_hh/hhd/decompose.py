@@ -5,6 +5,26 @@ points with SPH operators (SPH-HH, Petronetto et al. 2010, Sec. 5 (a)-(e)).
     h harmonic,  lap phi = div v,  lap psi = -curl v  (Eq. 5),
     d phi/dn = d psi/dn = 0 on the boundary  (Eq. 6).
 
+Eq. 6 is the option ``boundary_condition="neumann"`` (the default); the others
+(Bhatia et al., The Helmholtz-Hodge decomposition: a survey, IEEE TVCG 2013):
+
+``neumann``          Eq. 6: d and r carry no flux through the boundary, with
+                     the bordered system absorbing what is incompatible with
+                     it (a net divergence or a net curl: a rigid rotation goes
+                     wholly into h, which then has curl: not harmonic; flagged).
+``normal-parallel``  phi = psi = 0 on the boundary (Dirichlet rows on the
+                     boundary particles): d normal and r tangent to the
+                     boundary, d, r, h L2-orthogonal and unique, h harmonic and
+                     free on the boundary.  On a domain with holes psi = 0 on
+                     every boundary component (not a constant per component):
+                     the decomposition stays orthogonal and the flow circulating
+                     around a hole is harmonic, so it stays in h.
+``natural``          Bhatia et al. 2014: phi = G * div v and psi = -G * curl v
+                     over the domain with the free-space Green's function, no
+                     condition imposed (:mod:`taichi_hh.hhd.natural`); d and r
+                     are what the sources and vortices inside induce, h the
+                     influence of everything outside.
+
 Steps (a)-(e): particles and boundary or fake particles, div v and curl v,
 the two Poisson problems of Eq. 5 with the boundary rows of Eq. 6, their
 solutions phi and psi, and d, r, h.  Every numerical choice is an option of
@@ -26,12 +46,15 @@ from ..sph.pointset import PointSet
 from ..linalg.poisson import PoissonMatrix
 from .boundary import collocation_particles, far_from
 from .inputs import check_data_reach_boundary, check_point_count, validate_input
-from .options import BOUNDARY_METHODS, METHODS, PRECONDITIONERS, HHDOptions, options_for
+from .natural import natural_potentials
+from .options import (BOUNDARY_CONDITIONS, BOUNDARY_METHODS, METHODS, PRECONDITIONERS,
+                      HHDOptions, options_for)
 from .rotation import J
 
 # re-exported: importers of the options, the input checks and J from here
 __all__ = ["decompose", "poisson_problems", "PoissonProblems", "HHDResult", "ENERGY_LIMIT",
-           "HHDOptions", "METHODS", "BOUNDARY_METHODS", "PRECONDITIONERS", "options_for",
+           "HHDOptions", "METHODS", "BOUNDARY_METHODS", "BOUNDARY_CONDITIONS", "PRECONDITIONERS",
+           "options_for",
            "validate_input", "far_from", "J"]
 
 
@@ -51,7 +74,8 @@ class HHDResult:
     pointset: PointSet = field(repr=False, default=None)
 
     def critical_points(self, threshold: float = 0.1, radius: float | None = None):
-        """Sources, sinks and vortices: ``[(x, y, kind)]`` (Petronetto Sec. 6c).
+        """Sources, sinks and vortices (Petronetto Sec. 6c), strongest first:
+        ``[CriticalPoint(x, y, kind, strength)]``, which unpack as ``(x, y, kind)``.
 
         See :func:`taichi_hh.hhd.critical.find_critical_points`."""
         from .critical import find_critical_points
@@ -79,7 +103,8 @@ class PoissonProblems:
     matrix ``A`` shared by both and the right-hand sides ``rhs["phi"]`` = div v
     and ``rhs["psi"]`` = -curl v on the particle slots (zero on boundary and
     fake particles).  From :func:`poisson_problems`; :func:`decompose` solves
-    them.  Useful on its own to benchmark or compare solvers on the matrix."""
+    them.  Useful on its own to benchmark or compare solvers on the matrix.
+    ``A`` is None for the natural decomposition (no linear system)."""
     opts: HHDOptions
     points: np.ndarray
     ps: PointSet
@@ -89,6 +114,8 @@ class PoissonProblems:
     kind: np.ndarray
     seconds: dict
     stats: dict
+    domain: object = None
+    divergence_stencil: object = None    # of div v and curl v, over the data points
 
 
 def poisson_problems(points, vectors, domain=None, *, method: str = "default", progress=None,
@@ -158,17 +185,22 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
             slots[fluid] -= np.average(slots[fluid], weights=vol)
     seconds["divergence"] = time.perf_counter() - t
 
-    say("assemble")
-    t = time.perf_counter()
-    A = PoissonMatrix(ops, laplacian=opts.laplacian, gradient=opts.neumann_gradient,
-                      kappa=opts.kappa, near=near, bordered=opts.bordered)
-    seconds["assemble"] = time.perf_counter() - t
+    A = None
+    if opts.boundary_condition != "natural":
+        say("assemble")
+        t = time.perf_counter()
+        # normal-parallel: Dirichlet rows, a regular problem, nothing to border
+        dirichlet = opts.boundary_condition == "normal-parallel"
+        A = PoissonMatrix(ops, laplacian=opts.laplacian, gradient=opts.neumann_gradient,
+                          kappa=opts.kappa, near=near, bordered=opts.bordered and not dirichlet,
+                          dirichlet=dirichlet)
+        seconds["assemble"] = time.perf_counter() - t
 
     stats = {"n_points": n, "n_boundary": int((kind == BOUNDARY).sum()),
              "n_ghosts": int((kind == GHOST).sum()), "support": support, "spacing": spacing,
              "mean_neighbours": float(ps.neighbour_counts.mean())}
     return PoissonProblems(opts, pts, ps, A, {"phi": div_slots, "psi": -curl_slots}, vec, kind,
-                           seconds, stats)
+                           seconds, stats, domain, st_div)
 
 
 def decompose(points, vectors, domain=None, *, method: str = "default", progress=None,
@@ -178,17 +210,56 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     points, vectors: (N, 2) arrays.  domain: :class:`~taichi_hh.geometry.domain.Box` or
     :class:`~taichi_hh.geometry.domain.Polygon` (holes allowed); default the points'
     bounding box.  method: a bundle of :data:`METHODS`; keyword ``options``
-    override single fields of :class:`HHDOptions`.  progress: optional
-    ``callable(stage: str)`` told as each stage starts.
+    override single fields of :class:`HHDOptions`, e.g.
+    ``boundary_condition="normal-parallel"`` or ``"natural"`` (module doc).
+    progress: optional ``callable(stage: str)`` told as each stage starts.
+
+    ``stats["h_divergence"]`` and ``stats["h_curl"]``: mean |div h| and |curl h|
+    over the mean of sqrt(div v^2 + curl v^2) (the decomposition's divergence
+    operator); above :data:`HARMONIC_LIMIT` h is not harmonic and the result is
+    flagged (``stats["flags"]`` and an AccuracyWarning): the Neumann condition
+    with a field of net curl or divergence (docs/notes/hhd.md).
     """
     t_start = time.perf_counter()
     say = progress or (lambda stage: None)
     problems = poisson_problems(points, vectors, domain, method=method, progress=progress,
                                 **options)
     check_point_count(len(problems.points), problems.stats)    # refused or flagged: few points
-    opts, ps, A, vec, kind = problems.opts, problems.ps, problems.A, problems.vectors, problems.kind
+    opts, ps, vec = problems.opts, problems.ps, problems.vectors
     pts, div_slots, curl_slots = problems.points, problems.rhs["phi"], -problems.rhs["psi"]
-    ops, seconds, stats = ps.ops, problems.seconds, problems.stats
+    seconds, stats = problems.seconds, problems.stats
+    if opts.boundary_condition == "natural":
+        say("natural potentials")
+        t = time.perf_counter()
+        nat = natural_potentials(pts, problems.domain,
+                                 {"phi": div_slots[ps.slot_of], "psi": -curl_slots[ps.slot_of]},
+                                 stats["spacing"], evaluation=opts.natural_evaluation)
+        phi, d = nat["phi"]
+        psi, grad_psi = nat["psi"]
+        stats["natural_grid"] = nat["grid"].shape
+        seconds["natural"] = time.perf_counter() - t
+    else:
+        potentials = _solve_potentials(problems, say)
+        phi, psi = (np.asarray(potentials[k])[ps.slot_of] for k in ("phi", "psi"))
+        say("components")
+        t = time.perf_counter()
+        st_grad = ps.ops.gradient_coefficients(opts.gradient, row_kinds=(FLUID,))
+        d, grad_psi = (_gradient(ps, st_grad, potentials[k]) for k in ("phi", "psi"))
+        seconds["components"] = time.perf_counter() - t
+    r = J(grad_psi)
+    h = vec - d - r
+    seconds["total"] = time.perf_counter() - t_start
+    stats["seconds"] = seconds
+    _check_energy(stats, vec, d, r, h, ps.particles.get("volume")[ps.slot_of], opts)
+    _check_harmonic(stats, problems, h)
+    return HHDResult(points=pts, vectors=vec, curl_free=d, div_free=r, harmonic=h,
+                     phi=phi, psi=psi, divergence=div_slots[ps.slot_of],
+                     curl=curl_slots[ps.slot_of], stats=stats, options=opts, pointset=ps)
+
+
+def _solve_potentials(problems, say) -> dict:
+    """Steps (d): phi and psi per particle slot from the assembled problems."""
+    opts, A, stats, seconds = problems.opts, problems.A, problems.stats, problems.seconds
     potentials = {}
     for name, rhs in problems.rhs.items():
         say(f"solve {name}")
@@ -204,32 +275,70 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
         stats[f"iterations_{name}"] = res.iterations
         stats[f"residual_{name}"] = res.relative_residual
         stats[f"compatibility_{name}"] = res.border
+    return potentials
 
-    say("components")
-    t = time.perf_counter()
-    st_grad = ops.gradient_coefficients(opts.gradient, row_kinds=(FLUID,))
-    grads = {}
-    for name, x in potentials.items():
-        x_nd = ps.new_array(1)
-        x_nd.from_numpy(x.astype(runtime.np_real()))
-        g_nd = ps.new_array(2)
-        ops.gradient(st_grad, x_nd, g_nd)
-        grads[name] = ps.download(g_nd)
-    d = grads["phi"]
-    r = J(grads["psi"])
-    h = vec - d - r
-    seconds["components"] = time.perf_counter() - t
-    seconds["total"] = time.perf_counter() - t_start
-    stats["seconds"] = seconds
-    _check_energy(stats, vec, d, r, h, ps.particles.get("volume")[ps.slot_of], opts)
 
-    def at_points(slots):
-        return np.asarray(slots)[ps.slot_of]
+def _gradient(ps, st_grad, slots) -> np.ndarray:
+    """Step (e): the gradient (stencil ``st_grad``) of per-slot values at the data points."""
+    x_nd = ps.new_array(1)
+    x_nd.from_numpy(slots.astype(runtime.np_real()))
+    g_nd = ps.new_array(2)
+    ps.ops.gradient(st_grad, x_nd, g_nd)
+    return ps.download(g_nd)
 
-    return HHDResult(points=pts, vectors=vec, curl_free=d, div_free=r, harmonic=h,
-                     phi=at_points(potentials["phi"]), psi=at_points(potentials["psi"]),
-                     divergence=at_points(div_slots), curl=at_points(curl_slots),
-                     stats=stats, options=opts, pointset=ps)
+
+#: h with mean |div h| or |curl h| above this fraction of the field's mean
+#: sqrt(div v^2 + curl v^2) is not harmonic: flagged.  Measured (docs/notes/hhd.md):
+#: 0.02-0.16 for the default method on the analytic fields at 13k-1k points,
+#: up to 0.29 for petronetto2010, 0.47 for the natural HHD of pure 1% noise
+#: (finer than its grid), 1.0 for a rigid rotation under Neumann
+HARMONIC_LIMIT = 0.5
+
+
+def _divergence_curl(ps, st, w):
+    """div w and curl w at the data points by the stencil ``st``."""
+    w_nd, out = ps.upload(w), ps.new_array(1)
+    ps.ops.divergence(st, w_nd, out)
+    div = ps.download(out)
+    ps.ops.curl(st, w_nd, out)
+    return div, ps.download(out)
+
+
+def _check_harmonic(stats, problems, h) -> None:
+    """How harmonic h is: ``stats["h_divergence"]``, ``stats["h_curl"]`` (mean |div h|
+    and |curl h| over the mean of sqrt(div v^2 + curl v^2), the divergence operator
+    over the data points); above :data:`HARMONIC_LIMIT` flagged as _check_energy does."""
+    import warnings
+    from ..errors import AccuracyWarning
+    ps, opts = problems.ps, problems.opts
+    if opts.boundary == "petronetto" or opts.remove_mean:
+        # the right-hand sides are not div v and curl v over the data alone there
+        st = ps.gradient_stencil(opts.divergence)
+        div_v, curl_v = _divergence_curl(ps, st, problems.vectors)
+    else:                                   # the same operator as the right-hand sides'
+        st = problems.divergence_stencil
+        div_v = problems.rhs["phi"][ps.slot_of]
+        curl_v = -problems.rhs["psi"][ps.slot_of]
+    scale = float(np.hypot(div_v, curl_v).mean())
+    ratios = {}
+    for name, values in zip(("divergence", "curl"), _divergence_curl(ps, st, h)):
+        mean = float(np.abs(values).mean())
+        ratios[name] = mean / scale if scale > 0 else (0.0 if mean == 0 else math.inf)
+        stats[f"h_{name}"] = ratios[name]
+    stats.setdefault("flags", [])
+    worst = max(ratios, key=ratios.get)
+    if not ratios[worst] <= HARMONIC_LIMIT:
+        msg = (f"h is not harmonic: mean |{'div' if worst == 'divergence' else 'curl'} h| is "
+               f"{ratios[worst]:.3g} of the field's mean derivative (limit {HARMONIC_LIMIT:g}); "
+               f"with boundary_condition={opts.boundary_condition!r}")
+        if not stats.get("energy_ratio", 1.0) <= ENERGY_LIMIT:
+            msg += "; the operators are inconsistent on these points (see the energy flag)"
+        elif opts.boundary_condition == "neumann":
+            msg += ("; the usual cause: the field has net curl or divergence, which the "
+                    "Neumann condition cannot put into d or r (boundary_condition="
+                    "'normal-parallel' or 'natural' can)")
+        stats["flags"].append(msg)
+        warnings.warn(msg, AccuracyWarning, stacklevel=3)
 
 
 #: components with more than this many times the field's energy are flagged

@@ -40,6 +40,10 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 BOUNDARY_METHODS = ("collocation", "petronetto", "colin", "none")
+#: boundary conditions of the decomposition (:func:`~taichi_hh.hhd.decompose.decompose`)
+BOUNDARY_CONDITIONS = ("neumann", "normal-parallel", "natural")
+#: evaluations of the natural decomposition's convolution (:mod:`taichi_hh.hhd.natural`)
+NATURAL_EVALUATIONS = ("fft", "direct")
 PRECONDITIONERS = ("auto", "multilevel", "jacobi")
 
 
@@ -66,6 +70,8 @@ class HHDOptions:
     tol: float = 1e-8
     max_iterations: int | None = None
     seed: int = 0                       # for sampled fake/boundary particles
+    boundary_condition: str = "neumann"  # neumann | normal-parallel | natural (decompose doc)
+    natural_evaluation: str = "fft"     # fft | direct: the natural HHD's convolution
 
     def __post_init__(self):
         if isinstance(self.multilevel_options, dict):
@@ -79,6 +85,16 @@ class HHDOptions:
             raise ValueError(f"support_neighbours must be 1..24, got {self.support_neighbours}")
         if not (self.tol > 0):
             raise ValueError(f"tol must be positive, got {self.tol}")
+        if self.boundary_condition not in BOUNDARY_CONDITIONS:
+            raise ValueError(f"boundary_condition must be one of {BOUNDARY_CONDITIONS}, "
+                             f"got {self.boundary_condition!r}")
+        if self.natural_evaluation not in NATURAL_EVALUATIONS:
+            raise ValueError(f"natural_evaluation must be one of {NATURAL_EVALUATIONS}, "
+                             f"got {self.natural_evaluation!r}")
+        if self.boundary_condition == "normal-parallel" and self.boundary != "collocation":
+            raise ValueError("boundary_condition='normal-parallel' puts its Dirichlet rows on "
+                             "the boundary particles of boundary='collocation', got "
+                             f"boundary={self.boundary!r}")
         if self.preconditioner not in PRECONDITIONERS:
             raise ValueError(f"preconditioner must be one of {PRECONDITIONERS}, "
                              f"got {self.preconditioner!r}")

@@ -369,6 +369,9 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
     if scheme not in SCHEMES:
         raise InputError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
     opts = options_for(method, **{**PROJECT_OVERRIDES.get(method, {}), **options})
+    if opts.boundary_condition != "neumann":
+        raise InputError(f"boundary_condition={opts.boundary_condition!r} is a decomposition "
+                         "option: a projection keeps the normal flux (Neumann)")
     if scheme != "poisson" and opts.boundary == "colin":
         raise InputError(f"scheme {scheme!r} measures the divergence of the data alone: it "
                          "does not take Colin's wall particles (boundary='colin'); use "

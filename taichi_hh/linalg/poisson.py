@@ -9,7 +9,8 @@ Every particle owns one row, chosen by its kind (``particles.kind``):
               particles within ``sqrt(m/rho)/pi`` of the boundary (Sec. 4: the
               Neumann term moved to the left-hand side, ``near_weight = -1``).
 ``BOUNDARY``  Neumann row ``n_i . grad phi_i = g_i`` with the particle's normal
-              (Colin Eqs. 35-37; ``g = 0`` for the homogeneous condition).
+              (Colin Eqs. 35-37; ``g = 0`` for the homogeneous condition), or with
+              ``dirichlet=True`` the Dirichlet row ``phi_i = g_i``.
 ``GHOST``     Shepard row ``phi_g - sum_k S_gk phi_k = 0`` over the fluid
               neighbours ``k`` of a fake particle, ``S_gk = V_k W_gk / sum V W``
               (Petronetto Sec. 5b: the fake particle's potential replaced by the
@@ -192,11 +193,13 @@ class PoissonMatrix:
     takes fewer iterations; with a ridge ``c = +sum V`` is singular at
     exactly kappa = 1, so ``c = -sum V``, regular for every kappa > 0
     (docs/notes/linalg.md).
+    dirichlet: boundary particles get Dirichlet rows ``phi_i = b_i`` instead of
+    Neumann rows (the normal-parallel decomposition; not with ``bordered``).
     """
 
     def __init__(self, ops, *, laplacian: str = "corrected", gradient: str = "quadratic",
                  kappa: float = 0.0, near=None, bordered: bool = False,
-                 density_weighted: bool = False):
+                 density_weighted: bool = False, dirichlet: bool = False):
         runtime.ensure_init()
         p = ops.particles
         self.ops = ops
@@ -236,8 +239,19 @@ class PoissonMatrix:
             raise NeighbourError(
                 f"ghost particle at {p.position.to_numpy()[bad].tolist()} has no fluid "
                 "neighbour within the kernel support: its Shepard row is undefined")
-        # border vectors (unused unless bordered)
         kind = p.kind.to_numpy()[: p.n]
+        if dirichlet:
+            if bordered:
+                raise ValueError("Dirichlet rows make the problem regular: no bordering")
+            off, _ = pr.to_numpy()
+            rows = np.repeat(np.arange(p.n), np.diff(off))
+            K = self.K.to_numpy()
+            K[: len(rows)][kind[rows] == BOUNDARY] = 0.0
+            self.K.from_numpy(K)
+            D = self.D.to_numpy()
+            D[: p.n][kind == BOUNDARY] = 1.0
+            self.D.from_numpy(D)
+        # border vectors (unused unless bordered)
         vol = p.volume.to_numpy()[: p.n]
         fluid = (kind == FLUID).astype(runtime.np_real())
         self.border_e = ti.ndarray(real, shape=(size,))
