@@ -189,4 +189,6 @@ def test_cli_boundary_condition(tmp_path):
     got = np.load(out / "components.npz")
     assert np.linalg.norm(got["r"] - F.evaluate(pts).r, axis=1).mean() < 0.01
     assert list(got["kinds"]) == ["ccw_vortex"]            # the rotation's centre
-    assert got["strengths"].shape == (1,) and 0.5 < got["strengths"][0] <= 1.0
+    # strength: |curl r| there over the largest |curl v|; r's curl may exceed v's by the
+    # discretisation error
+    assert got["strengths"].shape == (1,) and 0.5 < got["strengths"][0] <= 1.01

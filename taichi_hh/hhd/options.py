@@ -17,7 +17,9 @@
                     the boundary); bordered system for the pure-Neumann
                     compatibility; BiCGSTAB to 1e-8 preconditioned by the
                     multilevel cycle (Jacobi below 1000 particles); d, r by
-                    the cubic gradient.
+                    the quadratic gradient (the cubic one is no more accurate
+                    there and makes the critical points' strengths overshoot:
+                    docs/notes/scattered.md).
 ``petronetto2010``  as published: quartic kernel, difference gradient and
                     divergence (Petronetto Eqs. 8, 9), Brookshaw Laplacian
                     (Eq. 10), fake particles outside the boundary by
@@ -55,7 +57,7 @@ class HHDOptions:
     adaptive_support: bool = True       # per-point support from the local spacing (sph.support)
     support_neighbours: int = 12        # k of that local spacing estimate
     divergence: str = "cubic"           # gradient variant for div v and curl v
-    gradient: str = "cubic"             # gradient variant for d = grad phi, r = J grad psi
+    gradient: str = "quadratic"         # gradient variant for d = grad phi, r = J grad psi
     laplacian: str = "corrected"        # Laplacian variant of the Poisson rows
     neumann_gradient: str = "quadratic"  # gradient variant of the Neumann rows
     boundary: str = "collocation"       # collocation | petronetto | colin | none
