@@ -277,7 +277,7 @@ def test_results_come_back_in_caller_order():
 
 def test_all_variants_are_listed():
     assert set(GRADIENT_VARIANTS) == {"basic", "difference", "colin_difference", "symmetric",
-                                      "corrected", "quadratic"}
+                                      "corrected", "quadratic", "cubic"}
     assert set(LAPLACIAN_VARIANTS) == {"basic", "colin_difference", "brookshaw", "corrected"}
 
 

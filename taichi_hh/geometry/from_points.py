@@ -49,5 +49,6 @@ def domain_from_points(points, kind: str):
         return Box(lo, hi)
     if kind == "hull":
         return Polygon(convex_hull(pts))
-    raise InputError(f"unknown domain {kind!r}: a domain from the points is one of "
-                     f"{DOMAINS_FROM_POINTS}")
+    raise InputError(f"cannot make a domain from {kind!r}: give a Box, a Polygon, "
+                     f"(x0, y0, x1, y1), an (M, 2) array of vertices, or one of "
+                     f"{DOMAINS_FROM_POINTS} (a domain from the points)")
