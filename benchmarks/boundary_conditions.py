@@ -1,10 +1,10 @@
 """Accuracy of the decomposition's boundary conditions on the analytic fields
 exact for each (issue 17; the table of docs/notes/hhd.md).
 
-    python benchmarks/boundary_conditions.py [--sizes 3300,13000]
+    python benchmarks/boundary_conditions.py [--sizes 3300,13000] [--sampling random]
 
 Per field and condition: mean errors of d, r, h over mean |v| on blue noise
-(``seed=3``), ``stats["h_divergence"]``, ``stats["h_curl"]``, the energy
+(``seed=3``; ``--sampling random`` for uniformly random points), ``stats["h_divergence"]``, ``stats["h_curl"]``, the energy
 ratio, the number of flags and the seconds.  Writes
 ``outputs/benchmarks/boundary_conditions.csv``.
 """
@@ -28,6 +28,7 @@ CASES = [("gaussian", "neumann"), ("trig", "neumann"), ("sines", "normal-paralle
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="3300,13000")
+    ap.add_argument("--sampling", default="poisson", choices=("poisson", "jittered", "random"))
     ap.add_argument("--out-dir", default=os.path.join("outputs", "benchmarks"))
     args = ap.parse_args(argv)
     import numpy as np
@@ -38,7 +39,7 @@ def main(argv=None) -> int:
     for name, condition in CASES:
         F = fields.rotation(condition) if name == "rotation" else fields.get(name)
         for n in _common.parse_list(args.sizes, int):
-            pts = F.sample(n, "poisson", seed=3)
+            pts = F.sample(n, args.sampling, seed=3)
             ex = F.evaluate(pts)
             t = time.perf_counter()
             res = thh.decompose(pts, ex.v, F.domain, boundary_condition=condition)
@@ -47,7 +48,8 @@ def main(argv=None) -> int:
             err = [float(np.linalg.norm(a - b, axis=1).mean() / vm) for a, b in
                    ((res.curl_free, ex.d), (res.div_free, ex.r), (res.harmonic, ex.h))]
             s = res.stats
-            rows.append({"field": name, "condition": condition, "n": len(pts),
+            rows.append({"field": name, "condition": condition, "sampling": args.sampling,
+                         "n": len(pts),
                          "err_d": err[0], "err_r": err[1], "err_h": err[2],
                          "h_divergence": s["h_divergence"], "h_curl": s["h_curl"],
                          "energy_ratio": s["energy_ratio"], "flags": len(s["flags"]),
@@ -55,9 +57,10 @@ def main(argv=None) -> int:
             print(rows[-1], flush=True)
     names = list(rows[0])
     print(_common.format_table(names, [[f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k])
-                                        for k in names] for r in rows], "ll" + "r" * 9))
+                                        for k in names] for r in rows], "lll" + "r" * 9))
     os.makedirs(args.out_dir, exist_ok=True)
-    path = os.path.join(args.out_dir, "boundary_conditions.csv")
+    suffix = "" if args.sampling == "poisson" else f"_{args.sampling}"
+    path = os.path.join(args.out_dir, f"boundary_conditions{suffix}.csv")
     _common.write_csv_atomic(path, rows, names)
     print(f"wrote {path}")
     return 0
