@@ -70,3 +70,18 @@ def test_convex_hull_of_points():
     assert {tuple(p) for p in hull} == {(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)}
     x, y = hull[:, 0], hull[:, 1]
     assert 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0      # counter-clockwise
+
+
+def test_cli_adaptive_support_options_and_domain_from_points(tmp_path):
+    from taichi_hh.app.cli import main
+    pts = layouts.sample(fields.get("gaussian").domain, 2000, "random", seed=2)
+    v = fields.get("gaussian").evaluate(pts).v
+    path = tmp_path / "rnd.npz"
+    np.savez(path, points=pts, vectors=v)
+    out = tmp_path / "out"
+    assert main(["decompose", str(path), "-o", str(out), "-q", "--no-figures", "--no-vtk",
+                 "--support-neighbours", "8", "--domain", "hull"]) == 0
+    assert np.load(out / "components.npz")["d"].shape == (2000, 2)
+    with pytest.raises(SystemExit) as exc:            # a library-only option
+        main(["decompose", str(path), "--multilevel-options", "x"])
+    assert exc.value.code == 2

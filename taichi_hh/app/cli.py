@@ -29,11 +29,21 @@ import time
 from .. import __version__
 from ..checks import nonnegative_float, nonnegative_int, positive_float, positive_int
 
+#: HHDOptions fields not on the command line: the multilevel cycle's tuning
+#: (a library option: ``decompose(..., multilevel_options={...})``)
+LIBRARY_ONLY_OPTIONS = ("multilevel_options",)
+
 #: HHDOptions fields exposed as --options: field -> (metavar/choices source, help)
 _OPTION_HELP = {
     "kernel": "SPH smoothing kernel",
-    "support_ratio": "kernel support radius divided by the mean point spacing "
-                     "sqrt(area / N); larger = more neighbours, smoother and slower",
+    "support_ratio": "kernel support radius divided by the point spacing (the local "
+                     "spacing with --adaptive-support, else the mean sqrt(area / N)); "
+                     "larger = more neighbours, smoother and slower",
+    "adaptive_support": "a support per point from the local spacing (its K nearest "
+                        "neighbours): uniformly random, clustered and varying-density "
+                        "points keep enough neighbours everywhere",
+    "support_neighbours": "K, the nearest neighbours of the local spacing estimate of "
+                          "--adaptive-support (1-24)",
     "divergence": "gradient variant used to compute div v and curl v (the right-hand "
                   "sides of the two Poisson equations)",
     "gradient": "gradient variant used for the components d = grad phi and r = J grad psi",
@@ -137,9 +147,11 @@ def _add_common(p, command):
                "boundary_condition": BOUNDARY_CONDITIONS, "natural_evaluation": NATURAL_EVALUATIONS}
     types = {"support_ratio": (positive_float, "R"), "kappa": (nonnegative_float, "K"),
              "tol": (positive_float, "TOL"), "max_iterations": (positive_int, "N"),
-             "seed": (nonnegative_int, "SEED")}
+             "seed": (nonnegative_int, "SEED"), "support_neighbours": (positive_int, "K")}
     for f in dataclasses.fields(HHDOptions):
         name = f.name
+        if name in LIBRARY_ONLY_OPTIONS:
+            continue
         flag = "--" + name.replace("_", "-")
         text = f"{_OPTION_HELP.get(name, name)} ({_method_defaults(name, METHODS)})"
         if name in choices:
