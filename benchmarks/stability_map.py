@@ -69,6 +69,7 @@ add_repo_to_path()
 from taichi_hh.validation.stability import (ERR_ABS, ERR_REL, as_float,  # noqa: E402
                                             classify)
 from taichi_hh.validation.sweep import CSV_FIELDS, read_rows, variant  # noqa: E402
+from taichi_hh.hhd.options import METHODS  # noqa: E402
 
 
 MAP_FIELDS = ["family", "row", "column", "status", "note", "ref_err"] + CSV_FIELDS
@@ -80,7 +81,7 @@ HHD_ROWS = ["default", "petronetto2010", "colin2006", "grad:basic", "grad:differ
             "project:default", "project:colin2006"]
 QUICK_ROWS = ["default", "petronetto2010", "colin2006", "grad:basic", "grad:corrected",
               "project:default"]
-BUNDLE_SUPPORT = {"default": 2.5, "petronetto2010": 2.0, "colin2006": 2.0}
+BUNDLE_SUPPORT = {name: opts.support_ratio for name, opts in METHODS.items()}
 
 
 def _row_task(row: str, n: int, **kw) -> dict:
@@ -115,12 +116,15 @@ def build_tasks(quick: bool) -> list[dict]:
 
     n = 900 if quick else 1600
     rows = QUICK_ROWS if quick else HHD_ROWS
-    samplings = ["lattice", "jitter0.6", "poisson", "random", "clustered"] if quick else \
-        ["lattice", "jitter0.3", "jitter0.6", "jitter1.0", "poisson", "random", "clustered"]
+    samplings = ["lattice", "jitter0.6", "poisson", "random", "clustered", "clusters",
+                 "gradient"] if quick else \
+        ["lattice", "jitter0.3", "jitter0.6", "jitter1.0", "poisson", "random", "clustered",
+         "clusters", "gradient"]
     for r in rows:
         for s in samplings:
             add("disorder", r, s, _row_task(r, n, sampling=s), reference=(s == "poisson"))
-    ratios = [2.5, 2.0, 1.5, 1.0] if quick else [3.0, 2.5, 2.0, 1.75, 1.5, 1.25, 1.0, 0.8]
+    ratios = [3.5, 2.5, 2.0, 1.5, 1.0] if quick else [4.0, 3.5, 3.0, 2.5, 2.0, 1.75, 1.5, 1.25,
+                                                       1.0, 0.8]
     for r in rows:
         own = BUNDLE_SUPPORT.get(_bundle(r), 2.5)
         for s in ratios:
