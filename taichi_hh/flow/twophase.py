@@ -72,7 +72,7 @@ from .buffers import FlowBuffers
 from .clock import STAGES, StageClock
 from .params import WALL_CONDITIONS, FlowParams, WallVelocity
 from .shifting import concentration_gradient, shifting_displacement
-from .walls import wall_rhs, wall_velocity
+from .walls import take_wall_rows, wall_rhs, wall_velocity
 
 __all__ = ["TwoPhaseFlow", "FlowParams", "BlowUpError", "StageClock", "STAGES",
            "WALL_CONDITIONS", "WallVelocity"]
@@ -240,16 +240,16 @@ class TwoPhaseFlow:
 
         w, st_visc = self._predict(velocity, fluid, dt)                         # 1.
         st_grad, st_pressure_grad, A = self._pressure_operators(st_visc)
-        d = self._measured_divergence(w, st_grad)
+        d = self._measured_divergence(w, st_grad, fluid)
         div_before, norm_before = float(np.abs(d).max()), math.sqrt(float((d ** 2).sum()))
         w, iterations = self._project(A, st_grad, st_pressure_grad, w, fluid, ids, dt)  # 2.
-        d = self._measured_divergence(w, st_grad)
+        d = self._measured_divergence(w, st_grad, fluid)
         self.clock.lap("operators", "divergence")
         cleanup_iterations = 0
         if self.params.exact_projection:                                         # 2b.
             w, cleanup_iterations = self._clean_up(w, d, norm_before, st_grad)
             if cleanup_iterations:
-                d = self._measured_divergence(w, st_grad)
+                d = self._measured_divergence(w, st_grad, fluid)
                 self.clock.lap("operators", "cleanup")
         div_after = float(np.abs(d).max())
         self._advect(w, fluid, dt)                                               # 3.
@@ -356,7 +356,9 @@ class TwoPhaseFlow:
             q_total += res.x
             if k == 0:
                 self.border = res.border
-            w[fluid] -= self._pressure_gradient(res.x, st_pressure_grad)[fluid] / rho[fluid, None]
+            # the solver's own array of x (its first n entries are res.x): no host copy
+            w[fluid] -= self._pressure_gradient(res.x_ndarray, st_pressure_grad)[fluid] \
+                / rho[fluid, None]
             if k + 1 == params.projection_passes:
                 self.clock.lap("operators", "correction")
                 break           # the next pass's right-hand side would go unused
@@ -379,21 +381,23 @@ class TwoPhaseFlow:
         wall_rhs(ops.kernel_id, p.n, pairs.offsets, pairs.neighbours, p.position, p.volume,
                  p.density, p.kind, p.normal, buf.velocity, gdt[0], gdt[1], self.support,
                  buf.wall_rhs)
-        div = buf.divergence.to_numpy()[: p.n].astype(np.float64)
-        return np.where(fluid, div, buf.wall_rhs.to_numpy()[: p.n].astype(np.float64))
+        take_wall_rows(p.n, p.kind, buf.wall_rhs, buf.divergence)
+        return buf.divergence.to_numpy()[: p.n].astype(np.float64)
 
     def _pressure_gradient(self, q, st_pressure_grad) -> np.ndarray:
-        """grad q (the pressure gradient's stencil) on every row, as float64."""
+        """grad q (the pressure gradient's stencil) on every row, as float64; ``q``:
+        a Taichi array whose first n entries are the particles' q."""
         p, buf = self.particles, self.buffers
-        buf.pressure.from_numpy(q.astype(runtime.np_real()))
-        self.ops.gradient(st_pressure_grad, buf.pressure, buf.pressure_gradient)
+        self.ops.gradient(st_pressure_grad, q, buf.pressure_gradient)
         return buf.pressure_gradient.to_numpy()[: p.n].astype(np.float64)
 
-    def _measured_divergence(self, w, st) -> np.ndarray:
+    def _measured_divergence(self, w, st, fluid=None) -> np.ndarray:
         """D w (module doc): the divergence of stencil ``st`` (the corrected gradient
-        of the fluid rows) with the wall particles at rest; 0 on wall rows."""
+        of the fluid rows) with the wall particles at rest; 0 on wall rows
+        (``fluid``: the fluid rows' mask, read from the particles when None)."""
         p, buf = self.particles, self.buffers
-        fluid = p.get("kind") == FLUID
+        if fluid is None:
+            fluid = p.get("kind") == FLUID
         buf.measured_velocity.from_numpy(np.where(fluid[:, None], w, 0.0)
                                          .astype(runtime.np_real()))
         self.ops.divergence(st, buf.measured_velocity, buf.measured_divergence)
@@ -469,8 +473,8 @@ class TwoPhaseFlow:
                                   cause="left-box")
             eps = 0.01 * self.dx
             pos[out] = np.clip(pos[out], [x0 + eps, y0 + eps], [x1 - eps, y1 - eps])
-        p.set("position", pos)
-        p.set("velocity", w)
+        _upload(p, "position", pos)
+        _upload(p, "velocity", w)
 
     def _shift(self, pos, fluid, dt, vmax):
         """The particle-shifting displacement (:mod:`taichi_hh.flow.shifting`)."""
@@ -530,6 +534,16 @@ class TwoPhaseFlow:
         if lam is not None and len(lam) == len(flow.lam_by_id):
             flow.lam_by_id = np.asarray(lam, dtype=np.float64)
         return flow
+
+
+def _upload(p, name: str, values: np.ndarray) -> None:
+    """``p.set(name, values)`` for all n particles in one host copy (``set`` reads
+    the array back first, to keep the slots beyond n)."""
+    arr = p.arrays[name]
+    if arr.shape[0] == len(values) == p.n:
+        arr.from_numpy(np.ascontiguousarray(values, dtype=runtime.np_real()))
+    else:
+        p.set(name, values)
 
 
 def _check_params(params) -> None:
