@@ -7,7 +7,8 @@ One time step (:meth:`TwoPhaseFlow.step`), after the neighbour search:
 2. project   solve div(grad q / rho) = div w,  w <- w - grad q / rho,
              starting from w = v*, repeated ``projection_passes`` times or until
              max |div w| dt is below ``div_tol`` (the iterated projection of Colin
-             Sec. 3.7; q = dt p is the pressure impulse)
+             Sec. 3.7; q = dt p is the pressure impulse; the solve starts from the
+             last two steps' p extrapolated in time, ``warm_start``)
 2b. clean up (``exact_projection``, off by default) solve (D M^-1 D^T) lam = D w,
              w <- w - M^-1 D^T lam: the orthogonal step of
              :mod:`taichi_hh.hhd.project` with the mass-weighted norm (below)
@@ -70,7 +71,7 @@ from ..sph.operators import GradientStencil, Operators, number_density, \
 from ..sph.particles import FLUID, WALL, Particles
 from .buffers import FlowBuffers
 from .clock import STAGES, StageClock
-from .params import WALL_CONDITIONS, FlowParams, WallVelocity
+from .params import WALL_CONDITIONS, WARM_STARTS, FlowParams, WallVelocity
 from .shifting import concentration_gradient, shifting_displacement
 from .walls import take_wall_rows, wall_rhs, wall_velocity
 
@@ -104,6 +105,8 @@ class TwoPhaseFlow:
         _check_params(params)
         if params.walls not in WALL_CONDITIONS:
             raise InputError(f"walls must be one of {WALL_CONDITIONS}, got {params.walls!r}")
+        if params.warm_start not in WARM_STARTS:
+            raise InputError(f"warm_start must be one of {WARM_STARTS}, got {params.warm_start!r}")
         if params.cleanup_tol is not None and not 0 < params.cleanup_tol < 1:
             raise InputError(f"cleanup_tol must be in (0, 1), got {params.cleanup_tol!r}")
         x0, y0, x1, y1 = params.box
@@ -131,6 +134,9 @@ class TwoPhaseFlow:
         self.pairs = PairList()
         self.buffers = FlowBuffers.allocate(p.capacity)
         self.q_by_id = np.zeros(p.n)            # last pressure impulse, by particle id
+        # the one before, and the time steps of both (the solve's first guess)
+        self.q_prev_by_id = np.zeros(p.n)
+        self.dt_history = (0.0, 0.0)
         self.lam_by_id = np.zeros(p.n)          # last clean-up multiplier, by particle id
         self.border = 0.0
         self._gx, self._gy = (float(c) for c in params.gravity)
@@ -345,7 +351,8 @@ class TwoPhaseFlow:
         self.clock.lap("operators", "divergence")
         for k in range(params.projection_passes):
             try:
-                res = A.solve(b, x0=self.q_by_id[ids] if k == 0 else None, tol=params.solver_tol,
+                res = A.solve(b, x0=self._first_guess(ids, dt) if k == 0 else None,
+                              tol=params.solver_tol,
                               preconditioner=params.preconditioner,
                               multilevel_options={"cycle": params.multilevel_cycle},
                               border0=self.border if k == 0 else 0.0)
@@ -366,8 +373,23 @@ class TwoPhaseFlow:
             self.clock.lap("operators", "correction")
             if np.abs(b[fluid]).max() * dt < params.div_tol:
                 break
+        self.q_prev_by_id = self.q_by_id.copy()
         self.q_by_id[ids] = q_total
+        self.dt_history = (self.dt_history[1], dt)
         return w, iterations
+
+    def _first_guess(self, ids, dt) -> np.ndarray:
+        """The pressure solve's starting point, by particle slot: with ``warm_start =
+        "extrapolated"`` (and two previous steps) the pressure p = q / dt of the last
+        two steps extrapolated linearly in time to this one, times dt; else the last
+        step's impulse q.  The extrapolation saves about 15% of the BiCGSTAB
+        iterations of the droplet (docs/notes/flow.md)."""
+        dt_before, dt_last = self.dt_history
+        if self.params.warm_start != "extrapolated" or not (dt_before > 0 and dt_last > 0):
+            return self.q_by_id[ids]
+        p_last = self.q_by_id[ids] / dt_last
+        p_before = self.q_prev_by_id[ids] / dt_before
+        return dt * (p_last + (p_last - p_before) * (dt / dt_last))
 
     def _pressure_rhs(self, w, fluid, st_grad, gdt):
         """The Poisson right-hand side: div w on the fluid rows (the walls carrying
@@ -520,7 +542,9 @@ class TwoPhaseFlow:
         pos, vel, phase, _ = self.fluid_state()
         return {"positions": pos, "velocities": vel, "phases": phase, "time": self.time,
                 "step": self.step_count, "spacing": self.dx, "q_by_id": self.q_by_id,
-                "border": self.border, "lam_by_id": self.lam_by_id}
+                "border": self.border, "lam_by_id": self.lam_by_id,
+                "q_prev_by_id": self.q_prev_by_id, "dt_before_last": self.dt_history[0],
+                "last_dt": self.dt_history[1]}
 
     @classmethod
     def from_state(cls, state: dict, params: FlowParams) -> "TwoPhaseFlow":
@@ -530,6 +554,12 @@ class TwoPhaseFlow:
         if len(state["q_by_id"]) == len(flow.q_by_id):
             flow.q_by_id = np.asarray(state["q_by_id"], dtype=np.float64)
         flow.border = float(state["border"])
+        q_prev = state.get("q_prev_by_id")    # absent in older checkpoints: no extrapolation
+        if q_prev is not None and len(q_prev) == len(flow.q_prev_by_id):
+            flow.q_prev_by_id = np.asarray(q_prev, dtype=np.float64)
+            flow.dt_history = (float(state["dt_before_last"]), float(state["last_dt"]))
+            if flow.dt_history[1] > 0:
+                flow.last_dt = flow.dt_history[1]
         lam = state.get("lam_by_id")          # absent in older checkpoints: cold start
         if lam is not None and len(lam) == len(flow.lam_by_id):
             flow.lam_by_id = np.asarray(lam, dtype=np.float64)
