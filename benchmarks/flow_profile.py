@@ -26,9 +26,11 @@ counted from the algorithm (``PASSES_OUTSIDE_SOLVE`` plus, per BiCGSTAB
 iteration, 2 operator applies and 2 V-cycles of 1 + post = 3 particle-level
 pair passes each, plus 1 for the initial residual), times the pair count.  The
 bound is those pair evaluations over the measured throughput of one operator
-apply ``A x`` (the Poisson matrix, both cores), which also bounds the bytes
-(the apply streams the same index and coefficient per pair).  The benchmark
-prints the step over that bound.
+apply ``A x`` (the Poisson matrix, both cores available) net of the launch
+cost of an empty kernel, which also bounds the bytes (the apply streams the
+same index and coefficient per pair).  The benchmark prints the step over that
+bound, and over the bound plus a launch floor (launches per step times the
+empty kernel's launch).
 
 Writes OUT/flow_profile.csv (one row per particle count: the phase, kernel and
 copy figures) and OUT/flow_profile_kernels.csv (per kernel).
@@ -282,6 +284,35 @@ def profile(particles: int, warmup: int, steps: int,
     return row, kernels
 
 
+def ab(particles: int, warmup: int, steps: int, field: str, value: str) -> dict:
+    """Two flows, the default and one with ``field = value``, stepped in turn
+    (so that both see the same machine load): median step seconds, CPU seconds
+    and iterations of each."""
+    from taichi_hh.flow.twophase import FlowParams
+    kind = type(getattr(FlowParams(), field))
+    flows = {"default": build_flow(particles),
+             f"{field}={value}": build_flow(particles, **{field: kind(value)})}
+    for f in flows.values():
+        for _ in range(warmup):
+            f.step()
+    wall = {k: [] for k in flows}
+    cpu = {k: [] for k in flows}
+    its = {k: [] for k in flows}
+    for _ in range(steps):
+        for k, f in flows.items():
+            t0, c0 = time.perf_counter(), time.process_time()
+            info = f.step()
+            wall[k].append(time.perf_counter() - t0)
+            cpu[k].append(time.process_time() - c0)
+            its[k].append(info["iterations"])
+    out = {}
+    for k in flows:
+        out[k] = {"ms_per_step": 1e3 * statistics.median(wall[k]),
+                  "cpu_ms_per_step": 1e3 * statistics.median(cpu[k]),
+                  "mean_iterations": statistics.fmean(its[k])}
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -295,9 +326,24 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: all)")
     ap.add_argument("--top", type=int, default=25, help="kernels listed")
     ap.add_argument("--out-dir", default=str(REPO_ROOT / "outputs" / "benchmarks"))
+    ap.add_argument("--ab", default=None, metavar="FIELD=VALUE",
+                    help="instead of the profile: step the default flow and one with this "
+                         "FlowParams change in turn and compare their step times")
     args = ap.parse_args(argv)
     import taichi_hh
     taichi_hh.init(arch="cpu", precision="f64", threads=args.threads, verbose=False)
+    if args.ab:
+        field, value = args.ab.split("=", 1)
+        for n in parse_list(args.particles, int):
+            res = ab(n, args.warmup, args.steps, field, value)
+            (ka, a), (kb, b) = res.items()
+            print(format_table(["particles", "flow", "ms/step", "CPU ms/step", "mean it."],
+                               [[n, k, f"{r['ms_per_step']:.1f}", f"{r['cpu_ms_per_step']:.1f}",
+                                 f"{r['mean_iterations']:.2f}"] for k, r in res.items()]))
+            print(f"{ka} / {kb}: step {a['ms_per_step'] / b['ms_per_step']:.3f}, "
+                  f"CPU {a['cpu_ms_per_step'] / b['cpu_ms_per_step']:.3f}, "
+                  f"iterations {a['mean_iterations'] / b['mean_iterations']:.3f}")
+        return 0
     rows, kernels = [], []
     for n in parse_list(args.particles, int):
         changes = {"warm_start": args.warm_start} if args.warm_start else {}
