@@ -118,8 +118,10 @@ def run_case(case: str, end: float, out_dir: Path, frame_width: int, quiet: bool
                             "--frame-width", str(frame_width)] + list(extra)
     if quiet:
         argv.append("--quiet")
+    cpu0 = time.process_time()
     with PrecondSetupTimer() as pre:
         res = run_scene(scene, argv)
+    cpu_s = time.process_time() - cpu0
     s = res.seconds
     parts = {"neighbours": s["neighbours"], "operators": s["operators"], "solve": s["solve"],
              "rendering": s["render"],
@@ -140,6 +142,9 @@ def run_case(case: str, end: float, out_dir: Path, frame_width: int, quiet: bool
            "mean_iterations": statistics.fmean(res.iterations) if res.iterations else 0,
            "median_dt": statistics.median(res.dts) if res.dts else 0,
            "precond_setup_s": pre.seconds,
+           # process CPU time (every thread) over wall time, the whole run: 1 means
+           # one core busy, 2 both
+           "cpu_over_wall": cpu_s / max(res.wall, 1e-12),
            "load_avg": os.getloadavg()[0]}
     row.update({f"{k}_s": v for k, v in parts.items()})
     row.update({f"detail.{k}": v for k, v in sorted(flow.clock.detail.items())})
@@ -183,6 +188,35 @@ def chart(rows, path: Path) -> None:
     plt.close(fig)
 
 
+def scaling(counts, steps: int, out_dir: Path) -> None:
+    """Step time of the droplet at each particle count (how the cost grows with N)."""
+    from flow_profile import profile
+    rows = []
+    for n in counts:
+        print(f"scaling: droplet at {n} particles ...", file=sys.stderr, flush=True)
+        row, _ = profile(n, 4, steps)
+        rows.append({k: row[k] for k in ("fluid_particles", "all_particles", "pairs",
+                                         "ms_per_step", "cpu_ms_per_step", "particle_steps_per_s",
+                                         "median_iterations", "cpu_over_wall",
+                                         "step_over_bound")})
+    for a, b in zip(rows, rows[1:]):
+        b["growth_exponent"] = math.log(b["ms_per_step"] / a["ms_per_step"]) / math.log(
+            b["fluid_particles"] / a["fluid_particles"])
+    print(format_table(["particles", "pairs", "ms/step", "CPU ms/step", "p-steps/s", "med. it",
+                        "CPU/wall",
+                        "step/bound", "ms ~ N^"],
+                       [[r["fluid_particles"], r["pairs"], f"{r['ms_per_step']:.1f}",
+                         f"{r['cpu_ms_per_step']:.1f}",
+                         f"{r['particle_steps_per_s']:.3g}", f"{r['median_iterations']:.0f}",
+                         f"{r['cpu_over_wall']:.2f}", f"{r['step_over_bound']:.1f}",
+                         f"{r['growth_exponent']:.2f}" if "growth_exponent" in r else ""]
+                        for r in rows]))
+    fields = []
+    for r in rows:
+        fields += [k for k in r if k not in fields]
+    write_csv_atomic(out_dir / "scenes_scaling.csv", rows, fields)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -201,6 +235,11 @@ def main(argv=None) -> int:
     ap.add_argument("--progress", action="store_true", help="show the scenes' progress bars")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: all)")
     ap.add_argument("--replot", action="store_true", help="only redraw the chart from the CSV")
+    ap.add_argument("--scaling", default="",
+                    help="comma-separated fluid particle counts: also time the droplet's step at "
+                         "each (benchmarks/flow_profile.py's profile, no frames; median of "
+                         "--scaling-steps steps after 4 warm-up steps) into OUT/scenes_scaling.csv")
+    ap.add_argument("--scaling-steps", type=int, default=10, help="timed steps per scaling row")
     args = ap.parse_args(argv)
     out_dir = Path(args.out_dir)
     if args.replot:
@@ -247,13 +286,14 @@ def main(argv=None) -> int:
               f"{row['particle_steps_per_s']:.3g} particle-steps/s", file=sys.stderr, flush=True)
 
     header = ["case", "particles", "steps", "loop s", "ms/step", "p-steps/s", "sim/wall",
-              "med. it"] + list(PARTS)
+              "med. it", "CPU/wall"] + list(PARTS)
     table = []
     for r in rows:
         tot = max(r["loop_s"], 1e-12)
         table.append([r["case"], r["fluid_particles"], r["steps"], f"{r['loop_s']:.1f}",
                       f"{1e3 * r['s_per_step']:.0f}", f"{r['particle_steps_per_s']:.3g}",
-                      f"{r['sim_per_wall_s']:.3g}", f"{r['median_iterations']:.0f}"]
+                      f"{r['sim_per_wall_s']:.3g}", f"{r['median_iterations']:.0f}",
+                      f"{r['cpu_over_wall']:.2f}"]
                      + [f"{100 * r[p + '_s'] / tot:.0f}%" for p in PARTS])
     print(format_table(header, table))
 
@@ -291,6 +331,9 @@ def main(argv=None) -> int:
                 f"minute target: {'met' if r['wall_s'] < FULL_TARGET_S else 'not met'}")
     for line in extra_lines:
         print(line)
+
+    if args.scaling:
+        scaling(parse_list(args.scaling, int), args.scaling_steps, out_dir)
 
     fields = []
     for r in rows:

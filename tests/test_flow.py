@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from taichi_hh.errors import InputError
 from taichi_hh.flow import BlowUpError, FlowParams, TwoPhaseFlow
 
 
@@ -404,3 +405,28 @@ def test_flow_parameters_no_flow_can_run_with_are_refused(field, value, message)
     params = replace(FlowParams(box=(0, 0, 1, 2)), **{field: value})
     with pytest.raises(InputError, match=message):
         TwoPhaseFlow(pts, np.zeros(len(pts), int), dx, params)
+
+
+def test_extrapolated_first_guess_is_exact_for_a_pressure_linear_in_time():
+    """warm_start="extrapolated": p = q / dt of the last two steps continued
+    linearly in time (steps of different length), times this step's dt; the
+    history survives a checkpoint; "previous" is the last q; others are refused."""
+    flow = _droplet()
+    flow.step()
+    flow.step()
+    n = flow.particles.n
+    ids = flow.particles.get("original_index")
+    base, rate = np.linspace(1.0, 2.0, n), np.linspace(-0.5, 0.5, n)
+    t1, dt1, dt2, dt = 0.3, 0.01, 0.02, 0.015          # p(t) = base + rate t
+    flow.q_prev_by_id = dt1 * (base + rate * t1)
+    flow.q_by_id = dt2 * (base + rate * (t1 + dt2))
+    flow.dt_history = (dt1, dt2)
+    want = dt * (base + rate * (t1 + dt2 + dt))
+    assert np.allclose(flow._first_guess(ids, dt), want[ids], rtol=1e-12)
+    again = TwoPhaseFlow.from_state(flow.state_dict(), flow.params)
+    assert again.dt_history == (dt1, dt2)
+    assert np.array_equal(again._first_guess(ids, dt), flow._first_guess(ids, dt))
+    flow.params.warm_start = "previous"
+    assert np.array_equal(flow._first_guess(ids, dt), flow.q_by_id[ids])
+    with pytest.raises(InputError, match="warm_start"):
+        _droplet(warm_start="linear")

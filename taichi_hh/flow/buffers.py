@@ -35,7 +35,6 @@ class FlowBuffers:
     velocity_with_walls: object     # w, the walls carrying the fluid's extrapolated w
     divergence: object              # div w (fluid rows)
     wall_rhs: object                # the wall rows' right-hand side
-    pressure: object                # q of one pass
     pressure_gradient: object       # grad q / rho
     # the measured divergence D w (walls at rest)
     measured_velocity: object

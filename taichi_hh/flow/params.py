@@ -14,6 +14,9 @@ STABLE_LIMITS = {"cfl": 0.5, "force_cfl": 1.0, "viscous_cfl": 0.66}
 #: The viscous wall conditions (``FlowParams.walls``).
 WALL_CONDITIONS = ("no-slip", "free-slip")
 
+#: The pressure solve's first guesses (``FlowParams.warm_start``).
+WARM_STARTS = ("extrapolated", "previous")
+
 
 class WallVelocity(IntEnum):
     """What the wall particles carry (:func:`taichi_hh.flow.walls.wall_velocity`):
@@ -48,6 +51,9 @@ class FlowParams:
     projection_passes: int = 1
     div_tol: float = 1e-3                       # on max |div v| * dt (relative volume change)
     solver_tol: float = 1e-6
+    # the pressure solve's first guess: "extrapolated" (the last two steps' pressure,
+    # linearly in time) or "previous" (the last step's) (docs/notes/flow.md)
+    warm_start: str = "extrapolated"
     preconditioner: str = "auto"                # of the pressure BiCGSTAB: auto | multilevel | jacobi
     # the multilevel cycle of the pressure solve: V takes fewer BiCGSTAB
     # iterations here than the W-cycle the decompositions use (docs/notes/flow.md)

@@ -70,3 +70,13 @@ def wall_velocity(kernel_id: ti.template(), n: ti.i32, offsets: ti.types.ndarray
                     factor = ti.Vector([-1.0 if ti.abs(nrm[0]) > 0.1 else 1.0,
                                         -1.0 if ti.abs(nrm[1]) > 0.1 else 1.0])
                 out[i] = factor * num / den
+
+
+@ti.kernel
+def take_wall_rows(n: ti.i32, kind: ti.types.ndarray(), wall_rows: ti.types.ndarray(),
+                   rows: ti.types.ndarray()):
+    """rows_i <- wall_rows_i on the non-fluid rows (the Poisson right-hand side in
+    one array: one host copy instead of two)."""
+    for i in range(n):
+        if kind[i] != FLUID:
+            rows[i] = wall_rows[i]
