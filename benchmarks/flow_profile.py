@@ -50,6 +50,10 @@ from _common import (REPO_ROOT, add_repo_to_path, format_table, parse_list,  # n
 add_repo_to_path()
 
 import taichi as ti  # noqa: E402
+from taichi_hh.app.scene import SOLVER_TOL  # noqa: E402
+
+#: the scenes' pressure-solver tolerance in f64, the default here
+SCENE_SOLVER_TOL = SOLVER_TOL["f64"]
 
 
 @ti.kernel
@@ -164,7 +168,7 @@ def _nbytes(arr) -> int:
         return 0
 
 
-def build_flow(particles: int, solver_tol: float = 1e-6, **params_changes):
+def build_flow(particles: int, solver_tol: float | None = None, **params_changes):
     import dataclasses
     from taichi_hh.flow.twophase import TwoPhaseFlow
     scene = scene_module("rising_droplet")
@@ -173,7 +177,9 @@ def build_flow(particles: int, solver_tol: float = 1e-6, **params_changes):
     scene.SCENE.add_arguments(ap)
     args = ap.parse_args(["--particles", str(particles)])
     pts, phases, dx, params = scene.SCENE.build(args)
-    params = dataclasses.replace(params, solver_tol=solver_tol,   # 1e-6: the scene's f64 default
+    if solver_tol is None:
+        solver_tol = SCENE_SOLVER_TOL
+    params = dataclasses.replace(params, solver_tol=solver_tol,   # default: the scene's (f64)
                                  **params_changes)
     return TwoPhaseFlow(pts, phases, dx, params)
 
@@ -219,7 +225,7 @@ def apply_throughput(flow, repeats: int = 30) -> dict:
 
 
 def profile(particles: int, warmup: int, steps: int,
-            solver_tol: float = 1e-6, **params_changes) -> tuple[dict, list[dict]]:
+            solver_tol: float | None = None, **params_changes) -> tuple[dict, list[dict]]:
     flow = build_flow(particles, solver_tol, **params_changes)
     for _ in range(warmup):
         flow.step()
@@ -249,7 +255,7 @@ def profile(particles: int, warmup: int, steps: int,
     launch_floor = sum(meter.calls.values()) / steps * launch
     step = statistics.median(per_step)
     row = {"fluid_particles": flow.n_fluid, "all_particles": flow.particles.n,
-           "solver_tol": solver_tol, "warm_start": getattr(flow.params, "warm_start", "previous"),
+           "solver_tol": flow.params.solver_tol, "warm_start": getattr(flow.params, "warm_start", "previous"),
            "pairs": n_pairs, "steps": steps, "ms_per_step": 1e3 * step,
            "particle_steps_per_s": flow.n_fluid / step,
            # process CPU ms per step (both cores summed): steadier than wall time on a
@@ -319,8 +325,8 @@ def main(argv=None) -> int:
     ap.add_argument("--particles", default="10000", help="comma-separated fluid particle counts")
     ap.add_argument("--warmup", type=int, default=8, help="steps before profiling")
     ap.add_argument("--steps", type=int, default=20, help="profiled steps")
-    ap.add_argument("--solver-tol", type=float, default=1e-6,
-                    help="pressure solver tolerance (the scene's default 1e-6)")
+    ap.add_argument("--solver-tol", type=float, default=None,
+                    help=f"pressure solver tolerance (default: the scene's, {SCENE_SOLVER_TOL:g})")
     ap.add_argument("--warm-start", default=None,
                     help="FlowParams.warm_start (default: the flow's)")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: all)")

@@ -123,7 +123,7 @@ def test_out_that_is_a_file_exits_2(tmp_path, capsys):
 
 @pytest.mark.parametrize("cause, advice", [
     ("left-box", "'--resume --dt-max "),
-    ("solver", "'--resume --solver-tol 1e-05' continues from it with a looser"),
+    ("solver", "'--resume --solver-tol 1e-03' continues from it with a looser"),
 ])
 def test_blow_up_advice_names_options_the_scenes_have(tmp_path, capsys, monkeypatch, cause,
                                                       advice):

@@ -79,7 +79,8 @@ def test_exact_projection_option_takes_every_step_to_solver_tolerance(tmp_path):
     assert mod.main(mod.SCENE, common + ["--out", str(tmp_path / "exact"),
                                          "--exact-projection"]) == 0
     assert mod.main(mod.SCENE, common + ["--out", str(tmp_path / "default")]) == 0
-    bound = 1e-6 * np.sqrt(800)                 # FlowParams.solver_tol, fluid rows
+    from taichi_hh.app.scene import SOLVER_TOL
+    bound = SOLVER_TOL["f64"] * np.sqrt(800)    # the scenes' solver tolerance, fluid rows
     exact = rows(tmp_path / "exact" / "diagnostics.csv")[1:]
     default = rows(tmp_path / "default" / "diagnostics.csv")[1:]
     assert len(exact) == len(default) == 4

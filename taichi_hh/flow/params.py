@@ -50,7 +50,7 @@ class FlowParams:
     dt_max: float = 0.02
     projection_passes: int = 1
     div_tol: float = 1e-3                       # on max |div v| * dt (relative volume change)
-    solver_tol: float = 1e-6
+    solver_tol: float = 1e-4
     # the pressure solve's first guess: "extrapolated" (the last two steps' pressure,
     # linearly in time) or "previous" (the last step's) (docs/notes/flow.md)
     warm_start: str = "extrapolated"
