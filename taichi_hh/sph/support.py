@@ -47,24 +47,24 @@ def pair_support(adaptive: ti.template(), hs: ti.template(), i, j, H):
 
 
 @ti.kernel
-def _kth_distance(k: ti.template(), n: ti.i32, pos: ti.types.ndarray(),
-                  offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
-                  out: ti.types.ndarray()):
-    """out[i] = distance to the k-th nearest of i's listed neighbours, -1 if it
-    has fewer than k.  The k smallest squared distances are kept sorted in
-    registers (k static)."""
+def _kth_distance(rank: ti.template(), n: ti.i32, qpos: ti.types.ndarray(),
+                  spos: ti.types.ndarray(), offsets: ti.types.ndarray(),
+                  nbrs: ti.types.ndarray(), out: ti.types.ndarray()):
+    """out[i] = distance from query i to the ``rank``-th nearest of its listed
+    neighbours, -1 if it has fewer.  The ``rank`` smallest squared distances
+    are kept sorted in registers (rank static)."""
     for i in range(n):
-        best = ti.Vector([1e300] * k, dt=ti.f64)
+        best = ti.Vector([1e300] * rank, dt=ti.f64)
         for m in range(offsets[i], offsets[i + 1]):
-            d = pos[nbrs[m]] - pos[i]
+            d = spos[nbrs[m]] - qpos[i]
             r2 = ti.cast(d.dot(d), ti.f64)
-            for a in ti.static(range(k)):      # insertion: carry the larger value on
+            for a in ti.static(range(rank)):   # insertion: carry the larger value on
                 lo = ti.min(r2, best[a])
                 r2 = ti.max(r2, best[a])
                 best[a] = lo
         res = -1.0
-        if offsets[i + 1] - offsets[i] >= k:
-            res = ti.sqrt(best[k - 1])
+        if offsets[i + 1] - offsets[i] >= rank:
+            res = ti.sqrt(best[rank - 1])
         out[i] = res
 
 
@@ -97,20 +97,17 @@ def kth_neighbour_distance(points: np.ndarray, k: int, area: float) -> np.ndarra
         grid = bin_particles(p, GridSpec.covering(lo, hi, radius))
         orig = p.get("original_index")
         if todo.size == n:
-            qpos, nq = p.position, n
-            pairs.build(qpos, nq, p.position, grid, radius)
-            _kth_distance(k, nq, p.position, pairs.offsets, pairs.neighbours, dist)
-            found = dist.to_numpy()[:n]
-            out[orig] = found
+            pairs.build(p.position, n, p.position, grid, radius)
+            _kth_distance(k, n, p.position, p.position, pairs.offsets, pairs.neighbours, dist)
+            out[orig] = dist.to_numpy()[:n]
         else:
-            slot_of = np.empty(n, dtype=np.int64)
-            slot_of[orig] = np.arange(n)
             q = Particles.from_numpy(pts[todo])
-            # other query points: the point itself is among the sources (distance 0)
+            # other query points: the point itself is among the sources (distance 0),
+            # so the (k+1)-th smallest distance
             pairs.build(q.position, todo.size, p.position, grid, radius, exclude_self=False)
             qd = ti.ndarray(ti.f64, shape=(todo.size,))
-            _kth_distance_plus_self(k, todo.size, q.position, p.position, pairs.offsets,
-                                    pairs.neighbours, qd)
+            _kth_distance(k + 1, todo.size, q.position, p.position, pairs.offsets,
+                          pairs.neighbours, qd)
             out[todo] = qd.to_numpy()
         todo = np.flatnonzero(out < 0)
         if radius > 2.0 * diameter:
@@ -119,27 +116,6 @@ def kth_neighbour_distance(points: np.ndarray, k: int, area: float) -> np.ndarra
     if todo.size:                                  # cannot happen with n > k
         raise InputError(f"{todo.size} point(s) have fewer than {k} neighbours")
     return out
-
-
-@ti.kernel
-def _kth_distance_plus_self(k: ti.template(), n: ti.i32, qpos: ti.types.ndarray(),
-                            spos: ti.types.ndarray(), offsets: ti.types.ndarray(),
-                            nbrs: ti.types.ndarray(), out: ti.types.ndarray()):
-    """As :func:`_kth_distance` for query points that are also among the
-    sources: the (k+1)-th smallest distance, the first being the point itself."""
-    for i in range(n):
-        best = ti.Vector([1e300] * (k + 1), dt=ti.f64)
-        for m in range(offsets[i], offsets[i + 1]):
-            d = spos[nbrs[m]] - qpos[i]
-            r2 = ti.cast(d.dot(d), ti.f64)
-            for a in ti.static(range(k + 1)):
-                lo = ti.min(r2, best[a])
-                r2 = ti.max(r2, best[a])
-                best[a] = lo
-        res = -1.0
-        if offsets[i + 1] - offsets[i] >= k + 1:
-            res = ti.sqrt(best[k])
-        out[i] = res
 
 
 def adaptive_supports(points: np.ndarray, support_ratio: float, neighbours: int,
