@@ -109,15 +109,7 @@ class Segments:
 
     def pair_distance2(self, px, py, segs):
         """Squared distances from points ``(px, py)`` to segments ``segs`` (broadcast)."""
-        col = self.columns
-        dx = col["dx"][segs]
-        dy = col["dy"][segs]
-        wx = px - col["sx"][segs]
-        wy = py - col["sy"][segs]
-        t = (wx * dx + wy * dy) * col["inv"][segs]
-        np.clip(t, 0.0, 1.0, out=t)
-        wx -= t * dx
-        wy -= t * dy
+        wx, wy = self.pair_vector(px, py, segs)
         wx *= wx
         wy *= wy
         wx += wy
