@@ -499,6 +499,35 @@ def test_poisson_matrix_reusing_arrays_equals_a_fresh_one():
     assert (reused.to_scipy() != fresh.to_scipy()).nnz == 0
 
 
+def test_multilevel_on_the_neighbour_grid_reusing_arrays_equals_a_fresh_one():
+    """The pressure solve's cycle aggregates by the flow's own neighbour grid
+    (dense levels; the structure handed on with ``reuse``): a cycle built over
+    the previous one's arrays is the same linear operator as a fresh one."""
+    import taichi as ti
+    from taichi_hh import runtime
+    from taichi_hh.linalg.multilevel import MultilevelPreconditioner
+    from taichi_hh.linalg.poisson import PoissonMatrix
+    pts, dx = tank(16, 32)
+    flow = TwoPhaseFlow(pts, np.zeros(len(pts), int), dx, FlowParams(box=(0, 0, 1, 2)))
+    flow.step()
+    flow._neighbours()
+    args = dict(laplacian="corrected", kappa=0.0, bordered=True, density_weighted=True)
+    A = PoissonMatrix(flow.ops, **args)
+    old = MultilevelPreconditioner(PoissonMatrix(flow.ops, laplacian="brookshaw", kappa=0.0,
+                                                 bordered=True), cycle="V")
+    reused = MultilevelPreconditioner(A, cycle="V", reuse=old)
+    fresh = MultilevelPreconditioner(A, cycle="V")
+    assert fresh.level_sizes[0] == flow.grid.spec.ncells
+    assert reused.S_col is old.S_col                 # the structure was handed on
+    r = ti.ndarray(runtime.real_dtype(), shape=(A.n,))
+    r.from_numpy(np.random.default_rng(0).standard_normal(A.n).astype(runtime.np_real()))
+    z = [ti.ndarray(runtime.real_dtype(), shape=(A.n,)) for _ in range(2)]
+    reused.apply(r, z[0])
+    fresh.apply(r, z[1])
+    assert np.abs(z[0].to_numpy()).max() > 0
+    assert np.array_equal(z[0].to_numpy(), z[1].to_numpy())
+
+
 def test_advection_puts_a_few_escaped_particles_back_and_refuses_many():
     """Step 3 on the Taichi side: x += dt w on the fluid (walls and their zero
     velocity kept); a particle pushed through a wall comes back 0.01 dx inside

@@ -201,32 +201,99 @@ def _schedule(k0: int, gamma: int, serial: bool) -> tuple:
 
 
 @ti.kernel
-def _grid_galerkin(ncell: ti.i32, porder: ti.types.ndarray(), pstart: ti.types.ndarray(),
-                   cell_of: ti.types.ndarray(), offsets: ti.types.ndarray(),
-                   nbrs: ti.types.ndarray(), K: ti.types.ndarray(), D: ti.types.ndarray(),
-                   dinv: ti.types.ndarray(), cell_ix: ti.types.ndarray(),
-                   cell_iy: ti.types.ndarray(), sums: ti.types.ndarray(),
-                   count: ti.types.ndarray()) -> ti.i32:
-    """Level 0's Galerkin operator ``P^T D^-1 A P`` as nine slots per cell (its
-    3 x 3 block), gathered per cell over its particles' pairs; returns the
-    number of pairs reaching beyond the block (then the slots are unusable)."""
-    beyond = 0
+def _grid_values(serial: ti.template(), L: ti.i32, eps: float, cell_start: ti.types.ndarray(),
+                 offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), K: ti.types.ndarray(),
+                 D: ti.types.ndarray(), dims: ti.types.ndarray(), lvl: ti.types.ndarray(),
+                 cell_of: ti.types.ndarray(), dinv: ti.types.ndarray(),
+                 S_val: ti.types.ndarray(), cdinv: ti.types.ndarray(),
+                 small: ti.types.ndarray()):
+    """The values of a hierarchy of dense grids (:meth:`MultilevelPreconditioner.
+    _setup_grid_levels`): level 0 is the neighbour grid's cells (its particles
+    contiguous, every pair within a cell's 3 x 3 block), level k + 1 joins 2 x 2
+    cells of level k, every cell's row nine slots (its 3 x 3 block, slot
+    ``(dy + 1) 3 + dx + 1``).  Writes the particles' cells and ``D^-1``, the
+    Galerkin operators ``P^T D^-1 A P`` of every level, the cells' inverse
+    diagonals (zero on empty cells and round-off pivots), and into ``small``:
+    the pairs reaching beyond the 3 x 3 block (must be 0), the round-off level
+    of the entries, and the coarsest level as a dense matrix."""
+    ncell = lvl[0, 1]
+    nx = dims[0, 0]
+    small[0] = 0.0
+    ti.loop_config(serialize=serial)
     for c in range(ncell):
-        for q in range(pstart[c], pstart[c + 1]):
-            i = porder[q]
-            sums[c * 9 + 4] = sums[c * 9 + 4] + D[i] * dinv[i]
-            count[c * 9 + 4] = count[c * 9 + 4] + 1
+        for i in range(cell_start[c], cell_start[c + 1]):
+            cell_of[i] = c
+            dinv[i] = 1.0 / D[i] if D[i] != 0 else 0.0
+    # level 0: a gather per cell over its particles' pairs (no atomics)
+    ti.loop_config(serialize=serial)
+    for c in range(ncell):
+        row = ti.Vector([0.0] * 9)
+        cx = c % nx
+        cy = c // nx
+        beyond = 0
+        for i in range(cell_start[c], cell_start[c + 1]):
+            row[4] += D[i] * dinv[i]
             for k in range(offsets[i], offsets[i + 1]):
                 cj = cell_of[nbrs[k]]
-                dx = cell_ix[cj] - cell_ix[c]
-                dy = cell_iy[cj] - cell_iy[c]
+                dx = cj % nx - cx
+                dy = cj // nx - cy
                 if abs(dx) <= 1 and abs(dy) <= 1:
-                    slot = c * 9 + (dy + 1) * 3 + dx + 1
-                    sums[slot] = sums[slot] + dinv[i] * K[k]
-                    count[slot] = count[slot] + 1
+                    row[(dy + 1) * 3 + dx + 1] += dinv[i] * K[k]
                 else:
                     beyond += 1
-    return beyond
+        for s in ti.static(range(9)):
+            S_val[9 * c + s] = row[s]
+        if beyond > 0:
+            small[0] += beyond      # rare: an error; its sum order does not matter
+    # the cell levels: few cells, one thread
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        total = 0.0
+        for q in range(9 * ncell):
+            total += abs(S_val[q])
+        # constants are (nearly) in the null space of every level of a Neumann
+        # problem: values below the round-off of such a sum are zero, not pivots
+        noise = 1e3 * eps * total
+        small[1] = noise
+        for k in range(1, L):
+            f0 = lvl[k - 1, 0]
+            nxf = dims[k - 1, 0]
+            nyf = dims[k - 1, 1]
+            c0 = lvl[k, 0]
+            nxc = dims[k, 0]
+            for C in range(lvl[k, 1] - c0):
+                X = C % nxc
+                Y = C // nxc
+                acc = ti.Vector([0.0] * 9)
+                for b in range(2):
+                    for a in range(2):
+                        fx = 2 * X + a
+                        fy = 2 * Y + b
+                        if fx < nxf and fy < nyf:
+                            fine = 9 * (f0 + fy * nxf + fx)
+                            for s in range(9):
+                                gx = fx + s % 3 - 1
+                                gy = fy + s // 3 - 1
+                                if 0 <= gx < nxf and 0 <= gy < nyf:
+                                    acc[(gy // 2 - Y + 1) * 3 + gx // 2 - X + 1] += \
+                                        S_val[fine + s]
+                for s in ti.static(range(9)):
+                    S_val[9 * (c0 + C) + s] = acc[s]
+        for c in range(lvl[L - 1, 1]):
+            d = S_val[9 * c + 4]
+            cdinv[c] = 1.0 / d if abs(d) > noise else 0.0
+        lo = lvl[L - 1, 0]
+        m = lvl[L - 1, 1] - lo
+        nxc = dims[L - 1, 0]
+        nyc = dims[L - 1, 1]
+        for q in range(m * m):
+            small[2 + q] = 0.0
+        for i in range(m):
+            for s in range(9):
+                gx = i % nxc + s % 3 - 1
+                gy = i // nxc + s // 3 - 1
+                if 0 <= gx < nxc and 0 <= gy < nyc:
+                    small[2 + i * m + gy * nxc + gx] = S_val[9 * (lo + i) + s]
 
 
 @ti.kernel
@@ -440,22 +507,26 @@ class MultilevelPreconditioner:
         self.serial = A.n_particles < SERIAL_MAX_N
         self.A = A
         ops = A.ops
-        p = ops.particles
-        n = p.n
+        n = ops.particles.n
         self.n = n
-        pos = p.position.to_numpy()[:n].astype(np.float64)
-        lo = pos.min(axis=0)
-        extent = pos.max(axis=0) - lo
-        if cells is None:
-            size = ops.support * CELL_PAD
+        self._bordered = bool(getattr(A, "bordered", False))
+        self._border_c = float(getattr(A, "border_c", 1.0)) if self._bordered else 1.0
+        grid = getattr(ops.pairs, "grid", None)
+        if cells is None and self.weak == 0 and not self.l1 and grid is not None:
+            self._setup_grid_levels(A, n, grid)
         else:
-            hs = getattr(ops, "supports", None)
-            median = ops.support if hs is None else float(np.median(hs.to_numpy()[:n]))
-            size = cells * median * CELL_PAD
-        if self.weak > 0:
-            pos = self._join_weak_rows(A, n, pos)
-        maps, grid0 = self._aggregates(pos, lo, extent, size)
-        self._setup_levels(A, n, maps, grid0)
+            pos = ops.particles.position.to_numpy()[:n].astype(np.float64)
+            lo = pos.min(axis=0)
+            extent = pos.max(axis=0) - lo
+            if cells is None:
+                size = ops.support * CELL_PAD
+            else:
+                hs = getattr(ops, "supports", None)
+                median = ops.support if hs is None else float(np.median(hs.to_numpy()[:n]))
+                size = cells * median * CELL_PAD
+            if self.weak > 0:
+                pos = self._join_weak_rows(A, n, pos)
+            self._setup_levels(A, n, self._aggregates(pos, lo, extent, size))
         self._old_arrays = {}
 
     def _join_weak_rows(self, A, n: int, pos):
@@ -486,10 +557,8 @@ class MultilevelPreconditioner:
         Level k aggregates the particles by the non-empty cells of side
         ``size 2^k`` of a grid from ``lo`` (nested: level k+1 aggregates 2 x 2
         level-k cells), down to the first grid of at most COARSEST cells (and at
-        least two levels).  Also level 0's grid: its cells' keys ``iy nx + ix``
-        (ascending, as its rows) and ``nx``."""
+        least two levels)."""
         maps = []
-        grid0 = None
         k = 0
         while True:
             ij = np.floor((pos - lo) / (size * 2.0 ** k)).astype(np.int64)
@@ -497,31 +566,134 @@ class MultilevelPreconditioner:
             ij = np.minimum(ij, shape - 1)
             keys, agg = np.unique(ij[:, 1] * shape[0] + ij[:, 0], return_inverse=True)
             maps.append(agg.reshape(-1))
-            if grid0 is None:
-                grid0 = (keys, int(shape[0]))
             k += 1
             if shape[0] * shape[1] <= COARSEST and k >= 2:
-                return maps, grid0
+                return maps
 
-    def _setup_levels(self, A, n: int, maps, grid0) -> None:
-        """The Galerkin operators of every cell level (scipy, once per matrix):
+    @staticmethod
+    def grid_level_dims(nx: int, ny: int) -> list:
+        """The cell counts (nx, ny) of the dense levels from a grid of nx x ny
+        cells, each joining 2 x 2 cells of the one before, down to the first of
+        at most COARSEST cells (and at least two levels)."""
+        dims = [(int(nx), int(ny))]
+        while not (dims[-1][0] * dims[-1][1] <= COARSEST and len(dims) >= 2):
+            nx, ny = dims[-1]
+            dims.append(((nx + 1) // 2, (ny + 1) // 2))
+        return dims
+
+    def _setup_grid_levels(self, A, n: int, grid) -> None:
+        """Cell levels as dense grids when the particles are sorted by the pair
+        list's own grid (cells as wide as the supports; the flow's particles and a
+        fixed-support :class:`~taichi_hh.sph.pointset.PointSet`'s are): level 0 is
+        that grid's cells, and every level's structure (nine slots a cell: its
+        3 x 3 block; empty cells are zero rows) follows from the grid's shape, so
+        it is built once and handed on with ``reuse``; the values are one kernel
+        launch (:func:`_grid_values`), with no sort and no host copy of the
+        pairs.  The operators are those of :meth:`_setup_levels` on the same
+        cells (tests/test_multilevel.py)."""
+        dims = self.grid_level_dims(grid.spec.nx, grid.spec.ny)
+        sizes = [nx * ny for nx, ny in dims]
+        starts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        total = int(starts[-1])
+        key = ("grid", tuple(dims))
+        old = self._old_arrays
+        if old.get("structure") == key:
+            for name in ("lvl", "dims", "S_off", "S_col", "parent", "kid_start", "kids"):
+                self._arrays[name] = old[name]
+        else:
+            S_col, parent, kid_count, kids = [], [], [np.zeros(sizes[0], np.int64)], []
+            for k, (nx, ny) in enumerate(dims):
+                iy, ix = np.divmod(np.arange(nx * ny), nx)
+                cols = np.empty((nx * ny, 9), dtype=np.int64)
+                for s in range(9):
+                    jx, jy = ix + s % 3 - 1, iy + s // 3 - 1
+                    inside = (jx >= 0) & (jx < nx) & (jy >= 0) & (jy < ny)
+                    # a slot outside the grid points at its own row (its value is 0)
+                    cols[:, s] = np.where(inside, jy * nx + jx, iy * nx + ix) + starts[k]
+                S_col.append(cols.reshape(-1))
+                if k + 1 < len(dims):
+                    par = (iy // 2) * dims[k + 1][0] + ix // 2
+                    parent.append(par + starts[k + 1])
+                    kids.append(np.argsort(par, kind="stable") + starts[k])
+                    kid_count.append(np.bincount(par, minlength=sizes[k + 1]))
+                else:
+                    parent.append(np.full(nx * ny, -1))
+            kid_start = np.concatenate([[0], np.cumsum(np.concatenate(kid_count))])
+            S_col = np.concatenate(S_col)
+            self.lvl = self._array("lvl", ti.i32, (len(dims), 2),
+                                   np.c_[starts[:-1], starts[1:]].astype(np.int32))
+            self._array("dims", ti.i32, (len(dims), 2), np.asarray(dims, dtype=np.int32))
+            self._vector("S_off", ti.i32, 9 * np.arange(total + 1))
+            self._vector("S_col", ti.i32, S_col)
+            self._vector("parent", ti.i32, np.concatenate(parent))
+            self._vector("kid_start", ti.i32, kid_start)
+            self._vector("kids", ti.i32, np.concatenate(kids) if kids else [])
+        self._arrays["structure"] = key
+        for name in ("lvl", "S_off", "S_col", "parent", "kid_start", "kids"):
+            setattr(self, name, self._arrays[name])
+        # level 0's cells hold their particles in order: the identity permutation
+        if old.get("identity_n", 0) >= n:
+            self.porder = self._arrays["porder"] = old["porder"]
+            self._arrays["identity_n"] = old["identity_n"]
+        else:
+            self.porder = self._vector("porder", ti.i32, np.arange(n))
+            self._arrays["identity_n"] = n
+        self.pstart = grid.cell_start
+        self.cell_of = self._vector("cell_of", ti.i32, size=n)
+        self.dinv = self._vector("dinv", None, size=n)
+        self.S_val = self._vector("S_val", None, size=9 * total)
+        self.cdinv = self._vector("cdinv", None, size=total)
+        m = sizes[-1]
+        small = self._array("small", runtime.real_dtype(), (2 + m * m,))
+        pr = A.ops.pairs
+        _grid_values(self.serial, len(dims), float(np.finfo(runtime.np_real()).eps),
+                     grid.cell_start, pr.offsets, pr.neighbours, A.K, A.D,
+                     self._arrays["dims"], self.lvl, self.cell_of, self.dinv, self.S_val,
+                     self.cdinv, small)
+        small = small.to_numpy().astype(np.float64)
+        if small[0] > 0:
+            raise InputError(f"multilevel: {int(small[0])} pairs reach beyond a cell's 3 x 3 "
+                             "block of the neighbour grid")
+        self._grid_dims = dims
+        self._levels = None                  # CellMatrix views, built on request
+        self._parents = None
+        self.level_sizes = sizes
+        self._finish_setup(A, n, [9 * m for m in sizes], small[2:].reshape(m, m), small[1])
+
+    def _grid_views(self) -> None:
+        """The dense levels as :class:`CellMatrix` and aggregation maps (inspection)."""
+        if self._levels is not None:
+            return
+        total = sum(self.level_sizes)
+        rows = np.repeat(np.arange(total), 9)
+        S = CellMatrix(rows, self.S_col.to_numpy()[:9 * total],
+                       self.S_val.to_numpy()[:9 * total].astype(np.float64), total)
+        starts = np.concatenate([[0], np.cumsum(self.level_sizes)])
+        r, c, v = S.entries()
+        self._levels = []
+        for k in range(len(self.level_sizes)):
+            on = (r >= starts[k]) & (r < starts[k + 1])
+            self._levels.append(CellMatrix(r[on] - starts[k], c[on] - starts[k], v[on],
+                                           self.level_sizes[k]))
+        parent = self.parent.to_numpy()[:total]
+        self._parents = [parent[starts[k]:starts[k + 1]] - starts[k + 1]
+                         for k in range(len(self.level_sizes) - 1)]
+        self.cell_of_np = self.cell_of.to_numpy()[:self.n].astype(np.int64)
+
+    def _setup_levels(self, A, n: int, maps) -> None:
+        """The Galerkin operators of every cell level (numpy, once per matrix):
         B = D^-1 A on the particles, S_0 = P_0^T B P_0, S_k+1 = P_k^T S_k P_k, with
         the piecewise-constant aggregations P (``maps``: particle -> row of level k)."""
         D = A.D.to_numpy()[:n].astype(np.float64)
-        pairs = None
-
-        def pair_entries():
-            off, nb = A.ops.pairs.to_numpy()
-            off = off.astype(np.int64)
-            K = A.K.to_numpy()[: len(nb)].astype(np.float64)
-            return np.repeat(np.arange(n), np.diff(off)), nb, K
-
+        off, nb = A.ops.pairs.to_numpy()
+        off = off.astype(np.int64)
+        K = A.K.to_numpy()[: len(nb)].astype(np.float64)
+        rows = np.repeat(np.arange(n), np.diff(off))
         den = D
         if self.l1:
             # l1 scaling: rows that are not diagonally dominant (the
             # quadratic-exact Laplacian has some) take smaller Jacobi steps
-            pairs = pair_entries()
-            off_abs = np.bincount(pairs[0], weights=np.abs(pairs[2]), minlength=n)
+            off_abs = np.bincount(rows, weights=np.abs(K), minlength=n)
             den = np.sign(D) * np.maximum(np.abs(D), off_abs)
         dinv = np.divide(1.0, den, out=np.zeros(n), where=D != 0)
         cell_of = maps[0]
@@ -531,14 +703,10 @@ class MultilevelPreconditioner:
             [[0], np.cumsum(np.bincount(cell_of, minlength=ncell))]))
         self.cell_of = self._vector("cell_of", ti.i32, cell_of)
         self.dinv = self._vector("dinv", None, dinv)
-        # B = D^-1 A, its entries summed into cells: P_0^T B P_0; cells as wide
-        # as the supports (the flow's) in one gather kernel over nine slots a cell
-        S0 = self._grid_galerkin(A, ncell, *grid0)
-        if S0 is None:
-            rows, nb, K = pairs or pair_entries()
-            S0 = CellMatrix(np.concatenate([cell_of[rows], cell_of]),
-                            np.concatenate([cell_of[nb], cell_of]),
-                            np.concatenate([dinv[rows] * K, D * dinv]), ncell)
+        # B = D^-1 A, its entries summed into cells: P_0^T B P_0
+        S0 = CellMatrix(np.concatenate([cell_of[rows], cell_of]),
+                        np.concatenate([cell_of[nb], cell_of]),
+                        np.concatenate([dinv[rows] * K, D * dinv]), ncell)
         Ss = [S0]
         parents = []
         for k in range(len(maps) - 1):
@@ -548,12 +716,6 @@ class MultilevelPreconditioner:
             r, c, v = Ss[-1].entries()
             Ss.append(CellMatrix(par[r], par[c], v, int(par.max()) + 1))
         sizes = [S.shape[0] for S in Ss]
-        # cell levels 1 .. k0-1 in parallel loops, k0 .. L-1 in the serial machine
-        k0 = 1
-        if not self.serial:
-            while k0 < len(Ss) - 2 and Ss[k0].nnz >= PARALLEL_MIN_NNZ:
-                k0 += 1
-        self.schedule = _schedule(k0, self.gamma, self.serial)
         starts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
         total = int(starts[-1])
         self.level_sizes = sizes
@@ -575,7 +737,6 @@ class MultilevelPreconditioner:
         kid_start = np.concatenate([[0], np.cumsum(kid_count)])
         self.lvl = self._array("lvl", ti.i32, (len(sizes), 2),
                                np.c_[starts[:-1], starts[1:]].astype(np.int32))
-        self.visits = self._array("visits", ti.i32, (len(sizes),))
         self.S_off = self._vector("S_off", ti.i32, S_off)
         self.S_col = self._vector("S_col", ti.i32, S_col)
         self.S_val = self._vector("S_val", None, S_val)
@@ -589,17 +750,26 @@ class MultilevelPreconditioner:
         diag = np.concatenate([S.diagonal() for S in Ss])
         self.cdinv = self._vector("cdinv", None, np.divide(1.0, diag, out=np.zeros(total),
                                                            where=np.abs(diag) > noise))
-        real = runtime.real_dtype()
+        self._finish_setup(A, n, [S.nnz for S in Ss], Ss[-1].toarray(), noise)
+
+    def _finish_setup(self, A, n: int, level_nnz: list, coarsest, noise: float) -> None:
+        """What both set-ups share: the schedule, the work vectors, the constant
+        mode and the coarsest level's (pseudo-)inverse (``coarsest``: dense)."""
+        # cell levels 1 .. k0-1 in parallel loops, k0 .. L-1 in the serial machine
+        k0 = 1
+        if not self.serial:
+            while k0 < len(level_nnz) - 2 and level_nnz[k0] >= PARALLEL_MIN_NNZ:
+                k0 += 1
+        self.schedule = _schedule(k0, self.gamma, self.serial)
+        total = sum(self.level_sizes)
+        self.visits = self._array("visits", ti.i32, (len(self.level_sizes),))
         self.cr = self._vector("cr", None, size=total)
         self.cx = self._vector("cx", None, size=total)
         self.ctmp = self._vector("ctmp", None, size=total)
         self.fx = self._vector("fx", None, size=n)
         self.ftmp = self._vector("ftmp", None, size=n if self.post > 1 else 1)
         # coarsest level: pseudo-inverse (singular for a Neumann problem)
-        M = Ss[-1].toarray()
-        U, sv, Vt = np.linalg.svd(M)
-        self._bordered = bool(getattr(A, "bordered", False))
-        self._border_c = float(getattr(A, "border_c", 1.0)) if self._bordered else 1.0
+        U, sv, Vt = np.linalg.svd(coarsest)
         self._constant_mode_setup(A, n)
         keep = sv > noise
         if (self._bordered or self._constant_mode) and len(sv):
@@ -611,32 +781,8 @@ class MultilevelPreconditioner:
             # 4 x 4 coarsest level it took twice the iterations)
             keep &= sv > 1e-3 * sv[0]
         Minv = (Vt[keep].T / sv[keep]) @ U[:, keep].T
-        self.coarse_inverse = self._array("coarse_inverse", real, M.shape,
-                                          Minv.astype(runtime.np_real()))
-
-    def _grid_galerkin(self, A, ncell: int, keys, nx: int):
-        """Level 0's Galerkin operator when every pair couples a cell to its
-        3 x 3 block (cells at least as wide as the supports), gathered by
-        :func:`_grid_galerkin`; None when some pair reaches farther."""
-        if self.cells is not None or self.weak > 0:
-            return None                 # cells narrower than the supports
-        sums = self._vector("grid_sums", None, np.zeros(9 * ncell))
-        count = self._vector("grid_count", ti.i32, np.zeros(9 * ncell, dtype=np.int32))
-        cell_ix = self._vector("cell_ix", ti.i32, keys % nx)
-        cell_iy = self._vector("cell_iy", ti.i32, keys // nx)
-        pr = A.ops.pairs
-        if _grid_galerkin(ncell, self.porder, self.pstart, self.cell_of, pr.offsets,
-                          pr.neighbours, A.K, A.D, self.dinv, cell_ix, cell_iy, sums, count):
-            return None
-        present = count.to_numpy()[: 9 * ncell] > 0
-        cell, where = np.divmod(np.flatnonzero(present), 9)
-        key = keys[cell] + (where // 3 - 1) * nx + (where % 3 - 1)
-        out = CellMatrix.__new__(CellMatrix)
-        out.data = sums.to_numpy()[: 9 * ncell][present].astype(np.float64)
-        out.indices = np.searchsorted(keys, key)     # a row's slots ascend with the key
-        out.indptr = np.concatenate([[0], np.cumsum(np.bincount(cell, minlength=ncell))])
-        out.shape = (ncell, ncell)
-        return out
+        self.coarse_inverse = self._array("coarse_inverse", runtime.real_dtype(),
+                                          coarsest.shape, Minv.astype(runtime.np_real()))
 
     def _vector(self, name: str, dtype, values=None, size: int | None = None):
         """A 1-D Taichi array ``name`` holding ``values`` (or ``size`` entries
@@ -672,12 +818,17 @@ class MultilevelPreconditioner:
         return nd
 
     def level_matrix(self, k: int) -> "CellMatrix":
-        """Cell level k's Galerkin operator (rows = its non-empty cells)."""
+        """Cell level k's Galerkin operator (rows = its cells: the non-empty
+        ones, or every cell of a dense grid level)."""
+        if self._levels is None:
+            self._grid_views()
         return self._levels[k]
 
     def aggregation(self, k: int) -> np.ndarray:
         """The row of level k each row of the level below belongs to: k = 0 maps
         particles to level-0 cells, k >= 1 level k-1 cells to level k cells."""
+        if self._levels is None:
+            self._grid_views()
         return self.cell_of_np if k == 0 else self._parents[k - 1]
 
     def _constant_mode_setup(self, A, n: int) -> None:

@@ -149,6 +149,7 @@ class CellGrid:
         self.order = None
         self._rank = None         # point i -> its slot, when the last sort recorded it
         self._rank_nd = None
+        self.n_points = 0         # points binned by the last sort
 
     def _ensure(self, n: int) -> None:
         if n > self._capacity:
@@ -170,6 +171,7 @@ class CellGrid:
         ``cell_start`` then describes the cells of the *sorted* sequence.
         """
         self._ensure(n)
+        self.n_points = n
         s = self.spec
         _count_cells(pos, n, *s.args(), self.cell_of, self._count, s.ncells)
         exclusive_scan(self._count, self.cell_start, s.ncells)
@@ -324,6 +326,9 @@ class PairList:
         self._dup = ti.ndarray(ti.i32, shape=(1,))
         self._no_supports = ti.ndarray(runtime.real_dtype(), shape=(1,))   # fixed support
         self._reverse = None
+        #: the grid whose cell-sorted points are both the queries and the sources
+        #: (every pair then joins a cell to its 3 x 3 block); None for other queries
+        self.grid = None
 
     def build(self, qpos, nq: int, spos, grid: CellGrid, support: float, *,
               exclude_self: bool = True, duplicate_tolerance: float = 0.0,
@@ -368,6 +373,7 @@ class PairList:
         self.n_queries = nq
         self.n_pairs = int(total)
         self._reverse = None
+        self.grid = grid if qpos is spos and nq == grid.n_points else None
         return self
 
     def reverse_index(self):
