@@ -201,6 +201,157 @@ def _schedule(k0: int, gamma: int, serial: bool) -> tuple:
 
 
 @ti.kernel
+def _scaled_diagonal(l1: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
+                     K: ti.types.ndarray(), D: ti.types.ndarray(), dinv: ti.types.ndarray()):
+    """``dinv = 1 / a_ii`` (zero where a_ii = 0), or with ``l1`` ``1 / (sign(a_ii)
+    max(|a_ii|, sum_j |a_ij|))``: smaller Jacobi steps on rows far from diagonal
+    dominance."""
+    for i in range(n):
+        den = D[i]
+        if ti.static(l1):
+            off_abs = 0.0
+            for k in range(offsets[i], offsets[i + 1]):
+                off_abs += abs(K[k])
+            den = ti.math.sign(D[i]) * ti.max(abs(D[i]), off_abs)
+        dinv[i] = 1.0 / den if D[i] != 0 else 0.0
+
+
+@ti.kernel
+def _strongest_neighbour(n: ti.i32, weak: float, offsets: ti.types.ndarray(),
+                         nbrs: ti.types.ndarray(), K: ti.types.ndarray(),
+                         D: ti.types.ndarray(), out: ti.types.ndarray()):
+    """out[i]: the neighbour with the largest |a_ij| (the first of equals) of a
+    row with ``|a_ii| < weak sum_j |a_ij|``; -1 for every other row."""
+    for i in range(n):
+        total = 0.0
+        best = -1
+        top = -1.0
+        for k in range(offsets[i], offsets[i + 1]):
+            a = abs(K[k])
+            total += a
+            if a > top:
+                top = a
+                best = nbrs[k]
+        out[i] = best if abs(D[i]) < weak * total else -1
+
+
+@ti.kernel
+def _pair_reach(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                cell_of: ti.types.ndarray(), cix: ti.types.ndarray(),
+                ciy: ti.types.ndarray()) -> ti.i32:
+    """The largest cell offset (in x or y) between a particle's cell and a
+    neighbour's: the half-width of the window a row's columns lie in."""
+    reach = 0
+    for i in range(n):
+        c = cell_of[i]
+        for k in range(offsets[i], offsets[i + 1]):
+            j = cell_of[nbrs[k]]
+            ti.atomic_max(reach, ti.max(abs(cix[j] - cix[c]), abs(ciy[j] - ciy[c])))
+    return reach
+
+
+@ti.kernel
+def _csr_galerkin(particles: ti.template(), fill: ti.template(), rows: ti.i32, row0: ti.i32,
+                  kid0: ti.i32, kid_start: ti.types.ndarray(), kids: ti.types.ndarray(),
+                  f_row0: ti.i32, f_off: ti.types.ndarray(), f_col: ti.types.ndarray(),
+                  f_val: ti.types.ndarray(), D: ti.types.ndarray(), dinv: ti.types.ndarray(),
+                  up: ti.types.ndarray(), cix: ti.types.ndarray(), ciy: ti.types.ndarray(),
+                  reach: ti.i32, mark: ti.types.ndarray(), where: ti.types.ndarray(),
+                  out_off: ti.types.ndarray(), out_col: ti.types.ndarray(),
+                  out_val: ti.types.ndarray()):
+    """One level's Galerkin operator ``P^T S P`` in CSR, rows ``row0 ..
+    row0 + rows`` (global), from the level below (``particles``: the particle
+    rows ``D^-1 A``, i.e. the pairs scaled by ``dinv`` and the diagonal; else a
+    cell level's CSR ``f_*``): the entries of a row's children, their columns
+    mapped up (``up``) and summed.  A row's columns lie within ``reach`` cells
+    of its own, so a (2 reach + 1)^2 window of markers (``mark``, ``where``;
+    -1 on entry) finds the repeats without sorting.  Two passes: counting
+    (``out_off[1 + C]``: row C's entries) and, with ``fill``, writing at the
+    row starts ``out_off[C]``.  Serial: deterministic sums, one window."""
+    w = 2 * reach + 1
+    ti.loop_config(serialize=True)
+    for C in range(rows):
+        g = row0 + C
+        base = 0
+        if ti.static(fill):
+            base = out_off[C]
+        cnt = 0
+        for m in range(kid_start[kid0 + C], kid_start[kid0 + C + 1]):
+            c = kids[m]
+            extra = 1 if ti.static(particles) else 0
+            for e in range(f_off[c - f_row0], f_off[c - f_row0 + 1] + extra):
+                j = c
+                v = 0.0
+                if ti.static(particles):
+                    if e < f_off[c + 1]:
+                        j = f_col[e]
+                        v = dinv[c] * f_val[e]
+                    else:
+                        v = D[c] * dinv[c]
+                else:
+                    j = f_col[e]
+                    v = f_val[e]
+                J = up[j]
+                slot = (ciy[J] - ciy[g] + reach) * w + cix[J] - cix[g] + reach
+                if mark[slot] != g:
+                    mark[slot] = g
+                    if ti.static(fill):
+                        where[slot] = base + cnt
+                        out_col[base + cnt] = J
+                        out_val[base + cnt] = v
+                    cnt += 1
+                elif ti.static(fill):
+                    out_val[where[slot]] += v
+        if ti.static(not fill):
+            out_off[C + 1] = cnt
+
+
+@ti.kernel
+def _running_sum(off: ti.types.ndarray(), rows: ti.i32) -> ti.i32:
+    """Row counts in ``off[1:]`` to row starts, in place; returns the total."""
+    off[0] = 0
+    ti.loop_config(serialize=True)
+    for C in range(rows):
+        off[C + 1] += off[C]
+    return off[rows]
+
+
+@ti.kernel
+def _copy_level(rows: ti.i32, row0: ti.i32, base: ti.i32, off: ti.types.ndarray(),
+                col: ti.types.ndarray(), val: ti.types.ndarray(), S_off: ti.types.ndarray(),
+                S_col: ti.types.ndarray(), S_val: ti.types.ndarray()):
+    """A level's CSR into the flat arrays of every level (entries from ``base``)."""
+    S_off[row0 + rows] = base + off[rows]
+    for C in range(rows):
+        S_off[row0 + C] = base + off[C]
+        for e in range(off[C], off[C + 1]):
+            S_col[base + e] = col[e]
+            S_val[base + e] = val[e]
+
+
+@ti.kernel
+def _diagonal_inverse(rows0: ti.i32, total: ti.i32, S_off: ti.types.ndarray(),
+                      S_col: ti.types.ndarray(), S_val: ti.types.ndarray(), eps: float,
+                      cdinv: ti.types.ndarray()) -> float:
+    """cdinv = 1 / diag on every cell row, zero where the diagonal is below the
+    round-off of the first level's entries, ``1e3 eps sum |S_0|`` (returned):
+    constants are (nearly) in the null space of every level of a Neumann
+    problem, so the coarse entries are sums that cancel."""
+    total_abs = 0.0
+    ti.loop_config(serialize=True)          # a deterministic sum
+    for q in range(S_off[rows0]):
+        total_abs += abs(S_val[q])
+    noise = 1e3 * eps * total_abs
+    for c in range(total):
+        d = 0.0
+        for e in range(S_off[c], S_off[c + 1]):
+            if S_col[e] == c:
+                d += S_val[e]
+        cdinv[c] = 1.0 / d if abs(d) > noise else 0.0
+    return noise
+
+
+@ti.kernel
 def _grid_values(serial: ti.template(), L: ti.i32, eps: float, cell_start: ti.types.ndarray(),
                  offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), K: ti.types.ndarray(),
                  D: ti.types.ndarray(), dims: ti.types.ndarray(), lvl: ti.types.ndarray(),
@@ -529,7 +680,7 @@ class MultilevelPreconditioner:
                 size = cells * median * CELL_PAD
             if self.weak > 0:
                 pos = self._join_weak_rows(A, n, pos)
-            self._setup_levels(A, n, self._aggregates(pos, lo, extent, size))
+            self._setup_levels(A, n, *self._aggregates(pos, lo, extent, size))
         self._old_arrays = {}
 
     def _join_weak_rows(self, A, n: int, pos):
@@ -538,19 +689,15 @@ class MultilevelPreconditioner:
         position of its most strongly coupled neighbour, so that it shares that
         neighbour's cell on every level: Jacobi barely moves such a row, and a
         cell of its own would leave its error to the Krylov method."""
-        off, nb = A.ops.pairs.to_numpy()
-        off = off.astype(np.int64)
-        K = np.abs(A.K.to_numpy()[: len(nb)].astype(np.float64))
-        D = np.abs(A.D.to_numpy()[:n].astype(np.float64))
-        rows = np.repeat(np.arange(n), np.diff(off))
-        weak = np.flatnonzero((D < self.weak * np.bincount(rows, weights=K, minlength=n))
-                              & (np.diff(off) > 0))
+        strongest = ti.ndarray(ti.i32, shape=(max(n, 1),))
+        pr = A.ops.pairs
+        _strongest_neighbour(n, self.weak, pr.offsets, pr.neighbours, A.K, A.D, strongest)
+        partner = strongest.to_numpy()[:n]
+        weak = np.flatnonzero(partner >= 0)
         if weak.size == 0:
             return pos
-        # strongest neighbour of each weak row (few rows: a loop over their ranges)
-        last = np.array([off[i] + int(np.argmax(K[off[i]:off[i + 1]])) for i in weak])
         pos = pos.copy()
-        pos[weak] = pos[nb[last]]
+        pos[weak] = pos[partner[weak]]
         return pos
 
     @staticmethod
@@ -560,8 +707,10 @@ class MultilevelPreconditioner:
         Level k aggregates the particles by the non-empty cells of side
         ``size 2^k`` of a grid from ``lo`` (nested: level k+1 aggregates 2 x 2
         level-k cells), down to the first grid of at most COARSEST cells (and at
-        least two levels)."""
+        least two levels).  Also each level's cells: their keys ``iy nx + ix``
+        (ascending, as its rows) and ``nx``."""
         maps = []
+        cells = []
         k = 0
         while True:
             ij = np.floor((pos - lo) / (size * 2.0 ** k)).astype(np.int64)
@@ -569,9 +718,10 @@ class MultilevelPreconditioner:
             ij = np.minimum(ij, shape - 1)
             keys, agg = np.unique(ij[:, 1] * shape[0] + ij[:, 0], return_inverse=True)
             maps.append(agg.reshape(-1))
+            cells.append((keys, int(shape[0])))
             k += 1
             if shape[0] * shape[1] <= COARSEST and k >= 2:
-                return maps
+                return maps, cells
 
     @staticmethod
     def grid_level_dims(nx: int, ny: int) -> list:
@@ -663,14 +813,16 @@ class MultilevelPreconditioner:
         self.level_sizes = sizes
         self._finish_setup(A, n, [9 * m for m in sizes], small[2:].reshape(m, m), small[1])
 
-    def _grid_views(self) -> None:
-        """The dense levels as :class:`CellMatrix` and aggregation maps (inspection)."""
+    def _views(self) -> None:
+        """Every level as a :class:`CellMatrix` and the aggregation maps, from
+        the flat CSR of the cycle (inspection and tests)."""
         if self._levels is not None:
             return
         total = sum(self.level_sizes)
-        rows = np.repeat(np.arange(total), 9)
-        S = CellMatrix(rows, self.S_col.to_numpy()[:9 * total],
-                       self.S_val.to_numpy()[:9 * total].astype(np.float64), total)
+        S_off = self.S_off.to_numpy()[: total + 1].astype(np.int64)
+        nnz = int(S_off[-1])
+        S = CellMatrix(np.repeat(np.arange(total), np.diff(S_off)), self.S_col.to_numpy()[:nnz],
+                       self.S_val.to_numpy()[:nnz].astype(np.float64), total)
         starts = np.concatenate([[0], np.cumsum(self.level_sizes)])
         r, c, v = S.entries()
         self._levels = []
@@ -683,77 +835,89 @@ class MultilevelPreconditioner:
                          for k in range(len(self.level_sizes) - 1)]
         self.cell_of_np = self.cell_of.to_numpy()[:self.n].astype(np.int64)
 
-    def _setup_levels(self, A, n: int, maps) -> None:
-        """The Galerkin operators of every cell level (numpy, once per matrix):
-        B = D^-1 A on the particles, S_0 = P_0^T B P_0, S_k+1 = P_k^T S_k P_k, with
-        the piecewise-constant aggregations P (``maps``: particle -> row of level k)."""
-        D = A.D.to_numpy()[:n].astype(np.float64)
-        off, nb = A.ops.pairs.to_numpy()
-        off = off.astype(np.int64)
-        K = A.K.to_numpy()[: len(nb)].astype(np.float64)
-        rows = np.repeat(np.arange(n), np.diff(off))
-        den = D
-        if self.l1:
-            # l1 scaling: rows that are not diagonally dominant (the
-            # quadratic-exact Laplacian has some) take smaller Jacobi steps
-            off_abs = np.bincount(rows, weights=np.abs(K), minlength=n)
-            den = np.sign(D) * np.maximum(np.abs(D), off_abs)
-        dinv = np.divide(1.0, den, out=np.zeros(n), where=D != 0)
+    def _setup_levels(self, A, n: int, maps, cells) -> None:
+        """The Galerkin operators of every cell level, in kernels (once per
+        matrix): B = D^-1 A on the particles, S_0 = P_0^T B P_0, S_k+1 = P_k^T S_k P_k,
+        with the piecewise-constant aggregations P (``maps``: particle -> row of
+        level k; ``cells``: each level's cell keys, for the rows' coordinates);
+        each level by :func:`_csr_galerkin`, then all in one flat CSR."""
+        pr = A.ops.pairs
+        self.dinv = self._vector("dinv", None, size=n)
+        _scaled_diagonal(self.l1, n, pr.offsets, A.K, A.D, self.dinv)
         cell_of = maps[0]
         ncell = int(cell_of.max()) + 1
         self.porder = self._vector("porder", ti.i32, np.argsort(cell_of, kind="stable"))
         self.pstart = self._vector("pstart", ti.i32, np.concatenate(
             [[0], np.cumsum(np.bincount(cell_of, minlength=ncell))]))
         self.cell_of = self._vector("cell_of", ti.i32, cell_of)
-        self.dinv = self._vector("dinv", None, dinv)
-        # B = D^-1 A, its entries summed into cells: P_0^T B P_0
-        S0 = CellMatrix(np.concatenate([cell_of[rows], cell_of]),
-                        np.concatenate([cell_of[nb], cell_of]),
-                        np.concatenate([dinv[rows] * K, D * dinv]), ncell)
-        Ss = [S0]
-        parents = []
-        for k in range(len(maps) - 1):
-            par = np.zeros(Ss[-1].shape[0], dtype=np.int64)
-            par[maps[k]] = maps[k + 1]
-            parents.append(par)
-            r, c, v = Ss[-1].entries()
-            Ss.append(CellMatrix(par[r], par[c], v, int(par.max()) + 1))
-        sizes = [S.shape[0] for S in Ss]
+        sizes = [len(keys) for keys, _ in cells]
         starts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
         total = int(starts[-1])
-        self.level_sizes = sizes
-        self.cell_of_np = cell_of
-        self._levels = Ss
-        self._parents = parents
-        # flat CSR of all levels, columns as global row indices, sorted per row
-        nnz = np.concatenate([[0], np.cumsum([S.nnz for S in Ss])])
-        S_off = np.concatenate([S.indptr[:-1] + nnz[k] for k, S in enumerate(Ss)] + [[nnz[-1]]])
-        S_col = np.concatenate([S.indices + starts[k] for k, S in enumerate(Ss)])
-        S_val = np.concatenate([S.data for S in Ss])
-        parent = np.zeros(total, dtype=np.int64)
+        parent = np.full(total, -1, dtype=np.int64)
         kid_count = np.zeros(total, dtype=np.int64)
         kids = []
-        for k, par in enumerate(parents):
+        for k in range(len(maps) - 1):
+            par = np.zeros(sizes[k], dtype=np.int64)
+            par[maps[k]] = maps[k + 1]
             parent[starts[k]:starts[k + 1]] = par + starts[k + 1]
             kid_count[starts[k + 1]:starts[k + 2]] = np.bincount(par, minlength=sizes[k + 1])
             kids.append(np.argsort(par, kind="stable") + starts[k])
         kid_start = np.concatenate([[0], np.cumsum(kid_count)])
         self.lvl = self._array("lvl", ti.i32, (len(sizes), 2),
                                np.c_[starts[:-1], starts[1:]].astype(np.int32))
-        self.S_off = self._vector("S_off", ti.i32, S_off)
-        self.S_col = self._vector("S_col", ti.i32, S_col)
-        self.S_val = self._vector("S_val", None, S_val)
         self.parent = self._vector("parent", ti.i32, parent)
         self.kid_start = self._vector("kid_start", ti.i32, kid_start)
         self.kids = self._vector("kids", ti.i32, np.concatenate(kids) if kids else [])
-        # Constants are (nearly) in the null space of every level of a Neumann
-        # problem, so the coarsest levels' entries are sums of terms that cancel:
-        # values below the round-off of such a sum are zero, not pivots.
-        noise = 1e3 * np.finfo(runtime.np_real()).eps * float(np.abs(Ss[0].data).sum())
-        diag = np.concatenate([S.diagonal() for S in Ss])
-        self.cdinv = self._vector("cdinv", None, np.divide(1.0, diag, out=np.zeros(total),
-                                                           where=np.abs(diag) > noise))
-        self._finish_setup(A, n, [S.nnz for S in Ss], Ss[-1].toarray(), noise)
+        cix = self._vector("cix", ti.i32, np.concatenate([keys % nx for keys, nx in cells]))
+        ciy = self._vector("ciy", ti.i32, np.concatenate([keys // nx for keys, nx in cells]))
+        reach = _pair_reach(n, pr.offsets, pr.neighbours, self.cell_of, cix, ciy) + 1
+        real = runtime.real_dtype()
+        dummy = ti.ndarray(real, shape=(1,))
+        level_csr = []
+        for k, rows in enumerate(sizes):
+            if k == 0:       # the particle rows: pairs and diagonal, up by cell_of
+                src = (0, self.pstart, self.porder, 0, pr.offsets, pr.neighbours, A.K,
+                       self.cell_of)
+            else:            # the level below's CSR, up by parent
+                f_off, f_col, f_val = level_csr[-1][:3]
+                src = (int(starts[k]), self.kid_start, self.kids, int(starts[k - 1]), f_off,
+                       f_col, f_val, self.parent)
+            window = (2 * reach + 1) ** 2
+            mark = ti.ndarray(ti.i32, shape=(window,))
+            where = ti.ndarray(ti.i32, shape=(window,))
+            off = ti.ndarray(ti.i32, shape=(rows + 1,))
+            args = (*src[:7], A.D, self.dinv, src[7], cix, ciy, reach, mark, where, off)
+            mark.fill(-1)
+            _csr_galerkin(k == 0, False, rows, int(starts[k]), *args, mark, dummy)
+            nnz = _running_sum(off, rows)
+            col = ti.ndarray(ti.i32, shape=(max(nnz, 1),))
+            val = ti.ndarray(real, shape=(max(nnz, 1),))
+            mark.fill(-1)
+            _csr_galerkin(k == 0, True, rows, int(starts[k]), *args, col, val)
+            level_csr.append((off, col, val, nnz))
+            reach = reach // 2 + 1          # the next level's cells are twice as wide
+        level_nnz = [csr[3] for csr in level_csr]
+        bases = np.concatenate([[0], np.cumsum(level_nnz)])
+        self.S_off = self._vector("S_off", ti.i32, size=total + 1)
+        self.S_col = self._vector("S_col", ti.i32, size=int(bases[-1]))
+        self.S_val = self._vector("S_val", None, size=int(bases[-1]))
+        for k, (off, col, val, _) in enumerate(level_csr):
+            _copy_level(sizes[k], int(starts[k]), int(bases[k]), off, col, val, self.S_off,
+                        self.S_col, self.S_val)
+        self.cdinv = self._vector("cdinv", None, size=total)
+        noise = _diagonal_inverse(sizes[0], total, self.S_off, self.S_col, self.S_val,
+                                  float(np.finfo(runtime.np_real()).eps), self.cdinv)
+        off, col, val, nnz = level_csr[-1]
+        m = sizes[-1]
+        rows = np.repeat(np.arange(m), np.diff(off.to_numpy()[: m + 1]))
+        coarsest = np.zeros((m, m))
+        np.add.at(coarsest, (rows, col.to_numpy()[:nnz] - starts[-2]),
+                  val.to_numpy()[:nnz].astype(np.float64))
+        self.level_sizes = sizes
+        self._levels = None                  # CellMatrix views, built on request
+        self._parents = None
+        self.cell_of_np = cell_of
+        self._finish_setup(A, n, level_nnz, coarsest, noise)
 
     def _finish_setup(self, A, n: int, level_nnz: list, coarsest, noise: float) -> None:
         """What both set-ups share: the schedule, the work vectors, the constant
@@ -824,14 +988,14 @@ class MultilevelPreconditioner:
         """Cell level k's Galerkin operator (rows = its cells: the non-empty
         ones, or every cell of a dense grid level)."""
         if self._levels is None:
-            self._grid_views()
+            self._views()
         return self._levels[k]
 
     def aggregation(self, k: int) -> np.ndarray:
         """The row of level k each row of the level below belongs to: k = 0 maps
         particles to level-0 cells, k >= 1 level k-1 cells to level k cells."""
         if self._levels is None:
-            self._grid_views()
+            self._views()
         return self.cell_of_np if k == 0 else self._parents[k - 1]
 
     def _constant_mode_setup(self, A, n: int) -> None:
