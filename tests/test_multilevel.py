@@ -41,10 +41,14 @@ def square48():
     return _matrix(48, seed=1)
 
 
-def test_level_one_is_the_galerkin_operator(square48):
-    """S_1 = P^T D^-1 A P with P the cell aggregation, entry by entry."""
+@pytest.mark.parametrize("options", [{}, {"cells": 0.5}, {"cells": 0.5, "weak": 0.5}])
+def test_level_one_is_the_galerkin_operator(square48, options):
+    """S_1 = P^T D^-1 A P with P the cell aggregation, entry by entry: on the
+    neighbour grid's dense levels (the default here), and on cells narrower
+    than the support (the CSR levels), with weak rows joined to a neighbour's
+    cell (0.5: many rows)."""
     ps, A, b = square48
-    M = MultilevelPreconditioner(A)
+    M = MultilevelPreconditioner(A, **options)
     n = A.n_particles
     B = A.to_scipy()[:n, :n]
     Dinv = sp.diags(1.0 / B.diagonal())
