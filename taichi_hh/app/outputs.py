@@ -220,6 +220,16 @@ class Outputs:
     def worker_pid(self) -> int | None:
         return self._proc.pid if self._proc is not None else None
 
+    @property
+    def worker_exitcode(self) -> int | None:
+        """The worker's exit status once it stopped (0: a clean stop), else None."""
+        return self._proc.exitcode if self._proc is not None else None
+
+    @property
+    def pending(self) -> int:
+        """Frames handed over and not yet reported written (at most :data:`MAX_PENDING`)."""
+        return self._frames_pending
+
     # ---- hand-offs --------------------------------------------------------------------
 
     def frame(self, index: int, time: float, position, data: dict, colouring=None) -> None:
@@ -336,10 +346,10 @@ class Outputs:
     def _gone(self) -> None:
         """The worker stopped without a word (killed, out of memory): say so once."""
         self._raise_error()
-        self._raised = True
         self._proc.join(timeout=1.0)
-        raise OutputError(f"the output worker stopped (exit code {self._proc.exitcode}) with "
-                          f"{self._jobs_pending} outputs not written")
+        self._error = (f"the output worker stopped (exit code {self._proc.exitcode}) with "
+                       f"{self._jobs_pending} outputs not written")
+        self._raise_error()
 
     def _wait(self, done) -> None:
         t0 = time.perf_counter()
