@@ -126,11 +126,26 @@ def _worker_main(spec: OutputSpec, jobs, results) -> None:
     """The worker process: write the jobs as they come until the pipe closes."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})     # blocked by the parent
+    _yield_to_the_loop()
     try:
         _write_jobs(spec, jobs, results)
         results.send(("bye", "taichi" in sys.modules))
     except (BrokenPipeError, EOFError):      # the main process is gone: nobody to tell
         pass
+
+
+def _yield_to_the_loop() -> None:
+    """Run the worker only on a core the time loop leaves idle: SCHED_IDLE (else
+    the lowest nice level).  At normal priority it took the core a Taichi
+    thread pool thread woke up for, and every parallel kernel waited for that
+    thread at its end (docs/notes/app.md)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        try:
+            os.nice(19)
+        except OSError:
+            pass
 
 
 def _write_jobs(spec: OutputSpec, jobs, results) -> None:
