@@ -136,9 +136,9 @@ def _worker_main(spec: OutputSpec, jobs, results) -> None:
 
 def _yield_to_the_loop() -> None:
     """Run the worker only on a core the time loop leaves idle: SCHED_IDLE (else
-    the lowest nice level).  At normal priority it took the core a Taichi
-    thread pool thread woke up for, and every parallel kernel waited for that
-    thread at its end (docs/notes/app.md)."""
+    the lowest nice level).  At normal priority the loop's physics ran 25-70%
+    slower in 3 of 4 runs, presumably as a Taichi pool thread woke on the core
+    the worker held and every parallel kernel waited for it (docs/notes/app.md)."""
     try:
         os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     except (AttributeError, OSError):
