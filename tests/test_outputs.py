@@ -181,3 +181,19 @@ def test_a_scene_stopped_by_ctrl_c_or_a_blow_up_has_every_output_it_handed_over(
     times = [t for t, _ in read_pvd(str(out / "particles.pvd"))]
     assert times == sorted(times) and times[-1] == pytest.approx(0.1)
     assert len(times) == len(sorted(out.glob("frame_*.png"))) == 6
+
+
+def test_after_a_failure_every_hand_off_and_drain_raises_again_never_hangs(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "particles").write_text("a file, not a folder")
+    outputs = Outputs(_spec(out), workers=1)
+    pos, data = _particles()
+    outputs.frame(0, 0.0, pos, data)
+    with pytest.raises(OutputError):
+        outputs.drain()
+    with pytest.raises(OutputError, match="t=0"):
+        outputs.frame(1, 0.1, pos, data)
+    with pytest.raises(OutputError, match="t=0"):
+        outputs.drain()
+    outputs.close()

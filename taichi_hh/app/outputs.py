@@ -273,7 +273,7 @@ class Outputs:
             return
         if not self._collect(block=False):
             self._gone()
-        self._raise_error()
+        self._raise_error(again=True)
         if frame:
             self._wait(lambda: self._frames_pending < MAX_PENDING)
         data = pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
@@ -353,8 +353,10 @@ class Outputs:
             return False
         return True
 
-    def _raise_error(self) -> None:
-        if self._error is not None and not self._raised:
+    def _raise_error(self, again: bool = False) -> None:
+        """Raise the worker's failure: once (``close``), or every time (``again``:
+        a hand-off or a drain after it, which the worker would never complete)."""
+        if self._error is not None and (again or not self._raised):
             self._raised = True
             raise OutputError(self._error)
 
@@ -370,7 +372,7 @@ class Outputs:
         t0 = time.perf_counter()
         try:
             while True:
-                self._raise_error()
+                self._raise_error(again=True)
                 if done():
                     return
                 if not self._collect(block=True) and not done():

@@ -405,7 +405,8 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
 def _close_outputs(outputs: Outputs, failure, prog: str) -> None:
     """Stop the output worker at the end of the loop: after writing what was
     handed over (the loop drained it already unless it failed), or at once
-    after a second Ctrl-C.  An output error is raised, unless another error
+    when a Ctrl-C interrupted the loop's drain (a KeyboardInterrupt got
+    through; the worker's temporary files go with the next run).  An output error is raised, unless another error
     ends the run already: then it is reported in one more line."""
     try:
         outputs.close(drain=not isinstance(failure, KeyboardInterrupt))
