@@ -30,8 +30,15 @@ split into ``neighbours`` (binning, reorder, pair list), ``operators``
 (coefficient builds, Poisson assembly, viscous predictor, divergence and wall
 rows, pressure-gradient correction, particle shifting), ``solve`` (the pressure
 solve; ``precond_setup_s`` is the part of it that builds the multilevel
-preconditioner), ``rendering`` (drawing and writing PNG frames) and ``other``
-(the flow's bookkeeping, diagnostics rows, checkpoints, the loop itself).
+preconditioner), ``rendering`` (the loop's side of the frames and particle
+files: with the scenes' output worker, the default, the host copies handed
+over and any wait for the worker; with ``--output-workers 0`` the drawing and
+writing too) and ``other`` (the flow's bookkeeping, diagnostics rows,
+checkpoints, the loop itself).  ``worker_s`` / ``worker_cpu_s``: the output
+worker's own wall and CPU seconds, beside the loop; ``cpu_over_wall``: the CPU
+seconds of the loop (every thread of the main process, plus the worker's) over
+its wall seconds: 1 means one core busy, 2 both.  ``--output-workers 0``
+passes that option to every case.
 
 Full droplet run: the wall time of the whole 6 s run is extrapolated from the
 measured droplet case two ways: (a) by simulated time (loop seconds x 6 /
@@ -109,22 +116,21 @@ class PrecondSetupTimer:
 
 
 def run_case(case: str, end: float, out_dir: Path, frame_width: int, quiet: bool,
-             extra=()) -> dict:
+             extra=(), output_workers: int = 1) -> dict:
     from taichi_hh.app.scene import run_scene
     scene_name, options = CASES[case.replace("_full", "")]
     scene = scene_module(scene_name).SCENE
     out = out_dir / "scenes_runs" / case
     argv = list(options) + ["--end-time", repr(end), "--out", str(out), "--montage", "",
-                            "--frame-width", str(frame_width)] + list(extra)
+                            "--frame-width", str(frame_width),
+                            "--output-workers", str(output_workers)] + list(extra)
     if quiet:
         argv.append("--quiet")
-    cpu0 = time.process_time()
     with PrecondSetupTimer() as pre:
         res = run_scene(scene, argv)
-    cpu_s = time.process_time() - cpu0
     s = res.seconds
     parts = {"neighbours": s["neighbours"], "operators": s["operators"], "solve": s["solve"],
-             "rendering": s["render"],
+             "rendering": s["render"] + s["output_wait"],
              "other": s["other"] + s["diagnostics"] + s["checkpoint"] + s["driver"]}
     flow = res.flow
     n = flow.n_fluid
@@ -142,9 +148,11 @@ def run_case(case: str, end: float, out_dir: Path, frame_width: int, quiet: bool
            "mean_iterations": statistics.fmean(res.iterations) if res.iterations else 0,
            "median_dt": statistics.median(res.dts) if res.dts else 0,
            "precond_setup_s": pre.seconds,
-           # process CPU time (every thread) over wall time, the whole run: 1 means
-           # one core busy, 2 both
-           "cpu_over_wall": cpu_s / max(res.wall, 1e-12),
+           # the loop's CPU time (every thread, and the output worker's) over its
+           # wall time: 1 means one core busy, 2 both
+           "cpu_over_wall": res.loop_cpu / max(res.loop, 1e-12),
+           "output_workers": output_workers, "worker_s": res.worker_seconds,
+           "worker_cpu_s": res.worker_cpu, "output_wait_s": s["output_wait"],
            "load_avg": os.getloadavg()[0]}
     row.update({f"{k}_s": v for k, v in parts.items()})
     row.update({f"detail.{k}": v for k, v in sorted(flow.clock.detail.items())})
@@ -234,6 +242,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-warmup", action="store_true", help="include compilation in the timings")
     ap.add_argument("--progress", action="store_true", help="show the scenes' progress bars")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: all)")
+    ap.add_argument("--output-workers", type=int, choices=(0, 1), default=1,
+                    help="the scenes' output worker processes (0: outputs in the loop)")
     ap.add_argument("--replot", action="store_true", help="only redraw the chart from the CSV")
     ap.add_argument("--scaling", default="",
                     help="comma-separated fluid particle counts: also time the droplet's step at "
@@ -279,21 +289,22 @@ def main(argv=None) -> int:
     rows = []
     for case, end in runs:
         print(f"running {case} to t = {end:g} ...", file=sys.stderr, flush=True)
-        row = run_case(case, end, out_dir, args.frame_width, quiet=not args.progress)
+        row = run_case(case, end, out_dir, args.frame_width, quiet=not args.progress,
+                       output_workers=args.output_workers)
         row["compile_s"] = compile_s.get(row["scene"], "")
         rows.append(row)
         print(f"  {case}: {row['loop_s']:.1f} s loop, {row['steps']} steps, "
               f"{row['particle_steps_per_s']:.3g} particle-steps/s", file=sys.stderr, flush=True)
 
     header = ["case", "particles", "steps", "loop s", "ms/step", "p-steps/s", "sim/wall",
-              "med. it", "CPU/wall"] + list(PARTS)
+              "med. it", "CPU/wall", "worker s"] + list(PARTS)
     table = []
     for r in rows:
         tot = max(r["loop_s"], 1e-12)
         table.append([r["case"], r["fluid_particles"], r["steps"], f"{r['loop_s']:.1f}",
                       f"{1e3 * r['s_per_step']:.0f}", f"{r['particle_steps_per_s']:.3g}",
                       f"{r['sim_per_wall_s']:.3g}", f"{r['median_iterations']:.0f}",
-                      f"{r['cpu_over_wall']:.2f}"]
+                      f"{r['cpu_over_wall']:.2f}", f"{r['worker_s']:.1f}"]
                      + [f"{100 * r[p + '_s'] / tot:.0f}%" for p in PARTS])
     print(format_table(header, table))
 

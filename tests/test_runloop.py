@@ -301,3 +301,44 @@ def test_common_arguments():
             ap.parse_args(bad)
     with pytest.raises(ValueError, match="unknown default"):
         add_common_arguments(argparse.ArgumentParser(), {"particle": 1})
+
+
+@pytest.mark.parametrize("action", [None, "sigint", "raise-ki", "blowup"])
+def test_flush_comes_before_every_stop_message_and_at_the_end(action):
+    """With a writer beside the loop (``flush_fn``), whatever was handed over is
+    written before the loop says which checkpoint it kept, and before it returns."""
+    events, state = [], {"t": 0.0}
+
+    def step_fn():
+        if action and round(state["t"] / 0.01) + 1 == 15:
+            if action == "sigint":
+                signal.raise_signal(signal.SIGINT)
+            elif action == "raise-ki":
+                raise KeyboardInterrupt
+            else:
+                raise BlowUp("non-finite values in velocity", cause="non-finite")
+        state["t"] += 0.01
+        return state["t"], 0.01, {}
+
+    class Stream(io.StringIO):
+        def write(self, text):
+            if text.strip():
+                events.append("message")
+            return super().write(text)
+
+    def checkpoint_fn():
+        events.append("checkpoint")
+        return "ck.npz"
+
+    kw = dict(t0=0.0, t_end=0.3, output_interval=0.1, on_output=lambda *a: events.append("output"),
+              checkpoint_fn=checkpoint_fn, flush_fn=lambda: events.append("flush"),
+              progress=False, stream=Stream())
+    if action is None:
+        run(step_fn, **kw)
+        assert events[-1] == "flush" and events.count("output") == 4
+        return
+    with pytest.raises(SystemExit):
+        run(step_fn, **kw)
+    assert events[-2:] == ["flush", "message"]
+    if action == "sigint":                            # the checkpoint of the stop, then the flush
+        assert events[-3] == "checkpoint"

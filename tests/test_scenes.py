@@ -51,6 +51,32 @@ def test_scene_writes_frames_and_diagnostics(tmp_path, name):
     assert not [p for p in out.iterdir() if p.name.startswith(".tmp")]
 
 
+def test_output_worker_and_in_process_outputs_are_byte_identical(tmp_path):
+    """--output-workers 1 (frames, particle files and checkpoints written by a
+    worker process beside the loop) and 0 (in the loop's process) write the
+    same files, byte for byte; the timing split names the worker's seconds."""
+    from taichi_hh.app.scene import run_scene, timing_summary
+    mod = load("rising_droplet")
+    common = ["--particles", "800", "--end-time", "0.1", "--output-interval", "0.05", "--quiet",
+              "--frame-width", "120", "--montage", "0.05"]
+    files, runs = {}, {}
+    for workers in (1, 0):
+        out = tmp_path / f"w{workers}"
+        runs[workers] = run_scene(mod.SCENE, common + ["--out", str(out), "--output-workers",
+                                                       str(workers)])
+        files[workers] = {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("*"))
+                          if p.is_file() and p.name != "config.toml"}   # it names --out
+    assert sorted(files[1]) == sorted(files[0])
+    assert {"frame_00002.png", "particles/particles_00002.vtu", "particles/particles_00002.npz",
+            "particles.pvd", "checkpoint.npz", "diagnostics.csv", "montage.png"} <= set(files[1])
+    for name, content in files[0].items():
+        assert files[1][name] == content, name
+    for workers, res in runs.items():
+        assert res.frames == 3 and "output_wait" in res.seconds and res.loop_cpu > 0
+        assert ("outputs in the worker" in timing_summary(res)) == bool(workers)
+    assert runs[1].worker_cpu > 0 and runs[0].worker_cpu == 0
+
+
 def test_droplet_resume_continues_the_run(tmp_path):
     mod = load("rising_droplet")
     common = ["--particles", "800", "--output-interval", "0.1", "--quiet", "--frame-width", "100"]

@@ -1,27 +1,28 @@
 """Headless frames: particles drawn into an RGB image, PNG, movies.
 
-No window and no GGUI (which needs Vulkan, absent on CPU machines): one Taichi
-kernel per frame draws the particles into a ``(H, W, 3)`` u8 numpy image, as
-discs or as the smooth interpolated colour field (``style``), and a minimal
-PNG encoder (no filtering, zlib level 1) writes it: Pillow's adaptive row
-filters and Taichi's ``ndarray.to_numpy`` of the image each cost more than the
-whole draw (docs/notes/app.md).
+No window, no GGUI (which needs Vulkan, absent on CPU machines) and no Taichi:
+numpy draws the particles into a ``(H, W, 3)`` u8 image, as discs or as the
+smooth interpolated colour field (``style``), and a minimal PNG encoder (no
+filtering, zlib level 1) writes it: Pillow's adaptive row filters cost more
+than the whole draw (docs/notes/app.md).  Nothing here starts Taichi (only
+:func:`vorticity` uses it), so the scenes draw their frames in a worker process
+beside the time loop (:mod:`taichi_hh.app.outputs`).
 
-How a frame is drawn (one kernel, two parallel loops, no float atomics).  On
-the host, numpy turns positions into pixel coordinates (f32, y up) and gives
-every particle its colour-table row: its phase's palette entry, the wall grey,
-or the colormap entry of its scalar (speed, vorticity).  Then, in the kernel:
+How a frame is drawn.  numpy turns positions into pixel coordinates (f32, y
+up) and gives every particle its colour-table row: its phase's palette entry,
+the wall grey, or the colormap entry of its scalar (speed, vorticity).  Then:
 
-1. per particle, every pixel whose centre lies inside its disc gets
-   ``atomic_max(key)`` where ``key = closeness << 9 | colour``: closeness is
-   the quantised ``1 - d^2/r^2``, so where discs overlap the pixel shows the
-   particle whose centre is nearest (a Voronoi-like split of the overlap),
-   ties going to the larger colour row.  The picture therefore does not depend
-   on the order of particles, which the neighbour grid changes every step.
-2. per pixel, the colour row ``key & 511`` is looked up in a colour table
-   uploaded once (phase palette, wall grey, a 256-entry colormap), or the
-   background when no disc covers the pixel; the key buffer is reset there for
-   the next frame.
+* discs: every pixel whose centre lies inside a particle's disc takes the
+  maximum of ``key = closeness << 9 | colour`` over those discs: closeness is
+  the quantised ``1 - d^2/r^2``, so where discs overlap the pixel shows the
+  particle whose centre is nearest (a Voronoi-like split of the overlap),
+  ties going to the larger colour row.  The picture therefore does not depend
+  on the order of particles, which the neighbour grid changes every step.
+  The colour row ``key & 511`` is looked up in the colour table (phase
+  palette, wall grey, a 256-entry colormap), or the background where no disc
+  covers the pixel.
+* smooth: the Shepard-interpolated colour on a grid of samples twice per
+  particle spacing, interpolated bilinearly to the pixels.
 
 The image's y axis points up (row 0 is the top of the box).  The box keeps its
 aspect ratio: with ``height=None`` the height follows from the width; with
@@ -41,12 +42,12 @@ import sys
 import zlib
 
 import numpy as np
-import taichi as ti
 
-from .. import runtime
 from .io import atomic_path
-from ..sph.particles import FLUID
-from ..sph.pointset import PointSet
+
+#: ``taichi_hh.sph.particles.FLUID``, the kind of fluid particles (not imported from
+#: there: that imports Taichi, and this module runs in the Taichi-free output worker)
+FLUID = 0
 
 # colour table layout (rows of RGB u8)
 _CMAP_ROWS = 256                    # rows 0..255: the scalar colormap
@@ -85,122 +86,97 @@ SMOOTH_SAMPLES_PER_SPACING = 2
 SMOOTH_EDGE = 0.2
 
 
-@ti.kernel
-def _draw(px: ti.types.ndarray(), rows: ti.types.ndarray(), n: ti.i32, radius: ti.f32,
-          key: ti.types.ndarray(), table: ti.types.ndarray(), image: ti.types.ndarray(),
-          width: ti.i32, height: ti.i32, bg_r: ti.u8, bg_g: ti.u8, bg_b: ti.u8):
-    """Splat discs (keys by atomic max), then colour every pixel and reset its key.
+def _draw_discs(px, rows, radius: float, table, image, background) -> None:
+    """Splat discs into ``image`` (numpy, in place): every pixel whose centre
+    lies within ``radius`` of a disc centre gets the key ``closeness << 9 |
+    colour row`` of the closest one (the largest key: closeness is the
+    quantised ``1 - d^2/r^2``, ties go to the larger colour row), then the
+    colour of its row in ``table``; pixels no disc covers, ``background``.
 
     px: (n, 2) f32 disc centres in pixel units, y up; rows: (n,) i32 colour-table
-    rows, < 0 for particles not drawn.  key: (H*W,) i32, all -1 on entry and on
-    exit; image: (H*W, 3) u8, row-major from the top row (flat 1D loops: a 2D
-    ti.ndrange ran 4x slower here)."""
-    r2 = radius * radius
-    for i in range(n):
-        row = rows[i]
-        if row >= 0:
-            u = px[i, 0]
-            v = px[i, 1]
-            c0 = ti.max(ti.cast(ti.floor(u - radius), ti.i32), 0)
-            c1 = ti.min(ti.cast(ti.floor(u + radius), ti.i32), width - 1)
-            b0 = ti.max(ti.cast(ti.floor(v - radius), ti.i32), 0)
-            b1 = ti.min(ti.cast(ti.floor(v + radius), ti.i32), height - 1)
-            for b in range(b0, b1 + 1):
-                dv = ti.cast(b, ti.f32) + 0.5 - v
-                base = (height - 1 - b) * width
-                for c in range(c0, c1 + 1):
-                    du = ti.cast(c, ti.f32) + 0.5 - u
-                    d2 = du * du + dv * dv
-                    if d2 <= r2:
-                        close = ti.cast((1.0 - d2 / r2) * 4194303.0, ti.i32)   # 2^22 - 1 levels
-                        ti.atomic_max(key[base + c], (close << 9) | row)
-    for p in range(width * height):
-        k = key[p]
-        if k >= 0:
-            row = k & 511
-            image[p, 0] = table[row, 0]
-            image[p, 1] = table[row, 1]
-            image[p, 2] = table[row, 2]
-            key[p] = -1
-        else:
-            image[p, 0] = bg_r
-            image[p, 1] = bg_g
-            image[p, 2] = bg_b
+    rows, < 0 for particles not drawn.  A maximum does not depend on the order
+    of its terms, so neither does the picture."""
+    height, width = image.shape[:2]
+    keep = rows >= 0
+    u, v, rows = px[keep, 0], px[keep, 1], rows[keep].astype(np.int64)
+    key = np.full(height * width, -1, dtype=np.int64)
+    r2 = np.float32(radius) * np.float32(radius)
+    span = int(math.floor(2.0 * radius)) + 2         # columns (rows) a disc can touch
+    c = np.floor(u - np.float32(radius)).astype(np.int64)[:, None] + np.arange(span)
+    du = (c.astype(np.float32) + np.float32(0.5)) - u[:, None]
+    du2 = du * du
+    col_ok = (c >= 0) & (c < width)
+    b0 = np.floor(v - np.float32(radius)).astype(np.int64)
+    for db in range(span):                            # one pixel row of every disc at a time
+        b = b0 + db
+        dv = (b.astype(np.float32) + np.float32(0.5)) - v
+        d2 = du2 + (dv * dv)[:, None]
+        ok = col_ok & (d2 <= r2) & ((b >= 0) & (b < height))[:, None]
+        if not ok.any():
+            continue
+        close = ((np.float32(1.0) - d2[ok] / r2) * np.float32(4194303.0)).astype(np.int64)
+        pix = ((height - 1 - b)[:, None] * width + c)[ok]
+        np.maximum.at(key, pix, (close << 9) | np.broadcast_to(rows[:, None], ok.shape)[ok])
+    flat = image.reshape(-1, 3)
+    flat[:] = background
+    hit = key >= 0
+    flat[hit] = table[key[hit] & 511]
 
 
-@ti.kernel
-def _draw_smooth(px: ti.types.ndarray(), colour: ti.types.ndarray(), n: ti.i32,
-                 cell_start: ti.types.ndarray(), cell: ti.f32, ncx: ti.i32, ncy: ti.i32,
-                 radius: ti.f32, full: ti.f32, stride: ti.i32, sw: ti.i32, sh: ti.i32,
-                 samples: ti.types.ndarray(), image: ti.types.ndarray(), width: ti.i32,
-                 height: ti.i32, bg_r: ti.f32, bg_g: ti.f32, bg_b: ti.f32):
-    """Shepard-interpolated colour on the pixel grid (gathers, no atomics).
+def _draw_smooth_field(px, colour, radius: float, full: float, stride: int, image,
+                       background) -> None:
+    """Shepard-interpolated colour on the pixel grid (numpy, in place).
 
-    px: (n, 2) f32 particle centres in pixel units (y up), sorted by their cell
-    of side ``cell`` >= ``radius`` (``cell_start``: (ncx*ncy + 1,) offsets);
-    colour: (n, 3) f32 RGB.  Weight (1 - d^2/R^2)^2 within ``radius``; where the
-    weights add up to less than ``full`` (a fraction of their sum inside a
-    uniformly filled region) the colour fades into the background, so the fluid's free
-    edges stay sharp.  The field is sampled every ``stride`` pixels (an
-    (sh, sw) grid of samples, y up, into ``samples``: (sh*sw, 3) f32) and
-    interpolated bilinearly to the pixels: it varies over a particle spacing,
-    several strides."""
-    r2 = radius * radius
-    one = ti.cast(1.0, ti.f32)
-    for s in range(sw * sh):
-        sy = s // sw
-        sx = s - sy * sw
-        u = ti.cast(sx * stride, ti.f32) + ti.cast(0.5, ti.f32)
-        v = ti.cast(sy * stride, ti.f32) + ti.cast(0.5, ti.f32)
-        cx = ti.cast(ti.floor(u / cell), ti.i32)
-        cy = ti.cast(ti.floor(v / cell), ti.i32)
-        acc = ti.Vector([0.0, 0.0, 0.0], ti.f32)
-        den = ti.cast(0.0, ti.f32)
-        for gy in range(ti.max(cy - 1, 0), ti.min(cy + 2, ncy)):
-            for k in range(cell_start[gy * ncx + ti.max(cx - 1, 0)],
-                           cell_start[gy * ncx + ti.min(cx + 1, ncx - 1) + 1]):
-                du = px[k, 0] - u
-                dv = px[k, 1] - v
-                q = one - (du * du + dv * dv) / r2
-                if q > 0:
-                    w = q * q
-                    acc += w * ti.Vector([colour[k, 0], colour[k, 1], colour[k, 2]], ti.f32)
-                    den += w
-        rgb = ti.Vector([bg_r, bg_g, bg_b], ti.f32)
-        if den > 0:
-            alpha = ti.min(den / full, one)
-            rgb = alpha * (acc / den) + (one - alpha) * rgb
-        for ch in ti.static(range(3)):
-            samples[s, ch] = rgb[ch]
-    # bilinear interpolation, one block of stride x stride pixels per sample
-    # cell (its four corner samples read once)
-    inv = one / ti.cast(stride, ti.f32)
-    for s in range((sw - 1) * (sh - 1)):
-        sy = s // (sw - 1)
-        sx = s - sy * (sw - 1)
-        c00 = ti.Vector([samples[sy * sw + sx, 0], samples[sy * sw + sx, 1],
-                         samples[sy * sw + sx, 2]], ti.f32)
-        c10 = ti.Vector([samples[sy * sw + sx + 1, 0], samples[sy * sw + sx + 1, 1],
-                         samples[sy * sw + sx + 1, 2]], ti.f32)
-        c01 = ti.Vector([samples[(sy + 1) * sw + sx, 0], samples[(sy + 1) * sw + sx, 1],
-                         samples[(sy + 1) * sw + sx, 2]], ti.f32)
-        c11 = ti.Vector([samples[(sy + 1) * sw + sx + 1, 0], samples[(sy + 1) * sw + sx + 1, 1],
-                         samples[(sy + 1) * sw + sx + 1, 2]], ti.f32)
-        for dy in range(stride):
-            y_up = sy * stride + dy
-            if y_up < height:
-                ty = ti.cast(dy, ti.f32) * inv
-                left = (one - ty) * c00 + ty * c01
-                right = (one - ty) * c10 + ty * c11
-                base = (height - 1 - y_up) * width
-                for dx in range(stride):
-                    col = sx * stride + dx
-                    if col < width:
-                        tx = ti.cast(dx, ti.f32) * inv
-                        val = (one - tx) * left + tx * right
-                        for ch in ti.static(range(3)):
-                            image[base + col, ch] = ti.cast(
-                                ti.min(ti.max(val[ch] + ti.cast(0.5, ti.f32), 0.0), 255.0), ti.u8)
+    px: (n, 2) f32 particle centres in pixel units (y up); colour: (n, 3) f32
+    RGB.  Weight (1 - d^2/R^2)^2 within ``radius``; where the weights add up
+    to less than ``full`` (a fraction of their sum inside a uniformly filled
+    region) the colour fades into the background, so the fluid's free edges
+    stay sharp.  The field is sampled every ``stride`` pixels, at pixel centres
+    ``(k stride + 1/2)`` (each particle adds its weight to the samples within
+    its radius), and interpolated bilinearly to the pixels in between: it
+    varies over a particle spacing, several strides."""
+    height, width = image.shape[:2]
+    sw = (width - 1) // stride + 2
+    sh = (height - 1) // stride + 2
+    r2 = np.float32(radius) * np.float32(radius)
+    # each particle's window of samples: the first at or after u - R, as many as 2R spans
+    m = int(math.floor(2.0 * radius / stride)) + 1
+    offsets = np.arange(m)
+    u, v = px[:, 0], px[:, 1]
+    sx = np.ceil((u - np.float32(0.5 + radius)) / stride).astype(np.int64)[:, None] + offsets
+    sy = np.ceil((v - np.float32(0.5 + radius)) / stride).astype(np.int64)[:, None] + offsets
+    du = (sx * stride).astype(np.float32) + np.float32(0.5) - u[:, None]
+    dv = (sy * stride).astype(np.float32) + np.float32(0.5) - v[:, None]
+    q = np.float32(1.0) - (du[:, None, :] ** 2 + dv[:, :, None] ** 2) / r2   # (n, dy, dx)
+    ok = (q > 0) & ((sx >= 0) & (sx < sw))[:, None, :] & ((sy >= 0) & (sy < sh))[:, :, None]
+    w = q * q
+    index = (sy[:, :, None] * sw + sx[:, None, :])[ok]
+    den = np.bincount(index, w[ok], minlength=sw * sh)
+    acc = np.stack([np.bincount(index, (w * colour[:, ch, None, None])[ok], minlength=sw * sh)
+                    for ch in range(3)], axis=1)
+    bg = np.asarray(background, dtype=np.float64)
+    alpha = np.minimum(den / full, 1.0)[:, None]
+    rgb = np.where(den[:, None] > 0, alpha * acc / np.maximum(den, 1e-300)[:, None]
+                   + (1.0 - alpha) * bg, bg)
+    # + 1/2: the cast to u8 below truncates, i.e. rounds (the interpolation's
+    # weights add up to 1, so the offset may come first, on the samples)
+    rgb = np.clip(rgb + 0.5, 0.0, 255.5).astype(np.float32).reshape(sh, sw, 3)
+    # bilinear interpolation, separable: along x to every pixel column, then
+    # along y to every row; a pixel at offset d within its stride takes the
+    # weights (1 - d / stride, d / stride) of its two samples (strided slices)
+    along_x = np.empty((sh, (sw - 1) * stride, 3), dtype=np.float32)
+    for d in range(stride):
+        t = np.float32(d / stride)
+        np.multiply(rgb[:, :-1], np.float32(1.0) - t, out=along_x[:, d::stride])
+        along_x[:, d::stride] += t * rgb[:, 1:]
+    along_x = along_x[:, :width]
+    field = np.empty(((sh - 1) * stride, width, 3), dtype=np.float32)
+    for d in range(stride):
+        t = np.float32(d / stride)
+        np.multiply(along_x[:-1], np.float32(1.0) - t, out=field[d::stride])
+        field[d::stride] += t * along_x[1:]
+    np.copyto(image, field[height - 1::-1], casting="unsafe")   # row 0 is the top: y flipped
+
 
 def vorticity(positions, velocities, spacing: float, support: float) -> np.ndarray:
     """Vorticity ``dv_y/dx - dv_x/dy`` of each particle, from the particles alone.
@@ -216,6 +192,7 @@ def vorticity(positions, velocities, spacing: float, support: float) -> np.ndarr
     vel = np.asarray(velocities, dtype=np.float64)
     if len(pos) == 0:
         return np.zeros(0)
+    from ..sph.pointset import PointSet
     points = PointSet(pos, support=float(support), area=len(pos) * float(spacing) ** 2)
     return points.curl(vel, "corrected")
 
@@ -281,11 +258,9 @@ class FrameRenderer:
     def __init__(self, width: int, height=None, box_lo=(0.0, 0.0), box_hi=(1.0, 1.0),
                  radius_px=None, background=(255, 255, 255), *, colormap: str = "viridis",
                  palette=PHASE_PALETTE, wall_colour=WALL_COLOUR, style: str = "discs"):
-        runtime.ensure_init()
         if style not in STYLES:
             raise ValueError(f"style must be one of {STYLES}, got {style!r}")
         self.style = style
-        self._generation = runtime.generation()
         lo = np.asarray(box_lo, dtype=np.float64)
         hi = np.asarray(box_hi, dtype=np.float64)
         if lo.shape != (2,) or hi.shape != (2,) or not np.all(np.isfinite(lo)) \
@@ -318,15 +293,7 @@ class FrameRenderer:
         table[_PHASE_BASE:] = palette
         self.table_np = table
         self.n_phase = len(palette)
-        self._table = ti.ndarray(ti.u8, shape=table.shape)
-        self._table.from_numpy(table)
-        # per-pixel keys stay in a Taichi array (on the device when there is one);
-        # the image is a numpy array the kernel writes directly (zero copy on CPU;
-        # Taichi's ndarray.to_numpy took 85 ms for a 1000x1000x3 u8 image here)
-        self._key = ti.ndarray(ti.i32, shape=(height * width,))
-        self._key.fill(-1)
         self.image = np.zeros((height, width, 3), dtype=np.uint8)   # the last frame drawn
-        self._samples = None          # the smooth style's sample grid, made on first use
 
     def world_to_pixel(self, x, y):
         """(column, row) of the pixel containing world point (x, y); row 0 is the top."""
@@ -350,7 +317,6 @@ class FrameRenderer:
         over [vmin, vmax] (defaults: min and max over the fluid particles;
         non-finite values are drawn at vmax).  Non-finite positions are skipped.
         """
-        runtime.check_generation(self._generation, "frame renderer")
         pos = _as_numpy(positions, n)
         if pos.ndim != 2 or pos.shape[1] != 2:
             raise ValueError(f"positions must have shape (n, 2), got {pos.shape}")
@@ -398,38 +364,21 @@ class FrameRenderer:
         if self.style == "smooth":
             self._draw_smooth(px, rows, spacing_px)
         else:
-            _draw(px, rows, count, radius_px, self._key, self._table, self.image.reshape(-1, 3),
-                  self.width, self.height, bg[0], bg[1], bg[2])
+            _draw_discs(px, rows, radius_px, self.table_np, self.image, bg)
         return self.image.copy()
 
     def _draw_smooth(self, px, rows, spacing_px: float) -> None:
-        """The smooth style: particles binned by pixel cells (counting sort in
-        numpy), then one gather kernel (:func:`_draw_smooth`)."""
+        """The smooth style: :func:`_draw_smooth_field` with the particles' colours."""
         keep = rows >= 0
         px, rows = px[keep], rows[keep]
         radius = max(SMOOTH_RADIUS * spacing_px, 1.5)
-        ncx = max(1, int(math.ceil(self.width / radius)))
-        ncy = max(1, int(math.ceil(self.height / radius)))
-        cx = np.clip((px[:, 0] // radius).astype(np.int64), 0, ncx - 1)
-        cy = np.clip((px[:, 1] // radius).astype(np.int64), 0, ncy - 1)
-        cell = cy * ncx + cx
-        order = np.argsort(cell, kind="stable")
-        start = np.zeros(ncx * ncy + 1, dtype=np.int32)
-        np.cumsum(np.bincount(cell, minlength=ncx * ncy), out=start[1:])
-        px = np.ascontiguousarray(px[order])
-        colour = np.ascontiguousarray(self.table_np[rows[order]], dtype=np.float32)
+        colour = self.table_np[rows].astype(np.float32)
         # sum of the weights inside a uniformly filled region: pi R^2 / (3 s^2);
         # full colour from a fifth of it on (gaps between disordered particles
         # stay coloured, the fluid's free edges fade over a fraction of a spacing)
         full = SMOOTH_EDGE * math.pi * radius * radius / (3.0 * spacing_px * spacing_px)
-        bg = [float(c) for c in self.background]
         stride = max(1, int(spacing_px // SMOOTH_SAMPLES_PER_SPACING))
-        sw = (self.width - 1) // stride + 2
-        sh = (self.height - 1) // stride + 2
-        if self._samples is None or self._samples.shape[0] < sw * sh:
-            self._samples = np.zeros((sw * sh, 3), dtype=np.float32)
-        _draw_smooth(px, colour, len(px), start, radius, ncx, ncy, radius, full, stride, sw, sh,
-                     self._samples, self.image.reshape(-1, 3), self.width, self.height, *bg)
+        _draw_smooth_field(px, colour, radius, full, stride, self.image, self.background)
 
     def render_particles(self, particles, color: str = "phase", **kwargs) -> np.ndarray:
         """Draw a :class:`~taichi_hh.sph.particles.Particles` set, by ``"phase"`` or ``"speed"``."""

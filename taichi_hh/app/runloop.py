@@ -19,7 +19,10 @@ Stops, and what stays on disk:
 
 Every file is replaced atomically (temporary name + ``os.replace``), and the
 diagnostics CSV gains whole lines only, so an interrupted run never leaves a
-half-written file.  Nothing here imports Taichi.
+half-written file.  When ``on_output`` and ``checkpoint_fn`` only hand their
+files over to a writer beside the loop (the scenes' output worker), ``flush_fn``
+waits for it: before every stop message (the checkpoint it names is then on
+disk) and at the end.  Nothing here imports Taichi.
 """
 
 import argparse
@@ -355,7 +358,7 @@ def _takes_argument(fn) -> bool:
 
 
 def run(step_fn, *, t0: float, t_end: float, output_interval: float, on_output, checkpoint_fn,
-        progress: bool = True, step0: int = 0, output_at_start: bool = True,
+        flush_fn=None, progress: bool = True, step0: int = 0, output_at_start: bool = True,
         blowup_types: tuple = (), stream=None,
         blowup_advice: str = "--resume restarts from it (e.g. with a smaller time step)"):
     """Advance ``step_fn`` from ``t0`` to ``t_end``, with outputs and checkpoints.
@@ -369,6 +372,9 @@ def run(step_fn, *, t0: float, t_end: float, output_interval: float, on_output, 
     ``output_interval`` after it, and ``t_end``; an output happens at the first
     step reaching one: ``on_output(t, step, info)`` (``info == {}`` at ``t0``),
     then ``checkpoint_fn()``, which saves the state and returns its path.
+    flush_fn(): if given, waits until everything ``on_output`` and
+    ``checkpoint_fn`` handed over is written (they may write in the
+    background); called before any stop message and at the end.
     Resuming: pass the checkpoint's time and step as ``t0``/``step0`` and
     ``output_at_start=False`` (its output was written before it was saved).
 
@@ -400,6 +406,10 @@ def run(step_fn, *, t0: float, t_end: float, output_interval: float, on_output, 
     def next_output(t):
         return min((math.floor(t / interval + 1e-9) + 1) * interval, t_end)
 
+    def flush():
+        if flush_fn is not None:
+            flush_fn()
+
     def kept():
         if saved[1] is None:
             return "no checkpoint was written by this run (a checkpoint resumed from is unchanged)"
@@ -424,15 +434,19 @@ def run(step_fn, *, t0: float, t_end: float, output_interval: float, on_output, 
                 if sigint.requested:
                     if saved[0] != t:
                         saved[:] = [t, checkpoint_fn()]
+                    flush()
                     say(f"interrupted at t={t:.6g} (step {step}), state saved to {saved[1]}; "
                         "continue with --resume")
                     raise SystemExit(130)
+            flush()
         except KeyboardInterrupt:
+            flush()
             say(f"interrupted at t={t:.6g} (step {step}) in the middle of a step; {kept()}; "
                 "continue with --resume")
             raise SystemExit(130) from None
         except (BlowUp, SolverError, *blowup_types) as exc:
             cause = getattr(exc, "cause", "solver" if isinstance(exc, SolverError) else "")
+            flush()
             say(f"stopped: the simulation blew up in the step after t={t:.6g} (step {step})"
                 f"{' [' + cause + ']' if cause else ''}: {exc}\n{kept()}; "
                 f"{blowup_advice(t, step, cause) if callable(blowup_advice) else blowup_advice}")

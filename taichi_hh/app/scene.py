@@ -17,10 +17,9 @@ from ..checks import positive_float
 from ..flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
 from ..validation.layouts import lattice_in_box  # noqa: F401  (the scenes' initial lattice)
 from .config import config_tokens, write_config
-from .overlay import FrameLabels, label_frame
 from .io import remove_stale_temp_files
-from .particle_files import PvdSeries, write_particles
-from .render import COLORMAPS, STYLES, FrameRenderer, frame_colouring, frame_path, write_movie, write_png
+from .outputs import OutputError, OutputSpec, Outputs
+from .render import COLORMAPS, STYLES, frame_colouring, frame_path, write_movie, write_png
 from .runloop import Checkpoint, DiagnosticsWriter, HelpFormatter, add_common_arguments, run
 
 #: the checkout this module runs from (``--docs`` writes the README's figures there)
@@ -67,17 +66,27 @@ def _montage(args, name: str) -> None:
 class SceneRun:
     """What :func:`run_scene` did: the flow at the end, the parsed options,
     the wall seconds of the whole run (``wall``) and of the time loop alone
-    (``loop``), the seconds by part (``seconds``: the flow's stages
+    (``loop``), the seconds of the loop by part (``seconds``: the flow's stages
     ``neighbours``, ``operators``, ``solve``, ``other`` (see
-    :attr:`~taichi_hh.flow.twophase.TwoPhaseFlow.timings`), then ``render`` (drawing and
-    writing frames), ``diagnostics`` (the CSV row's measures), ``checkpoint``
-    and ``driver`` (the loop's own overhead: progress bar, time-step choice)),
-    the solver iterations and dt of every step, and the steps taken."""
+    :attr:`~taichi_hh.flow.twophase.TwoPhaseFlow.timings`), then ``render`` (the
+    frames and particle files: with an output worker the hand-off only, the
+    host copies and the frame's colouring; without one the drawing and writing
+    too), ``diagnostics`` (the CSV row's measures), ``checkpoint`` (likewise:
+    the state's copy, plus its writing without a worker), ``output_wait``
+    (waiting for the output worker: a full queue, the drain at the end) and
+    ``driver`` (the loop's own overhead: progress bar, time-step choice)),
+    the output worker's own wall and CPU seconds on the outputs
+    (``worker_seconds``, ``worker_cpu``: beside the loop, not part of it), the
+    CPU seconds of the loop (``loop_cpu``: this process's threads plus the
+    worker's), the solver iterations and dt of every step, and the steps taken."""
     flow: object
     args: argparse.Namespace
     wall: float = 0.0
     loop: float = 0.0
     seconds: dict = field(default_factory=dict)
+    worker_seconds: float = 0.0
+    worker_cpu: float = 0.0
+    loop_cpu: float = 0.0
     iterations: list = field(default_factory=list)
     dts: list = field(default_factory=list)
     steps: int = 0
@@ -99,7 +108,8 @@ def _config_argument(argv: list) -> str | None:
 #: (the blow-up message's advice) and the pressure solver's tolerance; every
 #: other option comes from the checkpoint (a different value is refused)
 RESUME_MAY_CHANGE = frozenset({"end_time", "out", "resume", "quiet", "arch", "movie", "fps",
-                               "montage", "docs", "config", "cfl", "dt_max", "solver_tol"})
+                               "montage", "docs", "config", "cfl", "dt_max", "solver_tol",
+                               "output_workers"})
 
 #: the pressure solver's relative tolerance when --solver-tol is not given: f32
 #: cannot reach f64's (stagnation near 2e-4 on the droplet: docs/notes/app.md)
@@ -217,6 +227,10 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
                     help="with every frame write the particles as VTU (ParaView) too, listed "
                          "in OUT/particles.pvd; their .npz twins are always written to "
                          "OUT/particles/")
+    ap.add_argument("--output-workers", type=int, choices=(0, 1), default=1, metavar="{0,1}",
+                    help="1: draw the frames and write the particle files and checkpoints in a "
+                         "worker process beside the time loop (the second core); 0: in the "
+                         "time loop's own process (the same files, byte for byte)")
     ap.add_argument("--docs", action="store_true",
                     help="also copy the montage to docs/figures/<scene>.png (the README's figure)")
     ap.add_argument("--exact-projection", action="store_true",
@@ -292,11 +306,10 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     recorded = {"run_scene": scene.name, "run_options": _recorded_options(args)}
     x0, y0, x1, y1 = params.box
     wall_px = max(2, args.frame_width // 200)       # the walls' grey frame around the box
-    renderer = FrameRenderer(max(args.frame_width - 2 * wall_px, 1), None, (x0, y0), (x1, y1),
-                             style=args.style, colormap=COLORMAPS[args.color])
-    legend = [(name, renderer.colour_of_phase(k)) for k, name in enumerate(scene.phase_names)]
-    series = PvdSeries(os.path.join(args.out, "particles.pvd"),
-                       resume_time=flow.time if args.resume else None) if args.vtk else None
+    spec = OutputSpec(args.out, max(args.frame_width - 2 * wall_px, 1), (x0, y0), (x1, y1),
+                      style=args.style, colormap=COLORMAPS[args.color], wall_px=wall_px,
+                      phase_names=tuple(scene.phase_names), vtk=args.vtk,
+                      resume_time=flow.time if args.resume else None)
     columns = BASE_COLUMNS + list(scene.measure_columns)
     writer = DiagnosticsWriter(os.path.join(args.out, "diagnostics.csv"), columns,
                                resume_time=flow.time if args.resume else None)
@@ -307,6 +320,11 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
               f"support {flow.support:.4g}, until t={args.end_time}; terms: {scene.terms}; "
               f"projection: {'exact (orthogonal clean-up)' if params.exact_projection else 'approximate'}; "
               f"writing to {args.out}", file=sys.stderr)
+    try:
+        outputs = Outputs(spec, workers=args.output_workers)
+    except BaseException:
+        writer.close()
+        raise
 
     def step_fn(t_stop):
         dt = min(flow.suggested_dt(), t_stop - flow.time)
@@ -316,25 +334,14 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
         return flow.time, dt, info
 
     def on_output(t, step, info):
-        t0 = time.perf_counter()
-        pos, vel, ph, _ = flow.fluid_state()
-        scalar, vmin, vmax, name = frame_colouring(args.color, pos, vel, flow.dx, flow.support)
-        if scalar is not None:
-            labels = FrameLabels(colorbar=(name, vmin, vmax, renderer.table_np[:256]),
-                                 wall_px=wall_px)
-            image = renderer.draw(pos, phase=ph, scalar=scalar, vmin=vmin, vmax=vmax)
-        else:
-            labels = FrameLabels(legend=legend, wall_px=wall_px)
-            image = renderer.draw(pos, phase=ph)
-        image = label_frame(image, t, labels)
-        index = int(round(t / args.output_interval))
-        write_png(frame_path(args.out, index), image)
+        t0, waited0 = time.perf_counter(), outputs.waited
         data = flow.particle_data()
-        write_particles(os.path.join(args.out, "particles"), index, t, data.pop("position"), data,
-                        vtu=args.vtk, series=series)
+        position = data.pop("position")
+        colouring = frame_colouring(args.color, position, data["velocity"], flow.dx, flow.support)
+        outputs.frame(int(round(t / args.output_interval)), t, position, data, colouring)
         result.frames += 1
         t1 = time.perf_counter()
-        spent["render"] += t1 - t0
+        spent["render"] += t1 - t0 - (outputs.waited - waited0)
         vmean, vmax = flow.volume_error()
         row = {"time": t, "step": step, "dt": info.get("dt", ""),
                "solver_iterations": info.get("iterations", ""),
@@ -347,9 +354,9 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
         spent["diagnostics"] += time.perf_counter() - t1
 
     def checkpoint_fn():
-        t0 = time.perf_counter()
-        path = Checkpoint.save(ckpt_path, {**flow.state_dict(), **recorded})
-        spent["checkpoint"] += time.perf_counter() - t0
+        t0, waited0 = time.perf_counter(), outputs.waited
+        path = outputs.checkpoint(ckpt_path, {**flow.state_dict(), **recorded})
+        spent["checkpoint"] += time.perf_counter() - t0 - (outputs.waited - waited0)
         return path
 
     def advice(t, step, cause):
@@ -362,18 +369,26 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
                 f"time step ({dt:.3g}); --cfl lowers the velocity limit")
 
     flow.reset_timings()
-    loop0 = time.perf_counter()
+    loop0, cpu0 = time.perf_counter(), time.process_time()
+    failure = None
     try:
         run(step_fn, t0=flow.time, t_end=args.end_time, output_interval=args.output_interval,
-            on_output=on_output, checkpoint_fn=checkpoint_fn, progress=not args.quiet,
-            step0=flow.step_count, output_at_start=not args.resume,
+            on_output=on_output, checkpoint_fn=checkpoint_fn, flush_fn=outputs.drain,
+            progress=not args.quiet, step0=flow.step_count, output_at_start=not args.resume,
             blowup_types=(BlowUpError,), blowup_advice=advice)
+    except BaseException as exc:
+        failure = exc
+        raise
     finally:
         writer.close()
+        _close_outputs(outputs, failure, scene.name)
         result.loop = time.perf_counter() - loop0
+        result.worker_seconds, result.worker_cpu = outputs.worker_seconds, outputs.worker_cpu
+        result.loop_cpu = time.process_time() - cpu0 + outputs.worker_cpu
         result.steps = len(result.iterations)
         result.seconds = {k: v for k, v in flow.timings.items() if k not in ("total", "steps")}
         result.seconds.update(spent)
+        result.seconds["output_wait"] = outputs.waited
         result.seconds["driver"] = max(result.loop - sum(result.seconds.values()), 0.0)
     if not args.quiet:
         print(timing_summary(result), file=sys.stderr)
@@ -387,10 +402,29 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     return result
 
 
+def _close_outputs(outputs: Outputs, failure, prog: str) -> None:
+    """Stop the output worker at the end of the loop: after writing what was
+    handed over (the loop drained it already unless it failed), or at once
+    when a Ctrl-C interrupted the loop's drain (a KeyboardInterrupt got
+    through; the worker's temporary files go with the next run).  An output error is raised, unless another error
+    ends the run already: then it is reported in one more line."""
+    try:
+        outputs.close(drain=not isinstance(failure, KeyboardInterrupt))
+    except OutputError as exc:
+        if failure is None:
+            raise
+        print(f"{prog}.py: error: {exc}", file=sys.stderr)
+
+
 def timing_summary(result: SceneRun) -> str:
-    """One line: the time loop's wall seconds and their split by part."""
+    """The time loop's wall seconds and their split by part, then the output
+    worker's own seconds (beside the loop) and the loop's CPU / wall."""
     total = max(result.loop, 1e-12)
     parts = ", ".join(f"{k} {v:.1f} s ({100 * v / total:.0f}%)" for k, v in result.seconds.items())
     n = result.steps
-    return (f"time loop {result.loop:.1f} s for {n} steps "
+    line = (f"time loop {result.loop:.1f} s for {n} steps "
             f"({n * result.flow.n_fluid / total:.3g} particle-steps/s): {parts}")
+    if result.args.output_workers:
+        line += (f"; outputs in the worker {result.worker_seconds:.1f} s "
+                 f"(CPU {result.worker_cpu:.1f} s) beside the loop")
+    return line + f"; CPU / wall of the loop {result.loop_cpu / total:.2f}"
