@@ -76,14 +76,22 @@ class PointSet:
         self.support = float(support) if support is not None else support_ratio * self.spacing
         self.kernel = kernel
         mass = self.area / n if mass is None else mass
-        p = self.particles = Particles.from_numpy(pts, mass=mass, kind=FLUID)
+        # data points, boundary samples, ghosts: one append (each append rewrites
+        # every quantity's whole array)
+        parts, normals, kinds = [pts], [np.zeros_like(pts)], [np.full(n, FLUID, np.int32)]
         if boundary is not None:
             bpts = check_points(boundary[0], "boundary points")
-            bnrm = check_values(boundary[1], len(bpts), 2, "boundary normals")
-            p.append(bpts, normal=bnrm, mass=mass, kind=BOUNDARY)
+            parts.append(bpts)
+            normals.append(check_values(boundary[1], len(bpts), 2, "boundary normals"))
+            kinds.append(np.full(len(bpts), BOUNDARY, np.int32))
         if ghosts is not None and len(ghosts):
-            p.append(check_points(ghosts, "ghost points"), mass=mass, kind=GHOST)
-        allpts = p.get("position")
+            gpts = check_points(ghosts, "ghost points")
+            parts.append(gpts)
+            normals.append(np.zeros_like(gpts))
+            kinds.append(np.full(len(gpts), GHOST, np.int32))
+        allpts = np.concatenate(parts) if len(parts) > 1 else pts
+        p = self.particles = Particles(len(allpts))
+        p.append(allpts, mass=mass, kind=np.concatenate(kinds), normal=np.concatenate(normals))
         self.n_total = p.n
         supports = None           # per particle, input order (data, boundary, ghosts)
         if support_neighbours is not None and support is None:

@@ -26,7 +26,6 @@ import math
 import numpy as np
 import taichi as ti
 
-from .. import runtime
 from ..errors import InputError
 
 #: default number of nearest neighbours of the local spacing estimate
@@ -51,35 +50,11 @@ def pair_support(adaptive: ti.template(), hs: ti.template(), i, j, H):
     return h
 
 
-@ti.kernel
-def _kth_distance(rank: ti.template(), n: ti.i32, qpos: ti.types.ndarray(),
-                  spos: ti.types.ndarray(), offsets: ti.types.ndarray(),
-                  nbrs: ti.types.ndarray(), out: ti.types.ndarray()):
-    """out[i] = distance from query i to the ``rank``-th nearest of its listed
-    neighbours, -1 if it has fewer.  The ``rank`` smallest squared distances
-    are kept sorted in registers (rank static)."""
-    for i in range(n):
-        best = ti.Vector([1e300] * rank, dt=ti.f64)
-        for m in range(offsets[i], offsets[i + 1]):
-            d = spos[nbrs[m]] - qpos[i]
-            r2 = ti.cast(d.dot(d), ti.f64)
-            for a in ti.static(range(rank)):   # insertion: carry the larger value on
-                lo = ti.min(r2, best[a])
-                r2 = ti.max(r2, best[a])
-                best[a] = lo
-        res = -1.0
-        if offsets[i + 1] - offsets[i] >= rank:
-            res = ti.sqrt(best[rank - 1])
-        out[i] = res
-
-
 def kth_neighbour_distance(points: np.ndarray, k: int, area: float) -> np.ndarray:
-    """Distance from every point to its k-th nearest other point (input order).
-
-    Binned search at a radius expected to hold about 2k points, doubled for
-    the points that still have fewer than k until every point has them."""
-    from .neighbors import GridSpec, PairList, bin_particles
-    from .particles import Particles
+    """Distance from every point to its k-th nearest other point (input order),
+    by the exact k-nearest search of :mod:`taichi_hh.sph.knn`.  ``area`` is
+    unused (kept for callers that pass it)."""
+    from .knn import KNearest
 
     pts = np.asarray(points, dtype=np.float64)
     n = len(pts)
@@ -89,38 +64,7 @@ def kth_neighbour_distance(points: np.ndarray, k: int, area: float) -> np.ndarra
     if n <= k:
         raise InputError(f"{n} points are too few for an adaptive support from {k} nearest "
                          "neighbours")
-    runtime.ensure_init()
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    diameter = float(np.hypot(*(hi - lo)))
-    radius = math.sqrt(2.0 * k * area / (math.pi * n))
-    p = Particles.from_numpy(pts)
-    out = np.full(n, -1.0)
-    todo = np.arange(n)                            # input indices still short of k
-    pairs = PairList()
-    dist = ti.ndarray(ti.f64, shape=(n,))
-    while todo.size:
-        grid = bin_particles(p, GridSpec.covering(lo, hi, radius))
-        orig = p.get("original_index")
-        if todo.size == n:
-            pairs.build(p.position, n, p.position, grid, radius)
-            _kth_distance(k, n, p.position, p.position, pairs.offsets, pairs.neighbours, dist)
-            out[orig] = dist.to_numpy()[:n]
-        else:
-            q = Particles.from_numpy(pts[todo])
-            # other query points: the point itself is among the sources (distance 0),
-            # so the (k+1)-th smallest distance
-            pairs.build(q.position, todo.size, p.position, grid, radius, exclude_self=False)
-            qd = ti.ndarray(ti.f64, shape=(todo.size,))
-            _kth_distance(k + 1, todo.size, q.position, p.position, pairs.offsets,
-                          pairs.neighbours, qd)
-            out[todo] = qd.to_numpy()
-        todo = np.flatnonzero(out < 0)
-        if radius > 2.0 * diameter:
-            break
-        radius *= 2.0
-    if todo.size:                                  # cannot happen with n > k
-        raise InputError(f"{todo.size} point(s) have fewer than {k} neighbours")
-    return out
+    return KNearest(pts).kth_distance_among(k)
 
 
 def adaptive_supports(points: np.ndarray, support_ratio: float, neighbours: int,
