@@ -244,6 +244,25 @@ def _cholesky_solve(order: ti.template(), Lf, rhs):
     return z
 
 
+@ti.func
+def _gradient_rows(order: ti.template(), Lf):
+    """Rows 0-1 of M^-1 (M = Lf Lf^T symmetric: the solutions of M z = e_0, e_1),
+    the fitted gradient's weights per monomial: one solve per particle, so that
+    each pair's coefficient is two dot products."""
+    m = ti.static(_n_monomials(order))
+    e0 = ti.Vector.zero(float, m)
+    e1 = ti.Vector.zero(float, m)
+    e0[0] = 1.0
+    e1[1] = 1.0
+    z0 = _cholesky_solve(order, Lf, e0)
+    z1 = _cholesky_solve(order, Lf, e1)
+    R = ti.Matrix.zero(float, 2, m)
+    for a in ti.static(range(m)):
+        R[0, a] = z0[a]
+        R[1, a] = z1[a]
+    return R
+
+
 @ti.kernel
 def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
                      mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
@@ -293,12 +312,22 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
             else:
                 L = M.inverse()
         gsum = ti.Vector.zero(float, 2)
+        # the fitted gradient's weights: rows 0-1 of M^-1, scaled by 1 / H_i
+        Hi = pair_support(adaptive, hs, i, i, H)
+        R2 = ti.Matrix.zero(float, 2, 5)
+        R3 = ti.Matrix.zero(float, 2, ti.static(9 if variant == GradientVariant.CUBIC else 1))
+        if ti.static(variant == GradientVariant.QUADRATIC or variant == GradientVariant.CUBIC):
+            if cubic:
+                if ti.static(variant == GradientVariant.CUBIC):
+                    R3 = _gradient_rows(3, Lc) / Hi
+            elif not linear:
+                R2 = _gradient_rows(2, Lf) / Hi
         for k in range(offsets[i], offsets[i + 1]):
             j = nbrs[k]
             mj = _src_mass(mass, kind, j, src_kinds)
             xij = pos[i] - pos[j]
             Hij = pair_support(adaptive, hs, i, j, H)
-            _W, F, _L = kernel_terms(kernel_id, xij.norm(), Hij)
+            W, F, _L = kernel_terms(kernel_id, xij.norm(), Hij)
             gw = F * xij
             coef = ti.Vector.zero(float, 2)
             if ti.static(variant == GradientVariant.BASIC or variant == GradientVariant.DIFFERENCE):
@@ -316,19 +345,15 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
                     coef = (mj / rho[j]) * (L @ gw)
                 else:
                     # rows 0-1 of M^-1 (V_j W_ij p_j) / H: the fitted gradient's weights
-                    W, _F2, _L2 = kernel_terms(kernel_id, xij.norm(), Hij)
-                    Hi = pair_support(adaptive, hs, i, i, H)
                     u = -xij / Hi
+                    c = (mj / rho[j]) * W
                     if ti.static(variant == GradientVariant.CUBIC):
                         if cubic:
-                            z3 = _cholesky_solve(3, Lc, (mj / rho[j]) * W * _monomials(3, u))
-                            coef = ti.Vector([z3[0], z3[1]]) / Hi
+                            coef = c * (R3 @ _monomials(3, u))
                         else:
-                            z = _cholesky_solve(2, Lf, (mj / rho[j]) * W * _monomials(2, u))
-                            coef = ti.Vector([z[0], z[1]]) / Hi
+                            coef = c * (R2 @ _monomials(2, u))
                     else:
-                        z = _cholesky_solve(2, Lf, (mj / rho[j]) * W * _monomials(2, u))
-                        coef = ti.Vector([z[0], z[1]]) / Hi
+                        coef = c * (R2 @ _monomials(2, u))
             G[k] = coef
             if ti.static(variant == GradientVariant.BASIC):
                 gsum += coef   # sum_j G f_j = sum_j G (f_j - f_i) + (sum_j G) f_i
@@ -466,41 +491,46 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
                     ti.atomic_max(bad, i)
                 else:
                     Lg = Mg.inverse()
-            sigma = ti.Vector.zero(float, 2)
-            for k in range(offsets[i], offsets[i + 1]):
-                j = nbrs[k]
-                mj = _src_mass(mass, kind, j, src_kinds)
-                x = pos[j] - pos[i]
-                r = 0.0
-                F = 0.0
-                if ti.static(with_gradient):
-                    r = Gw[k][1]
-                    F = Gw[k][0]
-                else:
+            if ti.static(not with_gradient):
+                # sigma = sum_j a_ij x_ji is linear in B: Q (Bxx, Byy, 2 Bxy) from the
+                # first pass, so one more pass writes C_ij = a_ij - V_j beta . grad W_ij
+                sigma = Q @ ti.Vector([Bxx, Byy, 2.0 * Bxy])
+                beta = Linv.transpose() @ sigma
+                for k in range(offsets[i], offsets[i + 1]):
+                    j = nbrs[k]
+                    mj = _src_mass(mass, kind, j, src_kinds)
+                    x = pos[j] - pos[i]
                     r = x.norm()
                     _W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
-                e = x / r
-                a_ij = -2.0 * (mj / rho[j]) * F * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
-                                                   + 2.0 * Bxy * e[0] * e[1])
-                C[k] = a_ij
-                sigma += a_ij * x
-                if ti.static(with_gradient):
+                    e = x / r
+                    V = mj / rho[j]
+                    C[k] = V * F * (beta.dot(x) - 2.0 * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
+                                                         + 2.0 * Bxy * e[0] * e[1]))
+            else:
+                # the flow's stencils: sigma summed from the a_ij themselves, three
+                # passes (its results are kept as they were measured)
+                sigma = ti.Vector.zero(float, 2)
+                for k in range(offsets[i], offsets[i + 1]):
+                    j = nbrs[k]
+                    mj = _src_mass(mass, kind, j, src_kinds)
+                    x = pos[j] - pos[i]
+                    r = Gw[k][1]
+                    F = Gw[k][0]
+                    e = x / r
+                    a_ij = -2.0 * (mj / rho[j]) * F * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
+                                                       + 2.0 * Bxy * e[0] * e[1])
+                    C[k] = a_ij
+                    sigma += a_ij * x
                     # _gradient_coeffs' corrected coefficient (x_ij = -x exactly)
                     G[k] = (mj / rho[j]) * (Lg @ (F * (-x)))
-            beta = Linv.transpose() @ sigma
-            for k in range(offsets[i], offsets[i + 1]):
-                j = nbrs[k]
-                mj = _src_mass(mass, kind, j, src_kinds)
-                x = pos[j] - pos[i]
-                F = 0.0
-                if ti.static(with_gradient):
+                beta = Linv.transpose() @ sigma
+                for k in range(offsets[i], offsets[i + 1]):
+                    j = nbrs[k]
+                    mj = _src_mass(mass, kind, j, src_kinds)
+                    x = pos[j] - pos[i]
                     F = Gw[k][0]
-                else:
-                    _W, F, _L = kernel_terms(kernel_id, x.norm(),
-                                             pair_support(adaptive, hs, i, j, H))
-                # C_ij = a_ij - V_j beta . grad W_ij,  grad W_ij = -F x_ji
-                C[k] += (mj / rho[j]) * F * beta.dot(x)
-                if ti.static(with_gradient):
+                    # C_ij = a_ij - V_j beta . grad W_ij,  grad W_ij = -F x_ji
+                    C[k] += (mj / rho[j]) * F * beta.dot(x)
                     Cw[k] = C[k] * (2.0 / (rho[i] + rho[j]))
                     Gw[k] = G[k] * (2.0 * rho[i] / (rho[i] + rho[j]))
             if ti.static(with_gradient):
