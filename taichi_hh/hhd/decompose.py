@@ -168,8 +168,13 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
         div_sources = (FLUID, GHOST)
     else:
         div_sources = (FLUID,)
-    st_div = ops.gradient_coefficients(opts.divergence, row_kinds=(FLUID,),
-                                       source_kinds=div_sources)
+    st_neumann = st_lap = None
+    if _default_stencils(opts):
+        # the three stencils of the default from one kernel (two passes over the pairs)
+        st_div, st_neumann, st_lap = ops.decomposition_coefficients()
+    else:
+        st_div = ops.gradient_coefficients(opts.divergence, row_kinds=(FLUID,),
+                                           source_kinds=div_sources)
     div_nd, curl_nd = ps.new_array(1), ps.new_array(1)
     ops.divergence(st_div, v_nd, div_nd)
     ops.curl(st_div, v_nd, curl_nd)
@@ -192,7 +197,8 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
         t = time.perf_counter()
         # normal-parallel: Dirichlet rows, a regular problem, nothing to border
         dirichlet = opts.boundary_condition == "normal-parallel"
-        A = PoissonMatrix(ops, laplacian=opts.laplacian, gradient=opts.neumann_gradient,
+        A = PoissonMatrix(ops, laplacian=opts.laplacian if st_lap is None else st_lap,
+                          gradient=opts.neumann_gradient if st_neumann is None else st_neumann,
                           kappa=opts.kappa, near=near, bordered=opts.bordered and not dirichlet,
                           dirichlet=dirichlet)
         seconds["assemble"] = time.perf_counter() - t
@@ -202,6 +208,15 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
              "mean_neighbours": float(ps.neighbour_counts.mean())}
     return PoissonProblems(opts, pts, ps, A, {"phi": div_slots, "psi": -curl_slots}, vec, kind,
                            seconds, stats, domain, st_div)
+
+
+def _default_stencils(opts: HHDOptions) -> bool:
+    """Whether the operators are the default's (cubic divergence over the data
+    points, quadratic Neumann gradient, corrected Laplacian), which
+    :meth:`~taichi_hh.sph.operators.Operators.decomposition_coefficients`
+    computes in one kernel."""
+    return (opts.divergence == "cubic" and opts.neumann_gradient == "quadratic"
+            and opts.laplacian == "corrected" and opts.boundary != "petronetto")
 
 
 def decompose(points, vectors, domain=None, *, method: str = "default", progress=None,

@@ -206,6 +206,14 @@ def _mls_fit_rows(order: ti.template(), kernel_id: ti.template(), i, pos: ti.tem
         u = x / Hi
         p = _monomials(order, u)
         M += (mj / rho[j]) * W * p.outer_product(p)
+    return _cholesky_factor(order, M)
+
+
+@ti.func
+def _cholesky_factor(order: ti.template(), M):
+    """(L, ok): the Cholesky factor of the moment matrix M (monomials of ``order``);
+    ok is False when a pivot falls below SINGULAR_RATIO of the diagonal scale."""
+    m = ti.static(_n_monomials(order))
     scale = 0.0
     for a in ti.static(range(m)):
         scale = ti.max(scale, M[a, a])
@@ -361,6 +369,39 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
     return bad
 
 
+@ti.func
+def _laplacian_correction(M, u, P, Q):
+    """(M^-1, Bxx, Byy, Bxy, ok) of the renormalised Laplacian from its first
+    pass's sums (``_laplacian_coeffs``): B makes the stencil exact on x^2, y^2,
+    xy; ok is False when M or the 3 x 3 system is singular."""
+    Linv = ti.Matrix.identity(float, 2)
+    Bxx = 1.0
+    Byy = 1.0
+    Bxy = 0.0
+    ok = True
+    if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
+        ok = False
+    else:
+        Linv = M.inverse()
+        A = ti.Matrix.zero(float, 3, 3)
+        for a in ti.static(range(3)):
+            g = Linv @ ti.Vector([u[a, 0], u[a, 1]])
+            for b in ti.static(range(3)):
+                t = P[a, b] - g[0] * Q[0, b] - g[1] * Q[1, b]
+                A[a, b] = t * (2.0 if b == 2 else 1.0)
+        rhs = ti.Vector([2.0, 2.0, 0.0])   # traces of the Hessians of x^2, y^2, xy
+        scale = ti.abs(A).max()
+        det = A.determinant()
+        if scale == 0.0 or ti.abs(det) < 1e-9 * scale * scale * scale:
+            ok = False
+        else:
+            b = A.inverse() @ rhs
+            Bxx = b[0]
+            Byy = b[1]
+            Bxy = b[2]
+    return Linv, Bxx, Byy, Bxy, ok
+
+
 @ti.kernel
 def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.types.ndarray(),
                       mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
@@ -460,30 +501,9 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
                 for a in ti.static(range(2)):
                     for b in ti.static(range(3)):
                         Q[a, b] += w * x[a] * ee[b]
-            Linv = ti.Matrix.identity(float, 2)
-            Bxx = 1.0
-            Byy = 1.0
-            Bxy = 0.0
-            if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
+            Linv, Bxx, Byy, Bxy, ok = _laplacian_correction(M, u, P, Q)
+            if not ok:
                 ti.atomic_max(bad, i)
-            else:
-                Linv = M.inverse()
-                A = ti.Matrix.zero(float, 3, 3)
-                for a in ti.static(range(3)):
-                    g = Linv @ ti.Vector([u[a, 0], u[a, 1]])
-                    for b in ti.static(range(3)):
-                        t = P[a, b] - g[0] * Q[0, b] - g[1] * Q[1, b]
-                        A[a, b] = t * (2.0 if b == 2 else 1.0)
-                rhs = ti.Vector([2.0, 2.0, 0.0])   # traces of the Hessians of x^2, y^2, xy
-                scale = ti.abs(A).max()
-                det = A.determinant()
-                if scale == 0.0 or ti.abs(det) < 1e-9 * scale * scale * scale:
-                    ti.atomic_max(bad, i)
-                else:
-                    b = A.inverse() @ rhs
-                    Bxx = b[0]
-                    Byy = b[1]
-                    Bxy = b[2]
             Lg = ti.Matrix.identity(float, 2)
             if ti.static(with_gradient):
                 grad_one[i] = g1
@@ -537,6 +557,166 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
                 sG[i] = ti.Vector.zero(float, 2)
         s[i] = selfc
     return bad
+
+
+@ti.kernel
+def _decomposition_coeffs(kernel_id: ti.template(), pos: ti.types.ndarray(),
+                          mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
+                          offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
+                          adaptive: ti.template(), hs: ti.types.ndarray(),
+                          kind: ti.types.ndarray(), G3: ti.types.ndarray(), s3: ti.types.ndarray(),
+                          G2: ti.types.ndarray(), s2: ti.types.ndarray(), C: ti.types.ndarray(),
+                          sC: ti.types.ndarray()) -> (ti.i32, ti.i32, ti.i32):
+    """The default decomposition's three stencils from two passes over each row's
+    pairs (one for every sum, one for every coefficient), the values of
+    ``_gradient_coeffs`` and ``_laplacian_coeffs`` up to round-off:
+
+    ``G3`` the cubic gradient of the FLUID rows over FLUID sources (div v, curl v),
+    ``G2`` the quadratic gradient of the FLUID and BOUNDARY rows over every
+    particle (Neumann rows, d and r), ``C`` the corrected Laplacian of the FLUID
+    rows over every particle; the fallbacks are theirs (cubic -> quadratic ->
+    corrected; quadratic -> corrected).  The quadratic moments are the cubic
+    ones' leading 5 x 5 block plus the non-FLUID sources' share.  Returns the
+    largest singular row of each (-1 if none)."""
+    bad3 = -1
+    bad2 = -1
+    badL = -1
+    for i in range(n):
+        ki = kind[i]
+        s3[i] = ti.Vector.zero(float, 2)
+        s2[i] = ti.Vector.zero(float, 2)
+        sC[i] = 0.0
+        if ki != FLUID and ki != BOUNDARY:          # no rows: zero coefficients
+            for k in range(offsets[i], offsets[i + 1]):
+                G3[k] = ti.Vector.zero(float, 2)
+                G2[k] = ti.Vector.zero(float, 2)
+                C[k] = 0.0
+            continue
+        fluid_row = ki == FLUID
+        Hi = pair_support(adaptive, hs, i, i, H)      # the monomials' length scale
+        M3 = ti.Matrix.zero(float, 9, 9)   # cubic moments over FLUID sources (lower half)
+        Mb = ti.Matrix.zero(float, 5, 5)   # quadratic moments over the other sources
+        M = ti.Matrix.zero(float, 2, 2)    # the Laplacian's sums (_laplacian_coeffs)
+        u = ti.Matrix.zero(float, 3, 2)
+        P = ti.Matrix.zero(float, 3, 3)
+        Q = ti.Matrix.zero(float, 2, 3)
+        for k in range(offsets[i], offsets[i + 1]):
+            j = nbrs[k]
+            x = pos[j] - pos[i]
+            r = x.norm()
+            W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
+            V = mass[j] / rho[j]
+            p = _monomials(3, x / Hi)
+            c = V * W
+            if kind[j] == FLUID:
+                for a in ti.static(range(9)):
+                    for b in ti.static(range(a + 1)):
+                        M3[a, b] += c * (p[a] * p[b])
+            else:
+                for a in ti.static(range(5)):
+                    for b in ti.static(range(a + 1)):
+                        Mb[a, b] += c * (p[a] * p[b])
+            if fluid_row:
+                gw = -F * x
+                M += V * gw.outer_product(x)
+                q = ti.Vector([x[0] * x[0], x[1] * x[1], x[0] * x[1]])
+                e = x / r
+                ee = ti.Vector([e[0] * e[0], e[1] * e[1], e[0] * e[1]])
+                w = -2.0 * V * F
+                for a in ti.static(range(3)):
+                    for b in ti.static(range(2)):
+                        u[a, b] += V * q[a] * gw[b]
+                    for b in ti.static(range(3)):
+                        P[a, b] += w * q[a] * ee[b]
+                for a in ti.static(range(2)):
+                    for b in ti.static(range(3)):
+                        Q[a, b] += w * x[a] * ee[b]
+        # the divergence's cubic fit, else quadratic (the leading block), else linear
+        R3 = ti.Matrix.zero(float, 2, 9)
+        L3 = ti.Matrix.identity(float, 2)
+        linear3 = 0
+        if fluid_row:
+            Lc, ok3 = _cholesky_factor(3, M3)
+            if ok3:
+                R3 = _gradient_rows(3, Lc) / Hi
+            else:
+                M2f = ti.Matrix.zero(float, 5, 5)
+                for a in ti.static(range(5)):
+                    for b in ti.static(range(a + 1)):
+                        M2f[a, b] = M3[a, b]
+                Lq, okq = _cholesky_factor(2, M2f)
+                if okq:
+                    R2f = _gradient_rows(2, Lq) / Hi
+                    for a in ti.static(range(2)):
+                        for b in ti.static(range(5)):
+                            R3[a, b] = R2f[a, b]
+                else:
+                    Mc = _correction_matrix(kernel_id, i, pos, mass, rho, offsets, nbrs, H,
+                                            adaptive, hs, kind, ti.static(1 << int(FLUID)))
+                    if _sym2_eig_ratio(Mc[0, 0], Mc[0, 1], Mc[1, 1]) < SINGULAR_RATIO:
+                        ti.atomic_max(bad3, i)
+                    else:
+                        L3 = Mc.inverse()
+                        linear3 = 1
+        # the Neumann rows' quadratic fit over every particle, else linear
+        M2 = ti.Matrix.zero(float, 5, 5)
+        for a in ti.static(range(5)):
+            for b in ti.static(range(a + 1)):
+                M2[a, b] = M3[a, b] + Mb[a, b]
+        R2 = ti.Matrix.zero(float, 2, 5)
+        L2 = ti.Matrix.identity(float, 2)
+        linear2 = 0
+        L2f, ok2 = _cholesky_factor(2, M2)
+        if ok2:
+            R2 = _gradient_rows(2, L2f) / Hi
+        else:
+            Mc = _correction_matrix(kernel_id, i, pos, mass, rho, offsets, nbrs, H, adaptive, hs,
+                                    kind, ti.static(kind_bits(ALL_KINDS)))
+            if _sym2_eig_ratio(Mc[0, 0], Mc[0, 1], Mc[1, 1]) < SINGULAR_RATIO:
+                ti.atomic_max(bad2, i)
+            else:
+                L2 = Mc.inverse()
+                linear2 = 1
+        # the Laplacian (two passes: sigma from Q, as _laplacian_coeffs)
+        beta = ti.Vector.zero(float, 2)
+        Bxx = 0.0
+        Byy = 0.0
+        Bxy = 0.0
+        if fluid_row:
+            Linv, bxx, byy, bxy, okL = _laplacian_correction(M, u, P, Q)
+            if not okL:
+                ti.atomic_max(badL, i)
+            Bxx = bxx
+            Byy = byy
+            Bxy = bxy
+            beta = Linv.transpose() @ (Q @ ti.Vector([Bxx, Byy, 2.0 * Bxy]))
+        for k in range(offsets[i], offsets[i + 1]):
+            j = nbrs[k]
+            x = pos[j] - pos[i]
+            r = x.norm()
+            W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
+            V = mass[j] / rho[j]
+            p = _monomials(3, x / Hi)
+            gw = F * (-x)                       # grad_i W_ij = F x_ij
+            g3 = ti.Vector.zero(float, 2)
+            if fluid_row and kind[j] == FLUID:
+                if linear3:
+                    g3 = V * (L3 @ gw)
+                else:
+                    g3 = (V * W) * (R3 @ p)
+            G3[k] = g3
+            if linear2:
+                G2[k] = V * (L2 @ gw)
+            else:
+                p2 = ti.Vector([p[0], p[1], p[2], p[3], p[4]])
+                G2[k] = (V * W) * (R2 @ p2)
+            cl = 0.0
+            if fluid_row:
+                e = x / r
+                cl = V * F * (beta.dot(x) - 2.0 * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
+                                                   + 2.0 * Bxy * e[0] * e[1]))
+            C[k] = cl
+    return bad3, bad2, badL
 
 
 @ti.kernel
@@ -823,6 +1003,28 @@ class Operators:
                     LaplacianStencil(Cw, s, variant, rows, sources),
                     GradientStencil(Gw, sG, variant, rows, sources))
         return lap
+
+    def decomposition_coefficients(self):
+        """The default decomposition's three stencils from one kernel
+        (``_decomposition_coeffs``): ``(divergence, gradient, laplacian)``, what
+        ``gradient_coefficients("cubic", (FLUID,), (FLUID,))``,
+        ``gradient_coefficients("quadratic", (FLUID, BOUNDARY))`` and
+        ``laplacian_coefficients("corrected", (FLUID,))`` give, up to round-off."""
+        p = self.particles
+        real = runtime.real_dtype()
+        npairs, size = max(self.pairs.n_pairs, 1), max(p.n, 1)
+        G3, G2 = (ti.Vector.ndarray(2, real, shape=(npairs,)) for _ in range(2))
+        s3, s2 = (ti.Vector.ndarray(2, real, shape=(size,)) for _ in range(2))
+        C = ti.ndarray(real, shape=(npairs,))
+        sC = ti.ndarray(real, shape=(size,))
+        bad = _decomposition_coeffs(self.kernel_id, p.position, p.mass, p.density, p.n,
+                                    *self._pair_args(), *self.support_args(), p.kind,
+                                    G3, s3, G2, s2, C, sC)
+        for what, b in zip(("cubic gradient", "quadratic gradient", "corrected Laplacian"), bad):
+            self._check_bad(what, b)
+        return (GradientStencil(G3, s3, "cubic", (FLUID,), (FLUID,)),
+                GradientStencil(G2, s2, "quadratic", (FLUID, BOUNDARY), ALL_KINDS),
+                LaplacianStencil(C, sC, "corrected", (FLUID,), ALL_KINDS))
 
     def density_weighted(self, st: LaplacianStencil, into=None) -> LaplacianStencil:
         """A copy of a difference-form Laplacian's coefficients times
