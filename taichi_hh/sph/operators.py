@@ -777,6 +777,43 @@ def _apply_divergence(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.nda
 
 
 @ti.kernel
+def _apply_divergence_curl(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                           G: ti.types.ndarray(), s: ti.types.ndarray(), v: ti.types.ndarray(),
+                           out: ti.types.ndarray()):
+    """out_i = (div v_i, curl v_i) in one pass over the pairs: the values of
+    ``_apply_divergence`` with rotate 0 and 1."""
+    for i in range(n):
+        vi = v[i]
+        ri = ti.Vector([vi[1], -vi[0]])
+        acc = s[i].dot(vi)
+        rot = s[i].dot(ri)
+        for k in range(offsets[i], offsets[i + 1]):
+            vj = v[nbrs[k]]
+            rj = ti.Vector([vj[1], -vj[0]])
+            acc += G[k].dot(vj - vi)
+            rot += G[k].dot(rj - ri)
+        out[i] = ti.Vector([acc, rot])
+
+
+@ti.kernel
+def _apply_gradient_pair(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                         G: ti.types.ndarray(), s: ti.types.ndarray(), f: ti.types.ndarray(),
+                         out_a: ti.types.ndarray(), out_b: ti.types.ndarray()):
+    """The gradients of two scalar fields (the columns of ``f``) in one pass over
+    the pairs: the values of ``_apply_difference_stencil`` on each."""
+    for i in range(n):
+        fi = f[i]
+        acc_a = s[i] * fi[0]
+        acc_b = s[i] * fi[1]
+        for k in range(offsets[i], offsets[i + 1]):
+            fj = f[nbrs[k]]
+            acc_a += G[k] * (fj[0] - fi[0])
+            acc_b += G[k] * (fj[1] - fi[1])
+        out_a[i] = acc_a
+        out_b[i] = acc_b
+
+
+@ti.kernel
 def _laplacian_diagonal(n: ti.i32, offsets: ti.types.ndarray(), C: ti.types.ndarray(),
                         s: ti.types.ndarray(), out: ti.types.ndarray()):
     for i in range(n):
@@ -1051,6 +1088,15 @@ class Operators:
 
     def curl(self, st: GradientStencil, v, out) -> None:
         _apply_divergence(self.n, *self._pair_args(), st.G, st.s, v, 1, out)
+
+    def divergence_and_curl(self, st: GradientStencil, v, out) -> None:
+        """``out`` (2-vectors): (div v, curl v), one pass for both."""
+        _apply_divergence_curl(self.n, *self._pair_args(), st.G, st.s, v, out)
+
+    def gradients(self, st: GradientStencil, f2, out_a, out_b) -> None:
+        """The gradients of the two columns of ``f2`` (2-vectors) into ``out_a``,
+        ``out_b``, one pass for both."""
+        _apply_gradient_pair(self.n, *self._pair_args(), st.G, st.s, f2, out_a, out_b)
 
     def laplacian(self, st: LaplacianStencil, f, out) -> None:
         _apply_difference_stencil(self.n, *self._pair_args(), st.C, st.s, f, out)
