@@ -100,8 +100,12 @@ class PointSet:
             supports = adaptive_supports(allpts, support_ratio, int(support_neighbours),
                                          self.area, boundary=slice(n, n + nb))
             self.support = float(supports.max())
-        self.grid = bin_particles(p, GridSpec.covering(allpts.min(axis=0), allpts.max(axis=0),
-                                                       self.support))
+        if supports is None:
+            spec = GridSpec.covering(allpts.min(axis=0), allpts.max(axis=0), self.support)
+        else:       # cells narrower than the largest support (sph.support)
+            from .support import adaptive_grid_spec
+            spec = adaptive_grid_spec(allpts, supports)
+        self.grid = bin_particles(p, spec)
         self.pairs = PairList()
         hs = None
         if supports is not None:
@@ -109,10 +113,14 @@ class PointSet:
             hs.from_numpy(np.resize(supports[p.get("original_index")],
                                     max(p.n, 1)).astype(runtime.np_real()))
         self.supports = supports[:n] if supports is not None else np.full(n, self.support)
+        tolerance = DUPLICATE_FRACTION * self.spacing
         try:
-            self.pairs.build(p.position, p.n, p.position, self.grid, self.support,
-                             duplicate_tolerance=DUPLICATE_FRACTION * self.spacing,
-                             supports=None if hs is None else (hs, hs))
+            if hs is None:
+                self.pairs.build(p.position, p.n, p.position, self.grid, self.support,
+                                 duplicate_tolerance=tolerance)
+            else:
+                from .support import adaptive_pairs
+                adaptive_pairs(self.pairs, p, self.grid, hs, duplicate_tolerance=tolerance)
         except InputError as exc:
             if getattr(self.pairs, "duplicate_query", None) is None:
                 raise

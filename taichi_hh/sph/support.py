@@ -26,7 +26,9 @@ import math
 import numpy as np
 import taichi as ti
 
+from .. import runtime
 from ..errors import InputError
+from .neighbors import cell_coords
 
 #: default number of nearest neighbours of the local spacing estimate
 #: (docs/notes/scattered.md)
@@ -77,3 +79,146 @@ def adaptive_supports(points: np.ndarray, support_ratio: float, neighbours: int,
     if boundary is not None:
         h[boundary] *= BOUNDARY_SUPPORT_SCALE
     return h
+
+
+# ---------------------------------------------------------------------------
+# Pair list for adaptive supports
+#
+# With one support a 3 x 3 block of cells as wide as the support holds every
+# neighbour; with adaptive supports those cells must be as wide as the largest
+# support (boundary samples', sparse patches'), and each query then tests many
+# times the candidates it keeps (clusters: ~10x).  Instead the particles are
+# binned in cells a fraction of the median support wide, and each query scans
+# the block of cells its own reach needs: the larger of its support and the
+# largest support that can reach its cell from any cell around (``reach``).
+
+#: cells per median support of the adaptive pair search
+CELLS_PER_SUPPORT = 2.0
+#: supports are rounded up by this much before they become cell counts:
+#: a pair closer than its support never lands a cell farther through rounding
+_PAD = 1.0 + 1e-9
+
+
+@ti.kernel
+def _cell_reach(cell_start: ti.types.ndarray(), hs: ti.types.ndarray(), nx: ti.i32, ny: ti.i32,
+                inv_cell: float, k_max: ti.i32, cmax: ti.types.ndarray(),
+                reach: ti.types.ndarray()):
+    """reach[c]: the largest support of a particle whose support can cover a point
+    of cell c (the particles of the cells within that support's cell count)."""
+    for c in range(nx * ny):
+        m = 0.0
+        for k in range(cell_start[c], cell_start[c + 1]):
+            m = ti.max(m, hs[k])
+        cmax[c] = m
+    for c in range(nx * ny):
+        cy = c // nx
+        cx = c - cy * nx
+        r = 0.0
+        for gy in range(ti.max(cy - k_max, 0), ti.min(cy + k_max, ny - 1) + 1):
+            for gx in range(ti.max(cx - k_max, 0), ti.min(cx + k_max, nx - 1) + 1):
+                h = cmax[gy * nx + gx]
+                kc = ti.cast(ti.ceil(h * _PAD * inv_cell), ti.i32)
+                if ti.abs(gx - cx) <= kc and ti.abs(gy - cy) <= kc:
+                    r = ti.max(r, h)
+        reach[c] = r
+
+
+@ti.func
+def _block(p, hi, reach: ti.template(), lo_x, lo_y, inv_cell, nx, ny):
+    """The block of cells a query at p with support hi scans: (x0, x1, y0, y1)."""
+    cx, cy = cell_coords(p, lo_x, lo_y, inv_cell, nx, ny)
+    r = ti.max(hi, reach[cy * nx + cx])
+    k = ti.cast(ti.ceil(r * _PAD * inv_cell), ti.i32)
+    return ti.max(cx - k, 0), ti.min(cx + k, nx - 1), ti.max(cy - k, 0), ti.min(cy + k, ny - 1)
+
+
+@ti.kernel
+def _count_adaptive(pos: ti.types.ndarray(), n: ti.i32, hs: ti.types.ndarray(),
+                    cell_start: ti.types.ndarray(), reach: ti.types.ndarray(), lo_x: float,
+                    lo_y: float, inv_cell: float, nx: ti.i32, ny: ti.i32,
+                    count: ti.types.ndarray(), dup_tol2: float, dup: ti.types.ndarray()):
+    for i in range(n):
+        p = pos[i]
+        hi = hs[i]
+        x0, x1, y0, y1 = _block(p, hi, reach, lo_x, lo_y, inv_cell, nx, ny)
+        k = 0
+        ndup = 0
+        for gy in range(y0, y1 + 1):
+            row = gy * nx
+            for j in range(cell_start[row + x0], cell_start[row + x1 + 1]):
+                d = pos[j] - p
+                r2 = d.dot(d)
+                h = ti.max(hi, hs[j])
+                ok = (r2 < h * h) & (j != i)
+                k += ti.select(ok, 1, 0)
+                ndup += ti.select(ok & (r2 <= dup_tol2), 1, 0)
+        if ndup > 0:
+            ti.atomic_max(dup[0], i)
+        count[i] = k
+
+
+@ti.kernel
+def _fill_adaptive(pos: ti.types.ndarray(), n: ti.i32, hs: ti.types.ndarray(),
+                   cell_start: ti.types.ndarray(), reach: ti.types.ndarray(), lo_x: float,
+                   lo_y: float, inv_cell: float, nx: ti.i32, ny: ti.i32,
+                   offsets: ti.types.ndarray(), nbrs: ti.types.ndarray()):
+    # rows come out sorted by slot: cell rows in increasing order, each one
+    # contiguous run of slots (the particles are sorted by cell)
+    for i in range(n):
+        p = pos[i]
+        hi = hs[i]
+        x0, x1, y0, y1 = _block(p, hi, reach, lo_x, lo_y, inv_cell, nx, ny)
+        k = offsets[i]
+        for gy in range(y0, y1 + 1):
+            row = gy * nx
+            for j in range(cell_start[row + x0], cell_start[row + x1 + 1]):
+                d = pos[j] - p
+                h = ti.max(hi, hs[j])
+                if (d.dot(d) < h * h) & (j != i):
+                    nbrs[k] = j
+                    k += 1
+
+
+def adaptive_grid_spec(points: np.ndarray, supports: np.ndarray):
+    """The binning grid of :func:`adaptive_pairs`: cells of the median support
+    over :data:`CELLS_PER_SUPPORT` covering ``points``."""
+    from .neighbors import GridSpec
+    cell = float(np.median(supports)) / CELLS_PER_SUPPORT
+    return GridSpec.covering(points.min(axis=0), points.max(axis=0), cell)
+
+
+def adaptive_pairs(pairs, particles, grid, hs, duplicate_tolerance: float = 0.0):
+    """Fill ``pairs`` (a new :class:`~taichi_hh.sph.neighbors.PairList`) with the
+    pairs of ``particles`` (binned by ``grid``, of :func:`adaptive_grid_spec`)
+    under the per-slot supports ``hs``: pair (i, j) when |x_i - x_j| < max(H_i,
+    H_j), rows sorted by slot: the rows ``PairList.build`` gives for the same
+    slots.  Pairs closer than ``duplicate_tolerance`` raise :class:`InputError`
+    (``pairs.duplicate_query`` then names the query, as ``build`` does)."""
+    from .neighbors import exclusive_scan
+    s = grid.spec
+    n = particles.n
+    h_max = float(hs.to_numpy()[:n].max()) if n else 0.0
+    k_max = int(math.ceil(h_max * _PAD / s.cell_size))
+    cmax = ti.ndarray(runtime.real_dtype(), shape=(s.ncells,))
+    reach = ti.ndarray(runtime.real_dtype(), shape=(s.ncells,))
+    _cell_reach(grid.cell_start, hs, s.nx, s.ny, s.inv_cell, k_max, cmax, reach)
+    count = ti.ndarray(ti.i32, shape=(n + 1,))
+    offsets = ti.ndarray(ti.i32, shape=(n + 1,))
+    dup = ti.ndarray(ti.i32, shape=(1,))
+    dup.fill(-1)
+    tol2 = duplicate_tolerance ** 2 if duplicate_tolerance > 0 else -1.0
+    args = (s.lo_x, s.lo_y, s.inv_cell, s.nx, s.ny)
+    _count_adaptive(particles.position, n, hs, grid.cell_start, reach, *args, count, tol2, dup)
+    total = exclusive_scan(count, offsets, n)
+    if total > 2**31 - 1:
+        raise InputError(f"{total} neighbour pairs exceed the 2^31 limit of one pair list: "
+                         "reduce the kernel support or split the points")
+    d = int(dup.to_numpy()[0])
+    if d >= 0:
+        pairs.duplicate_query = d
+        raise InputError(f"duplicate points: query point {d} has a neighbour closer than "
+                         f"{duplicate_tolerance:g}")
+    nbrs = ti.ndarray(ti.i32, shape=(max(int(total), 1),))
+    _fill_adaptive(particles.position, n, hs, grid.cell_start, reach, *args, offsets, nbrs)
+    pairs.offsets, pairs.neighbours = offsets, nbrs
+    pairs.n_queries, pairs.n_pairs = n, int(total)
