@@ -607,15 +607,15 @@ def _decomposition_coeffs(kernel_id: ti.template(), pos: ti.types.ndarray(),
             W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
             V = mass[j] / rho[j]
             p = _monomials(3, x / Hi)
-            c = V * W
+            cp = (V * W) * p                    # one multiply-add per moment below
             if kind[j] == FLUID:
                 for a in ti.static(range(9)):
                     for b in ti.static(range(a + 1)):
-                        M3[a, b] += c * (p[a] * p[b])
+                        M3[a, b] += cp[a] * p[b]
             else:
                 for a in ti.static(range(5)):
                     for b in ti.static(range(a + 1)):
-                        Mb[a, b] += c * (p[a] * p[b])
+                        Mb[a, b] += cp[a] * p[b]
             if fluid_row:
                 gw = -F * x
                 M += V * gw.outer_product(x)
