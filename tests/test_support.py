@@ -56,12 +56,16 @@ def test_uniform_lattice_gets_the_fixed_support():
     np.testing.assert_allclose(h[interior], 2.5 * 2 * dx * math.sqrt(math.pi / 12), rtol=1e-9)
 
 
-@pytest.mark.parametrize("sampling", ["gradient", "clusters"])
+@pytest.mark.parametrize("sampling", ["gradient", "clusters", "far"])
 def test_pairs_follow_the_max_rule(sampling):
     """Every pair closer than the larger of its supports, and no other, boundary
     samples (larger supports) included; rows sorted by slot (the reverse index
     bisects them)."""
-    pts = layouts.sample(UNIT, 1200, sampling, seed=2)
+    if sampling == "far":           # a tiny dense cluster and a few far points
+        rng = np.random.default_rng(4)
+        pts = np.vstack([0.5 + 1e-3 * rng.standard_normal((1190, 2)), rng.random((10, 2))])
+    else:
+        pts = layouts.sample(UNIT, 1200, sampling, seed=2)
     bpts, bnrm, _ = UNIT.sample_boundary(1 / math.sqrt(1200))
     ps = PointSet(pts, area=1.0, support_ratio=2.5, support_neighbours=12,
                   boundary=(bpts, bnrm))

@@ -94,6 +94,11 @@ def adaptive_supports(points: np.ndarray, support_ratio: float, neighbours: int,
 
 #: cells per median support of the adaptive pair search
 CELLS_PER_SUPPORT = 2.0
+#: but never more cells per largest support than this (the reach of each cell
+#: gathers over that many cells around it), nor more cells than this many per
+#: particle (points in a tiny cluster and a few far away)
+MAX_CELLS_PER_LARGEST = 8.0
+MAX_CELLS_PER_PARTICLE = 4.0
 #: supports are rounded up by this much before they become cell counts:
 #: a pair closer than its support never lands a cell farther through rounding
 _PAD = 1.0 + 1e-9
@@ -181,10 +186,15 @@ def _fill_adaptive(pos: ti.types.ndarray(), n: ti.i32, hs: ti.types.ndarray(),
 
 def adaptive_grid_spec(points: np.ndarray, supports: np.ndarray):
     """The binning grid of :func:`adaptive_pairs`: cells of the median support
-    over :data:`CELLS_PER_SUPPORT` covering ``points``."""
+    over :data:`CELLS_PER_SUPPORT` covering ``points``, widened where the
+    supports or the points' extent would make too many (module constants)."""
     from .neighbors import GridSpec
-    cell = float(np.median(supports)) / CELLS_PER_SUPPORT
-    return GridSpec.covering(points.min(axis=0), points.max(axis=0), cell)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    area = float(np.prod(hi - lo + float(supports.max())))
+    cell = max(float(np.median(supports)) / CELLS_PER_SUPPORT,
+               float(supports.max()) / MAX_CELLS_PER_LARGEST,
+               math.sqrt(area / (MAX_CELLS_PER_PARTICLE * len(points))))
+    return GridSpec.covering(lo, hi, cell)
 
 
 def adaptive_pairs(pairs, particles, grid, hs, duplicate_tolerance: float = 0.0):
