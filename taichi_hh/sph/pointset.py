@@ -155,15 +155,14 @@ class PointSet:
 
     # ---- slot <-> caller order ---------------------------------------------------
     def new_array(self, ncomp: int = 1):
-        """A zeroed Taichi array with one entry per particle slot."""
+        """A zeroed Taichi array with one entry per particle slot (Taichi
+        zero-fills every new ndarray: no fill pass, which for vectors is a
+        kernel launch of its own)."""
         real = runtime.real_dtype()
         size = max(self.n_total, 1)
         if ncomp == 1:
-            nd = ti.ndarray(real, shape=(size,))
-        else:
-            nd = ti.Vector.ndarray(ncomp, real, shape=(size,))
-        nd.fill(0)
-        return nd
+            return ti.ndarray(real, shape=(size,))
+        return ti.Vector.ndarray(ncomp, real, shape=(size,))
 
     def upload(self, values):
         """Data-point values (caller order) -> Taichi array in slot order
