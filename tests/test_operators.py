@@ -296,3 +296,36 @@ def test_quadratic_gradient_falls_back_to_linear_where_a_quadratic_is_undetermin
     lone = np.vstack([pts, [[1.05, 0.95]]])
     with pytest.raises(thh.NeighbourError, match="singular"):
         thh.PointSet(lone, area=1.0, support=1.05 * dx).gradient(lone[:, 0], "quadratic")
+
+
+@pytest.mark.parametrize("corner", [False, True])
+def test_decomposition_coefficients_match_the_separate_stencils(corner):
+    """The default decomposition's fused kernel gives the three stencils of the
+    separate kernels (cubic divergence over the data, quadratic Neumann gradient,
+    corrected Laplacian) up to round-off, boundary rows, adaptive supports and
+    (``corner``: a lattice whose corner particles have 7 neighbours, too few for
+    the cubic fit, which falls back to the quadratic) the fallbacks included."""
+    from taichi_hh.geometry.domain import Box
+    from taichi_hh.sph.particles import BOUNDARY, FLUID
+    rng = np.random.default_rng(5)
+    if corner:
+        pts, dx = lattice(10)
+        ps = thh.PointSet(pts, area=1.0, support=2.5 * dx)
+        assert ps.neighbour_counts.min() == 7
+    else:
+        pts = rng.random((1500, 2))
+        bpts, bnrm, _ = Box((0, 0), (1, 1)).sample_boundary(1 / np.sqrt(1500))
+        ps = thh.PointSet(pts, area=1.0, support_ratio=3.5, support_neighbours=12,
+                          boundary=(bpts, bnrm))
+    ops = ps.ops
+    fused = ops.decomposition_coefficients()
+    separate = (ops.gradient_coefficients("cubic", row_kinds=(FLUID,), source_kinds=(FLUID,)),
+                ops.gradient_coefficients("quadratic", row_kinds=(FLUID, BOUNDARY)),
+                ops.laplacian_coefficients("corrected", row_kinds=(FLUID,)))
+    for a, b in zip(fused, separate):
+        assert (a.variant, a.row_kinds, a.source_kinds) == (b.variant, b.row_kinds, b.source_kinds)
+        ca, cb = (a.G, b.G) if hasattr(a, "G") else (a.C, b.C)
+        x = ca.to_numpy()[: ps.pairs.n_pairs]
+        y = cb.to_numpy()[: ps.pairs.n_pairs]
+        assert np.abs(x - y).max() <= 1e-10 * np.abs(y).max()
+        assert np.array_equal(a.s.to_numpy(), b.s.to_numpy())

@@ -56,18 +56,31 @@ def test_uniform_lattice_gets_the_fixed_support():
     np.testing.assert_allclose(h[interior], 2.5 * 2 * dx * math.sqrt(math.pi / 12), rtol=1e-9)
 
 
-def test_pairs_follow_the_max_rule():
-    pts = layouts.sample(UNIT, 1200, "gradient", seed=2)
-    ps = PointSet(pts, area=1.0, support_ratio=2.5, support_neighbours=12)
-    h = ps.supports
-    d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2)
-    want = (d < np.maximum(h[:, None], h[None, :])) & ~np.eye(len(pts), dtype=bool)
+@pytest.mark.parametrize("sampling", ["gradient", "clusters", "far"])
+def test_pairs_follow_the_max_rule(sampling):
+    """Every pair closer than the larger of its supports, and no other, boundary
+    samples (larger supports) included; rows sorted by slot (the reverse index
+    bisects them)."""
+    if sampling == "far":           # a tiny dense cluster and a few far points
+        rng = np.random.default_rng(4)
+        pts = np.vstack([0.5 + 1e-3 * rng.standard_normal((1190, 2)), rng.random((10, 2))])
+    else:
+        pts = layouts.sample(UNIT, 1200, sampling, seed=2)
+    bpts, bnrm, _ = UNIT.sample_boundary(1 / math.sqrt(1200))
+    ps = PointSet(pts, area=1.0, support_ratio=2.5, support_neighbours=12,
+                  boundary=(bpts, bnrm))
+    allpts = np.vstack([pts, bpts])
+    h = ps.ops.supports.to_numpy()[: ps.n_total][ps.slot_of_all]     # input order
+    d = np.linalg.norm(allpts[:, None, :] - allpts[None, :, :], axis=2)
+    want = (d < np.maximum(h[:, None], h[None, :])) & ~np.eye(len(allpts), dtype=bool)
     off, nb = ps.pairs.to_numpy()
     got = np.zeros_like(want)
     rows = np.repeat(np.arange(ps.n_total), np.diff(off))
     orig = ps.particles.get("original_index")
     got[orig[rows], orig[nb]] = True
     assert np.array_equal(got, want)
+    assert np.all(np.diff(nb)[np.diff(rows) == 0] > 0)
+    ps.pairs.reverse_index()            # raises if the relation were not symmetric
     # every point keeps at least its k nearest neighbours
     assert ps.neighbour_counts.min() >= 12
 

@@ -168,13 +168,17 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
         div_sources = (FLUID, GHOST)
     else:
         div_sources = (FLUID,)
-    st_div = ops.gradient_coefficients(opts.divergence, row_kinds=(FLUID,),
-                                       source_kinds=div_sources)
-    div_nd, curl_nd = ps.new_array(1), ps.new_array(1)
-    ops.divergence(st_div, v_nd, div_nd)
-    ops.curl(st_div, v_nd, curl_nd)
-    div_slots = div_nd.to_numpy()[: ps.n_total].astype(np.float64)
-    curl_slots = curl_nd.to_numpy()[: ps.n_total].astype(np.float64)
+    st_neumann = st_lap = None
+    if _default_stencils(opts):
+        # the three stencils of the default from one kernel (two passes over the pairs)
+        st_div, st_neumann, st_lap = ops.decomposition_coefficients()
+    else:
+        st_div = ops.gradient_coefficients(opts.divergence, row_kinds=(FLUID,),
+                                           source_kinds=div_sources)
+    dc_nd = ps.new_array(2)
+    ops.divergence_and_curl(st_div, v_nd, dc_nd)
+    dc = dc_nd.to_numpy()[: ps.n_total].astype(np.float64)
+    div_slots, curl_slots = dc[:, 0].copy(), dc[:, 1].copy()
     fluid = kind == FLUID
     div_slots[~fluid] = 0.0
     curl_slots[~fluid] = 0.0
@@ -192,7 +196,8 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
         t = time.perf_counter()
         # normal-parallel: Dirichlet rows, a regular problem, nothing to border
         dirichlet = opts.boundary_condition == "normal-parallel"
-        A = PoissonMatrix(ops, laplacian=opts.laplacian, gradient=opts.neumann_gradient,
+        A = PoissonMatrix(ops, laplacian=opts.laplacian if st_lap is None else st_lap,
+                          gradient=opts.neumann_gradient if st_neumann is None else st_neumann,
                           kappa=opts.kappa, near=near, bordered=opts.bordered and not dirichlet,
                           dirichlet=dirichlet)
         seconds["assemble"] = time.perf_counter() - t
@@ -202,6 +207,15 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
              "mean_neighbours": float(ps.neighbour_counts.mean())}
     return PoissonProblems(opts, pts, ps, A, {"phi": div_slots, "psi": -curl_slots}, vec, kind,
                            seconds, stats, domain, st_div)
+
+
+def _default_stencils(opts: HHDOptions) -> bool:
+    """Whether the operators are the default's (cubic divergence over the data
+    points, quadratic Neumann gradient, corrected Laplacian), which
+    :meth:`~taichi_hh.sph.operators.Operators.decomposition_coefficients`
+    computes in one kernel."""
+    return (opts.divergence == "cubic" and opts.neumann_gradient == "quadratic"
+            and opts.laplacian == "corrected" and opts.boundary != "petronetto")
 
 
 def decompose(points, vectors, domain=None, *, method: str = "default", progress=None,
@@ -252,7 +266,7 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
             st_grad = A.grad        # the Neumann rows' gradient: the same fit at the data points
         else:
             st_grad = ps.ops.gradient_coefficients(opts.gradient, row_kinds=(FLUID,))
-        d, grad_psi = (_gradient(ps, st_grad, potentials[k]) for k in ("phi", "psi"))
+        d, grad_psi = _gradients(ps, st_grad, potentials["phi"], potentials["psi"])
         seconds["components"] = time.perf_counter() - t
     r = J(grad_psi)
     h = vec - d - r
@@ -286,13 +300,14 @@ def _solve_potentials(problems, say) -> dict:
     return potentials
 
 
-def _gradient(ps, st_grad, slots) -> np.ndarray:
-    """Step (e): the gradient (stencil ``st_grad``) of per-slot values at the data points."""
-    x_nd = ps.new_array(1)
-    x_nd.from_numpy(slots.astype(runtime.np_real()))
-    g_nd = ps.new_array(2)
-    ps.ops.gradient(st_grad, x_nd, g_nd)
-    return ps.download(g_nd)
+def _gradients(ps, st_grad, a, b) -> tuple:
+    """Step (e): the gradients (stencil ``st_grad``) of two per-slot fields at the
+    data points, one pass over the pairs."""
+    f_nd = ps.new_array(2)
+    f_nd.from_numpy(np.stack([a, b], axis=1).astype(runtime.np_real()))
+    ga, gb = ps.new_array(2), ps.new_array(2)
+    ps.ops.gradients(st_grad, f_nd, ga, gb)
+    return ps.download(ga), ps.download(gb)
 
 
 #: h with mean |div h| or |curl h| above this fraction of the field's mean
@@ -305,11 +320,10 @@ HARMONIC_LIMIT = 0.5
 
 def _divergence_curl(ps, st, w):
     """div w and curl w at the data points by the stencil ``st``."""
-    w_nd, out = ps.upload(w), ps.new_array(1)
-    ps.ops.divergence(st, w_nd, out)
-    div = ps.download(out)
-    ps.ops.curl(st, w_nd, out)
-    return div, ps.download(out)
+    out = ps.new_array(2)
+    ps.ops.divergence_and_curl(st, ps.upload(w), out)
+    dc = ps.download(out)
+    return dc[:, 0], dc[:, 1]
 
 
 def _check_harmonic(stats, problems, h) -> None:

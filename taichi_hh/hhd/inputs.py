@@ -1,10 +1,10 @@
 """Checks of the user's input to :func:`~taichi_hh.hhd.decompose.decompose`
 and :func:`~taichi_hh.hhd.project.project`."""
-from __future__ import annotations
 
 import warnings
 
 import numpy as np
+import taichi as ti
 
 from ..errors import AccuracyWarning, InputError
 from ..sph.pointset import check_points, check_values
@@ -57,24 +57,42 @@ def check_point_count(n: int, stats: dict, *, stacklevel: int = 3) -> None:
         warnings.warn(msg, AccuracyWarning, stacklevel=stacklevel)
 
 
+@ti.kernel
+def _rows_without_source(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                         kind: ti.types.ndarray(), row_kind: ti.i32, source_kind: ti.i32,
+                         first: ti.types.ndarray()) -> ti.i32:
+    """How many rows of kind ``row_kind`` have no neighbour of kind ``source_kind``;
+    ``first[0]``: the lowest such slot (left as it was when there is none)."""
+    count = 0
+    for i in range(n):
+        if kind[i] == row_kind:
+            found = 0
+            for k in range(offsets[i], offsets[i + 1]):
+                if kind[nbrs[k]] == source_kind:
+                    found = 1
+                    break
+            if found == 0:
+                count += 1
+                ti.atomic_min(first[0], i)
+    return count
+
+
 def check_data_reach_boundary(ps, boundary_kind: int, fluid_kind: int) -> None:
     """Boundary particles whose kernel support holds no data point mean that the
     data stop short of the domain's boundary by more than a support (the
     boundary rows would have no data to read).  Raises
     :class:`~taichi_hh.errors.InputError` saying where, and the remedy."""
-    off, nb = ps.pairs.to_numpy()
-    kind = ps.particles.get("kind")
-    rows = np.repeat(np.arange(ps.n_total), np.diff(off))
-    has_data = np.zeros(ps.n_total, dtype=bool)
-    has_data[rows[kind[nb] == fluid_kind]] = True
-    empty = np.flatnonzero((kind == boundary_kind) & ~has_data)
-    if empty.size == 0:
+    p = ps.particles
+    first = ti.ndarray(ti.i32, shape=(1,))
+    first.fill(ps.n_total)
+    n_empty = _rows_without_source(ps.n_total, ps.pairs.offsets, ps.pairs.neighbours, p.kind,
+                                   int(boundary_kind), int(fluid_kind), first)
+    if n_empty == 0:
         return
-    pos = ps.particles.get("position")
-    n_boundary = int((kind == boundary_kind).sum())
-    where = pos[empty[0]]
+    n_boundary = int((p.get("kind") == boundary_kind).sum())
+    where = p.get("position")[int(first.to_numpy()[0])]
     raise InputError(
-        f"the data do not reach the domain's boundary: {empty.size} of {n_boundary} boundary "
+        f"the data do not reach the domain's boundary: {n_empty} of {n_boundary} boundary "
         f"samples (first at ({where[0]:.4g}, {where[1]:.4g})) have no data point within the "
         f"kernel support ({ps.support:.3g} at most). Give the domain the data cover: "
         "domain='bbox' (the points' bounding box), domain='hull' (their convex hull), "

@@ -35,11 +35,12 @@ def _k_nearest(k: ti.template(), nq: ti.i32, qpos: ti.types.ndarray(), qorder: t
                spos: ti.types.ndarray(),
                order: ti.types.ndarray(), start: ti.types.ndarray(), lo_x: ti.f64, lo_y: ti.f64,
                inv_cell: ti.f64, cell: ti.f64, nx: ti.i32, ny: ti.i32,
-               dist: ti.types.ndarray(), idx: ti.types.ndarray()):
+               dist: ti.types.ndarray(), idx: ti.types.ndarray(), last_only: ti.template()):
     """dist[q, :], idx[q, :]: the k nearest of the sources ``spos`` (sorted by
     cell, ``order`` their input indices, ``start`` the cell offsets) to
     ``qpos[q]``, nearest first; the queries are visited in the order
-    ``qorder`` (by cell: neighbouring queries read the same sources)."""
+    ``qorder`` (by cell: neighbouring queries read the same sources).
+    last_only: dist[q, 0] is the k-th distance alone (``idx`` not written)."""
     for slot in range(nq):
         q = qorder[slot]
         p = qpos[q]
@@ -94,9 +95,12 @@ def _k_nearest(k: ti.template(), nq: ti.i32, qpos: ti.types.ndarray(), qorder: t
             if reach == ti.math.inf or best[k - 1] <= (reach * _SLACK) ** 2:
                 more = False
             ring += 1
-        for t in ti.static(range(k)):
-            dist[q, t] = ti.sqrt(best[t])
-            idx[q, t] = bid[t]
+        if ti.static(last_only):
+            dist[q, 0] = ti.sqrt(best[k - 1])
+        else:
+            for t in ti.static(range(k)):
+                dist[q, t] = ti.sqrt(best[t])
+                idx[q, t] = bid[t]
 
 
 class KNearest:
@@ -117,7 +121,7 @@ class KNearest:
         # binned in float64 whatever the runtime's precision: the kernel's
         # stopping test relies on every source lying in its cell
         cells = self.cells(pts)
-        order = np.argsort(cells, kind="stable")
+        order = self._order = np.argsort(cells, kind="stable")
         start = np.zeros(self.spec.ncells + 1, dtype=np.int32)
         np.cumsum(np.bincount(cells, minlength=self.spec.ncells), out=start[1:])
         self.order = ti.ndarray(ti.i32, shape=(n,))
@@ -154,8 +158,35 @@ class KNearest:
         idx = ti.ndarray(ti.i32, shape=(nq, k))
         s = self.spec
         _k_nearest(k, nq, qpos, qorder, self.pos, self.order, self.start, s.lo_x, s.lo_y, s.inv_cell,
-                   s.cell_size, s.nx, s.ny, dist, idx)
+                   s.cell_size, s.nx, s.ny, dist, idx, False)
         return dist.to_numpy(), idx.to_numpy().astype(np.int64)
+
+    def kth_distance_among(self, k: int) -> np.ndarray:
+        """Distance from every source point to its k-th nearest other source
+        point (input order): the (k+1)-th nearest source, the point itself
+        (distance 0) being among them.  Only the distances leave the kernel."""
+        if not 1 <= k + 1 <= min(self.n, MAX_K):
+            raise InputError(f"k-th nearest other point: k must be 1..{min(self.n, MAX_K) - 1} "
+                             f"({self.n} points), got {k}")
+        # the sources are their own queries, already sorted by cell: slot order
+        # is query order, and the sorted positions serve as the query positions
+        dist = ti.ndarray(ti.f64, shape=(self.n, 1))
+        s = self.spec
+        _k_nearest(k + 1, self.n, self.pos, self._slots(), self.pos, self.order, self.start,
+                   s.lo_x, s.lo_y, s.inv_cell, s.cell_size, s.nx, s.ny, dist, self._no_idx(),
+                   True)
+        out = np.empty(self.n)
+        out[self._order] = dist.to_numpy()[:, 0]
+        return out
+
+    def _slots(self):
+        slots = ti.ndarray(ti.i32, shape=(self.n,))
+        slots.from_numpy(np.arange(self.n, dtype=np.int32))
+        return slots
+
+    @staticmethod
+    def _no_idx():
+        return ti.ndarray(ti.i32, shape=(1, 1))
 
 
 def k_nearest(points, targets, k: int) -> tuple[np.ndarray, np.ndarray]:

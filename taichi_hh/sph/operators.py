@@ -206,6 +206,14 @@ def _mls_fit_rows(order: ti.template(), kernel_id: ti.template(), i, pos: ti.tem
         u = x / Hi
         p = _monomials(order, u)
         M += (mj / rho[j]) * W * p.outer_product(p)
+    return _cholesky_factor(order, M)
+
+
+@ti.func
+def _cholesky_factor(order: ti.template(), M):
+    """(L, ok): the Cholesky factor of the moment matrix M (monomials of ``order``);
+    ok is False when a pivot falls below SINGULAR_RATIO of the diagonal scale."""
+    m = ti.static(_n_monomials(order))
     scale = 0.0
     for a in ti.static(range(m)):
         scale = ti.max(scale, M[a, a])
@@ -242,6 +250,25 @@ def _cholesky_solve(order: ti.template(), Lf, rhs):
             acc -= Lf[c, a] * z[c]
         z[a] = acc / Lf[a, a]
     return z
+
+
+@ti.func
+def _gradient_rows(order: ti.template(), Lf):
+    """Rows 0-1 of M^-1 (M = Lf Lf^T symmetric: the solutions of M z = e_0, e_1),
+    the fitted gradient's weights per monomial: one solve per particle, so that
+    each pair's coefficient is two dot products."""
+    m = ti.static(_n_monomials(order))
+    e0 = ti.Vector.zero(float, m)
+    e1 = ti.Vector.zero(float, m)
+    e0[0] = 1.0
+    e1[1] = 1.0
+    z0 = _cholesky_solve(order, Lf, e0)
+    z1 = _cholesky_solve(order, Lf, e1)
+    R = ti.Matrix.zero(float, 2, m)
+    for a in ti.static(range(m)):
+        R[0, a] = z0[a]
+        R[1, a] = z1[a]
+    return R
 
 
 @ti.kernel
@@ -293,12 +320,22 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
             else:
                 L = M.inverse()
         gsum = ti.Vector.zero(float, 2)
+        # the fitted gradient's weights: rows 0-1 of M^-1, scaled by 1 / H_i
+        Hi = pair_support(adaptive, hs, i, i, H)
+        R2 = ti.Matrix.zero(float, 2, 5)
+        R3 = ti.Matrix.zero(float, 2, ti.static(9 if variant == GradientVariant.CUBIC else 1))
+        if ti.static(variant == GradientVariant.QUADRATIC or variant == GradientVariant.CUBIC):
+            if cubic:
+                if ti.static(variant == GradientVariant.CUBIC):
+                    R3 = _gradient_rows(3, Lc) / Hi
+            elif not linear:
+                R2 = _gradient_rows(2, Lf) / Hi
         for k in range(offsets[i], offsets[i + 1]):
             j = nbrs[k]
             mj = _src_mass(mass, kind, j, src_kinds)
             xij = pos[i] - pos[j]
             Hij = pair_support(adaptive, hs, i, j, H)
-            _W, F, _L = kernel_terms(kernel_id, xij.norm(), Hij)
+            W, F, _L = kernel_terms(kernel_id, xij.norm(), Hij)
             gw = F * xij
             coef = ti.Vector.zero(float, 2)
             if ti.static(variant == GradientVariant.BASIC or variant == GradientVariant.DIFFERENCE):
@@ -316,24 +353,53 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
                     coef = (mj / rho[j]) * (L @ gw)
                 else:
                     # rows 0-1 of M^-1 (V_j W_ij p_j) / H: the fitted gradient's weights
-                    W, _F2, _L2 = kernel_terms(kernel_id, xij.norm(), Hij)
-                    Hi = pair_support(adaptive, hs, i, i, H)
                     u = -xij / Hi
+                    c = (mj / rho[j]) * W
                     if ti.static(variant == GradientVariant.CUBIC):
                         if cubic:
-                            z3 = _cholesky_solve(3, Lc, (mj / rho[j]) * W * _monomials(3, u))
-                            coef = ti.Vector([z3[0], z3[1]]) / Hi
+                            coef = c * (R3 @ _monomials(3, u))
                         else:
-                            z = _cholesky_solve(2, Lf, (mj / rho[j]) * W * _monomials(2, u))
-                            coef = ti.Vector([z[0], z[1]]) / Hi
+                            coef = c * (R2 @ _monomials(2, u))
                     else:
-                        z = _cholesky_solve(2, Lf, (mj / rho[j]) * W * _monomials(2, u))
-                        coef = ti.Vector([z[0], z[1]]) / Hi
+                        coef = c * (R2 @ _monomials(2, u))
             G[k] = coef
             if ti.static(variant == GradientVariant.BASIC):
                 gsum += coef   # sum_j G f_j = sum_j G (f_j - f_i) + (sum_j G) f_i
         s[i] = gsum
     return bad
+
+
+@ti.func
+def _laplacian_correction(M, u, P, Q):
+    """(M^-1, Bxx, Byy, Bxy, ok) of the renormalised Laplacian from its first
+    pass's sums (``_laplacian_coeffs``): B makes the stencil exact on x^2, y^2,
+    xy; ok is False when M or the 3 x 3 system is singular."""
+    Linv = ti.Matrix.identity(float, 2)
+    Bxx = 1.0
+    Byy = 1.0
+    Bxy = 0.0
+    ok = True
+    if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
+        ok = False
+    else:
+        Linv = M.inverse()
+        A = ti.Matrix.zero(float, 3, 3)
+        for a in ti.static(range(3)):
+            g = Linv @ ti.Vector([u[a, 0], u[a, 1]])
+            for b in ti.static(range(3)):
+                t = P[a, b] - g[0] * Q[0, b] - g[1] * Q[1, b]
+                A[a, b] = t * (2.0 if b == 2 else 1.0)
+        rhs = ti.Vector([2.0, 2.0, 0.0])   # traces of the Hessians of x^2, y^2, xy
+        scale = ti.abs(A).max()
+        det = A.determinant()
+        if scale == 0.0 or ti.abs(det) < 1e-9 * scale * scale * scale:
+            ok = False
+        else:
+            b = A.inverse() @ rhs
+            Bxx = b[0]
+            Byy = b[1]
+            Bxy = b[2]
+    return Linv, Bxx, Byy, Bxy, ok
 
 
 @ti.kernel
@@ -435,30 +501,9 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
                 for a in ti.static(range(2)):
                     for b in ti.static(range(3)):
                         Q[a, b] += w * x[a] * ee[b]
-            Linv = ti.Matrix.identity(float, 2)
-            Bxx = 1.0
-            Byy = 1.0
-            Bxy = 0.0
-            if _sym2_eig_ratio(M[0, 0], M[0, 1], M[1, 1]) < SINGULAR_RATIO:
+            Linv, Bxx, Byy, Bxy, ok = _laplacian_correction(M, u, P, Q)
+            if not ok:
                 ti.atomic_max(bad, i)
-            else:
-                Linv = M.inverse()
-                A = ti.Matrix.zero(float, 3, 3)
-                for a in ti.static(range(3)):
-                    g = Linv @ ti.Vector([u[a, 0], u[a, 1]])
-                    for b in ti.static(range(3)):
-                        t = P[a, b] - g[0] * Q[0, b] - g[1] * Q[1, b]
-                        A[a, b] = t * (2.0 if b == 2 else 1.0)
-                rhs = ti.Vector([2.0, 2.0, 0.0])   # traces of the Hessians of x^2, y^2, xy
-                scale = ti.abs(A).max()
-                det = A.determinant()
-                if scale == 0.0 or ti.abs(det) < 1e-9 * scale * scale * scale:
-                    ti.atomic_max(bad, i)
-                else:
-                    b = A.inverse() @ rhs
-                    Bxx = b[0]
-                    Byy = b[1]
-                    Bxy = b[2]
             Lg = ti.Matrix.identity(float, 2)
             if ti.static(with_gradient):
                 grad_one[i] = g1
@@ -466,47 +511,212 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
                     ti.atomic_max(bad, i)
                 else:
                     Lg = Mg.inverse()
-            sigma = ti.Vector.zero(float, 2)
-            for k in range(offsets[i], offsets[i + 1]):
-                j = nbrs[k]
-                mj = _src_mass(mass, kind, j, src_kinds)
-                x = pos[j] - pos[i]
-                r = 0.0
-                F = 0.0
-                if ti.static(with_gradient):
-                    r = Gw[k][1]
-                    F = Gw[k][0]
-                else:
+            if ti.static(not with_gradient):
+                # sigma = sum_j a_ij x_ji is linear in B: Q (Bxx, Byy, 2 Bxy) from the
+                # first pass, so one more pass writes C_ij = a_ij - V_j beta . grad W_ij
+                sigma = Q @ ti.Vector([Bxx, Byy, 2.0 * Bxy])
+                beta = Linv.transpose() @ sigma
+                for k in range(offsets[i], offsets[i + 1]):
+                    j = nbrs[k]
+                    mj = _src_mass(mass, kind, j, src_kinds)
+                    x = pos[j] - pos[i]
                     r = x.norm()
                     _W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
-                e = x / r
-                a_ij = -2.0 * (mj / rho[j]) * F * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
-                                                   + 2.0 * Bxy * e[0] * e[1])
-                C[k] = a_ij
-                sigma += a_ij * x
-                if ti.static(with_gradient):
+                    e = x / r
+                    V = mj / rho[j]
+                    C[k] = V * F * (beta.dot(x) - 2.0 * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
+                                                         + 2.0 * Bxy * e[0] * e[1]))
+            else:
+                # the flow's stencils: sigma summed from the a_ij themselves, three
+                # passes (its results are kept as they were measured)
+                sigma = ti.Vector.zero(float, 2)
+                for k in range(offsets[i], offsets[i + 1]):
+                    j = nbrs[k]
+                    mj = _src_mass(mass, kind, j, src_kinds)
+                    x = pos[j] - pos[i]
+                    r = Gw[k][1]
+                    F = Gw[k][0]
+                    e = x / r
+                    a_ij = -2.0 * (mj / rho[j]) * F * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
+                                                       + 2.0 * Bxy * e[0] * e[1])
+                    C[k] = a_ij
+                    sigma += a_ij * x
                     # _gradient_coeffs' corrected coefficient (x_ij = -x exactly)
                     G[k] = (mj / rho[j]) * (Lg @ (F * (-x)))
-            beta = Linv.transpose() @ sigma
-            for k in range(offsets[i], offsets[i + 1]):
-                j = nbrs[k]
-                mj = _src_mass(mass, kind, j, src_kinds)
-                x = pos[j] - pos[i]
-                F = 0.0
-                if ti.static(with_gradient):
+                beta = Linv.transpose() @ sigma
+                for k in range(offsets[i], offsets[i + 1]):
+                    j = nbrs[k]
+                    mj = _src_mass(mass, kind, j, src_kinds)
+                    x = pos[j] - pos[i]
                     F = Gw[k][0]
-                else:
-                    _W, F, _L = kernel_terms(kernel_id, x.norm(),
-                                             pair_support(adaptive, hs, i, j, H))
-                # C_ij = a_ij - V_j beta . grad W_ij,  grad W_ij = -F x_ji
-                C[k] += (mj / rho[j]) * F * beta.dot(x)
-                if ti.static(with_gradient):
+                    # C_ij = a_ij - V_j beta . grad W_ij,  grad W_ij = -F x_ji
+                    C[k] += (mj / rho[j]) * F * beta.dot(x)
                     Cw[k] = C[k] * (2.0 / (rho[i] + rho[j]))
                     Gw[k] = G[k] * (2.0 * rho[i] / (rho[i] + rho[j]))
             if ti.static(with_gradient):
                 sG[i] = ti.Vector.zero(float, 2)
         s[i] = selfc
     return bad
+
+
+@ti.kernel
+def _decomposition_coeffs(kernel_id: ti.template(), pos: ti.types.ndarray(),
+                          mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
+                          offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), H: float,
+                          adaptive: ti.template(), hs: ti.types.ndarray(),
+                          kind: ti.types.ndarray(), G3: ti.types.ndarray(), s3: ti.types.ndarray(),
+                          G2: ti.types.ndarray(), s2: ti.types.ndarray(), C: ti.types.ndarray(),
+                          sC: ti.types.ndarray()) -> (ti.i32, ti.i32, ti.i32):
+    """The default decomposition's three stencils from two passes over each row's
+    pairs (one for every sum, one for every coefficient), the values of
+    ``_gradient_coeffs`` and ``_laplacian_coeffs`` up to round-off:
+
+    ``G3`` the cubic gradient of the FLUID rows over FLUID sources (div v, curl v),
+    ``G2`` the quadratic gradient of the FLUID and BOUNDARY rows over every
+    particle (Neumann rows, d and r), ``C`` the corrected Laplacian of the FLUID
+    rows over every particle; the fallbacks are theirs (cubic -> quadratic ->
+    corrected; quadratic -> corrected).  The quadratic moments are the cubic
+    ones' leading 5 x 5 block plus the non-FLUID sources' share.  Returns the
+    largest singular row of each (-1 if none)."""
+    bad3 = -1
+    bad2 = -1
+    badL = -1
+    for i in range(n):
+        ki = kind[i]
+        s3[i] = ti.Vector.zero(float, 2)
+        s2[i] = ti.Vector.zero(float, 2)
+        sC[i] = 0.0
+        if ki != FLUID and ki != BOUNDARY:          # no rows: zero coefficients
+            for k in range(offsets[i], offsets[i + 1]):
+                G3[k] = ti.Vector.zero(float, 2)
+                G2[k] = ti.Vector.zero(float, 2)
+                C[k] = 0.0
+            continue
+        fluid_row = ki == FLUID
+        Hi = pair_support(adaptive, hs, i, i, H)      # the monomials' length scale
+        M3 = ti.Matrix.zero(float, 9, 9)   # cubic moments over FLUID sources (lower half)
+        Mb = ti.Matrix.zero(float, 5, 5)   # quadratic moments over the other sources
+        M = ti.Matrix.zero(float, 2, 2)    # the Laplacian's sums (_laplacian_coeffs)
+        u = ti.Matrix.zero(float, 3, 2)
+        P = ti.Matrix.zero(float, 3, 3)
+        Q = ti.Matrix.zero(float, 2, 3)
+        for k in range(offsets[i], offsets[i + 1]):
+            j = nbrs[k]
+            x = pos[j] - pos[i]
+            r = x.norm()
+            W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
+            V = mass[j] / rho[j]
+            p = _monomials(3, x / Hi)
+            cp = (V * W) * p                    # one multiply-add per moment below
+            if kind[j] == FLUID:
+                for a in ti.static(range(9)):
+                    for b in ti.static(range(a + 1)):
+                        M3[a, b] += cp[a] * p[b]
+            else:
+                for a in ti.static(range(5)):
+                    for b in ti.static(range(a + 1)):
+                        Mb[a, b] += cp[a] * p[b]
+            if fluid_row:
+                gw = -F * x
+                M += V * gw.outer_product(x)
+                q = ti.Vector([x[0] * x[0], x[1] * x[1], x[0] * x[1]])
+                e = x / r
+                ee = ti.Vector([e[0] * e[0], e[1] * e[1], e[0] * e[1]])
+                w = -2.0 * V * F
+                for a in ti.static(range(3)):
+                    for b in ti.static(range(2)):
+                        u[a, b] += V * q[a] * gw[b]
+                    for b in ti.static(range(3)):
+                        P[a, b] += w * q[a] * ee[b]
+                for a in ti.static(range(2)):
+                    for b in ti.static(range(3)):
+                        Q[a, b] += w * x[a] * ee[b]
+        # the divergence's cubic fit, else quadratic (the leading block), else linear
+        R3 = ti.Matrix.zero(float, 2, 9)
+        L3 = ti.Matrix.identity(float, 2)
+        linear3 = 0
+        if fluid_row:
+            Lc, ok3 = _cholesky_factor(3, M3)
+            if ok3:
+                R3 = _gradient_rows(3, Lc) / Hi
+            else:
+                M2f = ti.Matrix.zero(float, 5, 5)
+                for a in ti.static(range(5)):
+                    for b in ti.static(range(a + 1)):
+                        M2f[a, b] = M3[a, b]
+                Lq, okq = _cholesky_factor(2, M2f)
+                if okq:
+                    R2f = _gradient_rows(2, Lq) / Hi
+                    for a in ti.static(range(2)):
+                        for b in ti.static(range(5)):
+                            R3[a, b] = R2f[a, b]
+                else:
+                    Mc = _correction_matrix(kernel_id, i, pos, mass, rho, offsets, nbrs, H,
+                                            adaptive, hs, kind, ti.static(1 << int(FLUID)))
+                    if _sym2_eig_ratio(Mc[0, 0], Mc[0, 1], Mc[1, 1]) < SINGULAR_RATIO:
+                        ti.atomic_max(bad3, i)
+                    else:
+                        L3 = Mc.inverse()
+                        linear3 = 1
+        # the Neumann rows' quadratic fit over every particle, else linear
+        M2 = ti.Matrix.zero(float, 5, 5)
+        for a in ti.static(range(5)):
+            for b in ti.static(range(a + 1)):
+                M2[a, b] = M3[a, b] + Mb[a, b]
+        R2 = ti.Matrix.zero(float, 2, 5)
+        L2 = ti.Matrix.identity(float, 2)
+        linear2 = 0
+        L2f, ok2 = _cholesky_factor(2, M2)
+        if ok2:
+            R2 = _gradient_rows(2, L2f) / Hi
+        else:
+            Mc = _correction_matrix(kernel_id, i, pos, mass, rho, offsets, nbrs, H, adaptive, hs,
+                                    kind, ti.static(kind_bits(ALL_KINDS)))
+            if _sym2_eig_ratio(Mc[0, 0], Mc[0, 1], Mc[1, 1]) < SINGULAR_RATIO:
+                ti.atomic_max(bad2, i)
+            else:
+                L2 = Mc.inverse()
+                linear2 = 1
+        # the Laplacian (two passes: sigma from Q, as _laplacian_coeffs)
+        beta = ti.Vector.zero(float, 2)
+        Bxx = 0.0
+        Byy = 0.0
+        Bxy = 0.0
+        if fluid_row:
+            Linv, bxx, byy, bxy, okL = _laplacian_correction(M, u, P, Q)
+            if not okL:
+                ti.atomic_max(badL, i)
+            Bxx = bxx
+            Byy = byy
+            Bxy = bxy
+            beta = Linv.transpose() @ (Q @ ti.Vector([Bxx, Byy, 2.0 * Bxy]))
+        for k in range(offsets[i], offsets[i + 1]):
+            j = nbrs[k]
+            x = pos[j] - pos[i]
+            r = x.norm()
+            W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
+            V = mass[j] / rho[j]
+            p = _monomials(3, x / Hi)
+            gw = F * (-x)                       # grad_i W_ij = F x_ij
+            g3 = ti.Vector.zero(float, 2)
+            if fluid_row and kind[j] == FLUID:
+                if linear3:
+                    g3 = V * (L3 @ gw)
+                else:
+                    g3 = (V * W) * (R3 @ p)
+            G3[k] = g3
+            if linear2:
+                G2[k] = V * (L2 @ gw)
+            else:
+                p2 = ti.Vector([p[0], p[1], p[2], p[3], p[4]])
+                G2[k] = (V * W) * (R2 @ p2)
+            cl = 0.0
+            if fluid_row:
+                e = x / r
+                cl = V * F * (beta.dot(x) - 2.0 * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
+                                                   + 2.0 * Bxy * e[0] * e[1]))
+            C[k] = cl
+    return bad3, bad2, badL
 
 
 @ti.kernel
@@ -564,6 +774,43 @@ def _apply_divergence(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.nda
                 vj = ti.Vector([vj[1], -vj[0]])
             acc += G[k].dot(vj - vi)
         out[i] = acc
+
+
+@ti.kernel
+def _apply_divergence_curl(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                           G: ti.types.ndarray(), s: ti.types.ndarray(), v: ti.types.ndarray(),
+                           out: ti.types.ndarray()):
+    """out_i = (div v_i, curl v_i) in one pass over the pairs: the values of
+    ``_apply_divergence`` with rotate 0 and 1."""
+    for i in range(n):
+        vi = v[i]
+        ri = ti.Vector([vi[1], -vi[0]])
+        acc = s[i].dot(vi)
+        rot = s[i].dot(ri)
+        for k in range(offsets[i], offsets[i + 1]):
+            vj = v[nbrs[k]]
+            rj = ti.Vector([vj[1], -vj[0]])
+            acc += G[k].dot(vj - vi)
+            rot += G[k].dot(rj - ri)
+        out[i] = ti.Vector([acc, rot])
+
+
+@ti.kernel
+def _apply_gradient_pair(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                         G: ti.types.ndarray(), s: ti.types.ndarray(), f: ti.types.ndarray(),
+                         out_a: ti.types.ndarray(), out_b: ti.types.ndarray()):
+    """The gradients of two scalar fields (the columns of ``f``) in one pass over
+    the pairs: the values of ``_apply_difference_stencil`` on each."""
+    for i in range(n):
+        fi = f[i]
+        acc_a = s[i] * fi[0]
+        acc_b = s[i] * fi[1]
+        for k in range(offsets[i], offsets[i + 1]):
+            fj = f[nbrs[k]]
+            acc_a += G[k] * (fj[0] - fi[0])
+            acc_b += G[k] * (fj[1] - fi[1])
+        out_a[i] = acc_a
+        out_b[i] = acc_b
 
 
 @ti.kernel
@@ -794,6 +1041,28 @@ class Operators:
                     GradientStencil(Gw, sG, variant, rows, sources))
         return lap
 
+    def decomposition_coefficients(self):
+        """The default decomposition's three stencils from one kernel
+        (``_decomposition_coeffs``): ``(divergence, gradient, laplacian)``, what
+        ``gradient_coefficients("cubic", (FLUID,), (FLUID,))``,
+        ``gradient_coefficients("quadratic", (FLUID, BOUNDARY))`` and
+        ``laplacian_coefficients("corrected", (FLUID,))`` give, up to round-off."""
+        p = self.particles
+        real = runtime.real_dtype()
+        npairs, size = max(self.pairs.n_pairs, 1), max(p.n, 1)
+        G3, G2 = (ti.Vector.ndarray(2, real, shape=(npairs,)) for _ in range(2))
+        s3, s2 = (ti.Vector.ndarray(2, real, shape=(size,)) for _ in range(2))
+        C = ti.ndarray(real, shape=(npairs,))
+        sC = ti.ndarray(real, shape=(size,))
+        bad = _decomposition_coeffs(self.kernel_id, p.position, p.mass, p.density, p.n,
+                                    *self._pair_args(), *self.support_args(), p.kind,
+                                    G3, s3, G2, s2, C, sC)
+        for what, b in zip(("cubic gradient", "quadratic gradient", "corrected Laplacian"), bad):
+            self._check_bad(what, b)
+        return (GradientStencil(G3, s3, "cubic", (FLUID,), (FLUID,)),
+                GradientStencil(G2, s2, "quadratic", (FLUID, BOUNDARY), ALL_KINDS),
+                LaplacianStencil(C, sC, "corrected", (FLUID,), ALL_KINDS))
+
     def density_weighted(self, st: LaplacianStencil, into=None) -> LaplacianStencil:
         """A copy of a difference-form Laplacian's coefficients times
         2 / (rho_i + rho_j): what ``laplacian_coefficients(..., density_weighted=True)``
@@ -819,6 +1088,15 @@ class Operators:
 
     def curl(self, st: GradientStencil, v, out) -> None:
         _apply_divergence(self.n, *self._pair_args(), st.G, st.s, v, 1, out)
+
+    def divergence_and_curl(self, st: GradientStencil, v, out) -> None:
+        """``out`` (2-vectors): (div v, curl v), one pass for both."""
+        _apply_divergence_curl(self.n, *self._pair_args(), st.G, st.s, v, out)
+
+    def gradients(self, st: GradientStencil, f2, out_a, out_b) -> None:
+        """The gradients of the two columns of ``f2`` (2-vectors) into ``out_a``,
+        ``out_b``, one pass for both."""
+        _apply_gradient_pair(self.n, *self._pair_args(), st.G, st.s, f2, out_a, out_b)
 
     def laplacian(self, st: LaplacianStencil, f, out) -> None:
         _apply_difference_stencil(self.n, *self._pair_args(), st.C, st.s, f, out)

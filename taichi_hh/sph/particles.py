@@ -176,9 +176,14 @@ class Particles:
         """Write ``values`` into slots ``start:start+len(values)``."""
         runtime.check_generation(self._generation, "particle set")
         arr = self.arrays[name]
-        full = arr.to_numpy()
         values = np.asarray(values)
-        full[start: start + values.shape[0]] = values
+        if start == 0 and values.shape[0] == arr.shape[0]:
+            # the whole array: nothing of the old contents to keep (no read back)
+            dtype = np.int32 if name in INT_QUANTITIES else runtime.np_real()
+            full = np.ascontiguousarray(values, dtype=dtype)
+        else:
+            full = arr.to_numpy()
+            full[start: start + values.shape[0]] = values
         arr.from_numpy(full)
 
     # ---- reordering -----------------------------------------------------------

@@ -76,14 +76,22 @@ class PointSet:
         self.support = float(support) if support is not None else support_ratio * self.spacing
         self.kernel = kernel
         mass = self.area / n if mass is None else mass
-        p = self.particles = Particles.from_numpy(pts, mass=mass, kind=FLUID)
+        # data points, boundary samples, ghosts: one append (each append rewrites
+        # every quantity's whole array)
+        parts, normals, kinds = [pts], [np.zeros_like(pts)], [np.full(n, FLUID, np.int32)]
         if boundary is not None:
             bpts = check_points(boundary[0], "boundary points")
-            bnrm = check_values(boundary[1], len(bpts), 2, "boundary normals")
-            p.append(bpts, normal=bnrm, mass=mass, kind=BOUNDARY)
+            parts.append(bpts)
+            normals.append(check_values(boundary[1], len(bpts), 2, "boundary normals"))
+            kinds.append(np.full(len(bpts), BOUNDARY, np.int32))
         if ghosts is not None and len(ghosts):
-            p.append(check_points(ghosts, "ghost points"), mass=mass, kind=GHOST)
-        allpts = p.get("position")
+            gpts = check_points(ghosts, "ghost points")
+            parts.append(gpts)
+            normals.append(np.zeros_like(gpts))
+            kinds.append(np.full(len(gpts), GHOST, np.int32))
+        allpts = np.concatenate(parts) if len(parts) > 1 else pts
+        p = self.particles = Particles(len(allpts))
+        p.append(allpts, mass=mass, kind=np.concatenate(kinds), normal=np.concatenate(normals))
         self.n_total = p.n
         supports = None           # per particle, input order (data, boundary, ghosts)
         if support_neighbours is not None and support is None:
@@ -92,8 +100,12 @@ class PointSet:
             supports = adaptive_supports(allpts, support_ratio, int(support_neighbours),
                                          self.area, boundary=slice(n, n + nb))
             self.support = float(supports.max())
-        self.grid = bin_particles(p, GridSpec.covering(allpts.min(axis=0), allpts.max(axis=0),
-                                                       self.support))
+        if supports is None:
+            spec = GridSpec.covering(allpts.min(axis=0), allpts.max(axis=0), self.support)
+        else:       # cells narrower than the largest support (sph.support)
+            from .support import adaptive_grid_spec
+            spec = adaptive_grid_spec(allpts, supports)
+        self.grid = bin_particles(p, spec)
         self.pairs = PairList()
         hs = None
         if supports is not None:
@@ -101,10 +113,14 @@ class PointSet:
             hs.from_numpy(np.resize(supports[p.get("original_index")],
                                     max(p.n, 1)).astype(runtime.np_real()))
         self.supports = supports[:n] if supports is not None else np.full(n, self.support)
+        tolerance = DUPLICATE_FRACTION * self.spacing
         try:
-            self.pairs.build(p.position, p.n, p.position, self.grid, self.support,
-                             duplicate_tolerance=DUPLICATE_FRACTION * self.spacing,
-                             supports=None if hs is None else (hs, hs))
+            if hs is None:
+                self.pairs.build(p.position, p.n, p.position, self.grid, self.support,
+                                 duplicate_tolerance=tolerance)
+            else:
+                from .support import adaptive_pairs
+                adaptive_pairs(self.pairs, p, self.grid, hs, duplicate_tolerance=tolerance)
         except InputError as exc:
             if getattr(self.pairs, "duplicate_query", None) is None:
                 raise
@@ -139,15 +155,14 @@ class PointSet:
 
     # ---- slot <-> caller order ---------------------------------------------------
     def new_array(self, ncomp: int = 1):
-        """A zeroed Taichi array with one entry per particle slot."""
+        """A zeroed Taichi array with one entry per particle slot (Taichi
+        zero-fills every new ndarray: no fill pass, which for vectors is a
+        kernel launch of its own)."""
         real = runtime.real_dtype()
         size = max(self.n_total, 1)
         if ncomp == 1:
-            nd = ti.ndarray(real, shape=(size,))
-        else:
-            nd = ti.Vector.ndarray(ncomp, real, shape=(size,))
-        nd.fill(0)
-        return nd
+            return ti.ndarray(real, shape=(size,))
+        return ti.Vector.ndarray(ncomp, real, shape=(size,))
 
     def upload(self, values):
         """Data-point values (caller order) -> Taichi array in slot order

@@ -28,6 +28,7 @@ import taichi as ti
 
 from .. import runtime
 from ..errors import InputError
+from .neighbors import cell_coords
 
 #: default number of nearest neighbours of the local spacing estimate
 #: (docs/notes/scattered.md)
@@ -51,35 +52,11 @@ def pair_support(adaptive: ti.template(), hs: ti.template(), i, j, H):
     return h
 
 
-@ti.kernel
-def _kth_distance(rank: ti.template(), n: ti.i32, qpos: ti.types.ndarray(),
-                  spos: ti.types.ndarray(), offsets: ti.types.ndarray(),
-                  nbrs: ti.types.ndarray(), out: ti.types.ndarray()):
-    """out[i] = distance from query i to the ``rank``-th nearest of its listed
-    neighbours, -1 if it has fewer.  The ``rank`` smallest squared distances
-    are kept sorted in registers (rank static)."""
-    for i in range(n):
-        best = ti.Vector([1e300] * rank, dt=ti.f64)
-        for m in range(offsets[i], offsets[i + 1]):
-            d = spos[nbrs[m]] - qpos[i]
-            r2 = ti.cast(d.dot(d), ti.f64)
-            for a in ti.static(range(rank)):   # insertion: carry the larger value on
-                lo = ti.min(r2, best[a])
-                r2 = ti.max(r2, best[a])
-                best[a] = lo
-        res = -1.0
-        if offsets[i + 1] - offsets[i] >= rank:
-            res = ti.sqrt(best[rank - 1])
-        out[i] = res
-
-
 def kth_neighbour_distance(points: np.ndarray, k: int, area: float) -> np.ndarray:
-    """Distance from every point to its k-th nearest other point (input order).
-
-    Binned search at a radius expected to hold about 2k points, doubled for
-    the points that still have fewer than k until every point has them."""
-    from .neighbors import GridSpec, PairList, bin_particles
-    from .particles import Particles
+    """Distance from every point to its k-th nearest other point (input order),
+    by the exact k-nearest search of :mod:`taichi_hh.sph.knn`.  ``area`` is
+    unused (kept for callers that pass it)."""
+    from .knn import KNearest
 
     pts = np.asarray(points, dtype=np.float64)
     n = len(pts)
@@ -89,38 +66,7 @@ def kth_neighbour_distance(points: np.ndarray, k: int, area: float) -> np.ndarra
     if n <= k:
         raise InputError(f"{n} points are too few for an adaptive support from {k} nearest "
                          "neighbours")
-    runtime.ensure_init()
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    diameter = float(np.hypot(*(hi - lo)))
-    radius = math.sqrt(2.0 * k * area / (math.pi * n))
-    p = Particles.from_numpy(pts)
-    out = np.full(n, -1.0)
-    todo = np.arange(n)                            # input indices still short of k
-    pairs = PairList()
-    dist = ti.ndarray(ti.f64, shape=(n,))
-    while todo.size:
-        grid = bin_particles(p, GridSpec.covering(lo, hi, radius))
-        orig = p.get("original_index")
-        if todo.size == n:
-            pairs.build(p.position, n, p.position, grid, radius)
-            _kth_distance(k, n, p.position, p.position, pairs.offsets, pairs.neighbours, dist)
-            out[orig] = dist.to_numpy()[:n]
-        else:
-            q = Particles.from_numpy(pts[todo])
-            # other query points: the point itself is among the sources (distance 0),
-            # so the (k+1)-th smallest distance
-            pairs.build(q.position, todo.size, p.position, grid, radius, exclude_self=False)
-            qd = ti.ndarray(ti.f64, shape=(todo.size,))
-            _kth_distance(k + 1, todo.size, q.position, p.position, pairs.offsets,
-                          pairs.neighbours, qd)
-            out[todo] = qd.to_numpy()
-        todo = np.flatnonzero(out < 0)
-        if radius > 2.0 * diameter:
-            break
-        radius *= 2.0
-    if todo.size:                                  # cannot happen with n > k
-        raise InputError(f"{todo.size} point(s) have fewer than {k} neighbours")
-    return out
+    return KNearest(pts).kth_distance_among(k)
 
 
 def adaptive_supports(points: np.ndarray, support_ratio: float, neighbours: int,
@@ -133,3 +79,156 @@ def adaptive_supports(points: np.ndarray, support_ratio: float, neighbours: int,
     if boundary is not None:
         h[boundary] *= BOUNDARY_SUPPORT_SCALE
     return h
+
+
+# ---------------------------------------------------------------------------
+# Pair list for adaptive supports
+#
+# With one support a 3 x 3 block of cells as wide as the support holds every
+# neighbour; with adaptive supports those cells must be as wide as the largest
+# support (boundary samples', sparse patches'), and each query then tests many
+# times the candidates it keeps (clusters: ~10x).  Instead the particles are
+# binned in cells a fraction of the median support wide, and each query scans
+# the block of cells its own reach needs: the larger of its support and the
+# largest support that can reach its cell from any cell around (``reach``).
+
+#: cells per median support of the adaptive pair search
+CELLS_PER_SUPPORT = 2.0
+#: but never more cells per largest support than this (the reach of each cell
+#: gathers over that many cells around it), nor more cells than this many per
+#: particle (points in a tiny cluster and a few far away)
+MAX_CELLS_PER_LARGEST = 8.0
+MAX_CELLS_PER_PARTICLE = 4.0
+#: supports are rounded up by this much before they become cell counts:
+#: a pair closer than its support never lands a cell farther through rounding
+_PAD = 1.0 + 1e-9
+
+
+@ti.kernel
+def _cell_reach(cell_start: ti.types.ndarray(), hs: ti.types.ndarray(), nx: ti.i32, ny: ti.i32,
+                inv_cell: float, k_max: ti.i32, cmax: ti.types.ndarray(),
+                reach: ti.types.ndarray()):
+    """reach[c]: the largest support of a particle whose support can cover a point
+    of cell c (the particles of the cells within that support's cell count)."""
+    for c in range(nx * ny):
+        m = 0.0
+        for k in range(cell_start[c], cell_start[c + 1]):
+            m = ti.max(m, hs[k])
+        cmax[c] = m
+    for c in range(nx * ny):
+        cy = c // nx
+        cx = c - cy * nx
+        r = 0.0
+        for gy in range(ti.max(cy - k_max, 0), ti.min(cy + k_max, ny - 1) + 1):
+            for gx in range(ti.max(cx - k_max, 0), ti.min(cx + k_max, nx - 1) + 1):
+                h = cmax[gy * nx + gx]
+                kc = ti.cast(ti.ceil(h * _PAD * inv_cell), ti.i32)
+                if ti.abs(gx - cx) <= kc and ti.abs(gy - cy) <= kc:
+                    r = ti.max(r, h)
+        reach[c] = r
+
+
+@ti.func
+def _block(p, hi, reach: ti.template(), lo_x, lo_y, inv_cell, nx, ny):
+    """The block of cells a query at p with support hi scans: (x0, x1, y0, y1)."""
+    cx, cy = cell_coords(p, lo_x, lo_y, inv_cell, nx, ny)
+    r = ti.max(hi, reach[cy * nx + cx])
+    k = ti.cast(ti.ceil(r * _PAD * inv_cell), ti.i32)
+    return ti.max(cx - k, 0), ti.min(cx + k, nx - 1), ti.max(cy - k, 0), ti.min(cy + k, ny - 1)
+
+
+@ti.kernel
+def _count_adaptive(pos: ti.types.ndarray(), n: ti.i32, hs: ti.types.ndarray(),
+                    cell_start: ti.types.ndarray(), reach: ti.types.ndarray(), lo_x: float,
+                    lo_y: float, inv_cell: float, nx: ti.i32, ny: ti.i32,
+                    count: ti.types.ndarray(), dup_tol2: float, dup: ti.types.ndarray()):
+    for i in range(n):
+        p = pos[i]
+        hi = hs[i]
+        x0, x1, y0, y1 = _block(p, hi, reach, lo_x, lo_y, inv_cell, nx, ny)
+        k = 0
+        ndup = 0
+        for gy in range(y0, y1 + 1):
+            row = gy * nx
+            for j in range(cell_start[row + x0], cell_start[row + x1 + 1]):
+                d = pos[j] - p
+                r2 = d.dot(d)
+                h = ti.max(hi, hs[j])
+                ok = (r2 < h * h) & (j != i)
+                k += ti.select(ok, 1, 0)
+                ndup += ti.select(ok & (r2 <= dup_tol2), 1, 0)
+        if ndup > 0:
+            ti.atomic_max(dup[0], i)
+        count[i] = k
+
+
+@ti.kernel
+def _fill_adaptive(pos: ti.types.ndarray(), n: ti.i32, hs: ti.types.ndarray(),
+                   cell_start: ti.types.ndarray(), reach: ti.types.ndarray(), lo_x: float,
+                   lo_y: float, inv_cell: float, nx: ti.i32, ny: ti.i32,
+                   offsets: ti.types.ndarray(), nbrs: ti.types.ndarray()):
+    # rows come out sorted by slot: cell rows in increasing order, each one
+    # contiguous run of slots (the particles are sorted by cell)
+    for i in range(n):
+        p = pos[i]
+        hi = hs[i]
+        x0, x1, y0, y1 = _block(p, hi, reach, lo_x, lo_y, inv_cell, nx, ny)
+        k = offsets[i]
+        for gy in range(y0, y1 + 1):
+            row = gy * nx
+            for j in range(cell_start[row + x0], cell_start[row + x1 + 1]):
+                d = pos[j] - p
+                h = ti.max(hi, hs[j])
+                if (d.dot(d) < h * h) & (j != i):
+                    nbrs[k] = j
+                    k += 1
+
+
+def adaptive_grid_spec(points: np.ndarray, supports: np.ndarray):
+    """The binning grid of :func:`adaptive_pairs`: cells of the median support
+    over :data:`CELLS_PER_SUPPORT` covering ``points``, widened where the
+    supports or the points' extent would make too many (module constants)."""
+    from .neighbors import GridSpec
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    area = float(np.prod(hi - lo + float(supports.max())))
+    cell = max(float(np.median(supports)) / CELLS_PER_SUPPORT,
+               float(supports.max()) / MAX_CELLS_PER_LARGEST,
+               math.sqrt(area / (MAX_CELLS_PER_PARTICLE * len(points))))
+    return GridSpec.covering(lo, hi, cell)
+
+
+def adaptive_pairs(pairs, particles, grid, hs, duplicate_tolerance: float = 0.0):
+    """Fill ``pairs`` (a new :class:`~taichi_hh.sph.neighbors.PairList`) with the
+    pairs of ``particles`` (binned by ``grid``, of :func:`adaptive_grid_spec`)
+    under the per-slot supports ``hs``: pair (i, j) when |x_i - x_j| < max(H_i,
+    H_j), rows sorted by slot: the rows ``PairList.build`` gives for the same
+    slots.  Pairs closer than ``duplicate_tolerance`` raise :class:`InputError`
+    (``pairs.duplicate_query`` then names the query, as ``build`` does)."""
+    from .neighbors import exclusive_scan
+    s = grid.spec
+    n = particles.n
+    h_max = float(hs.to_numpy()[:n].max()) if n else 0.0
+    k_max = int(math.ceil(h_max * _PAD / s.cell_size))
+    cmax = ti.ndarray(runtime.real_dtype(), shape=(s.ncells,))
+    reach = ti.ndarray(runtime.real_dtype(), shape=(s.ncells,))
+    _cell_reach(grid.cell_start, hs, s.nx, s.ny, s.inv_cell, k_max, cmax, reach)
+    count = ti.ndarray(ti.i32, shape=(n + 1,))
+    offsets = ti.ndarray(ti.i32, shape=(n + 1,))
+    dup = ti.ndarray(ti.i32, shape=(1,))
+    dup.fill(-1)
+    tol2 = duplicate_tolerance ** 2 if duplicate_tolerance > 0 else -1.0
+    args = (s.lo_x, s.lo_y, s.inv_cell, s.nx, s.ny)
+    _count_adaptive(particles.position, n, hs, grid.cell_start, reach, *args, count, tol2, dup)
+    total = exclusive_scan(count, offsets, n)
+    if total > 2**31 - 1:
+        raise InputError(f"{total} neighbour pairs exceed the 2^31 limit of one pair list: "
+                         "reduce the kernel support or split the points")
+    d = int(dup.to_numpy()[0])
+    if d >= 0:
+        pairs.duplicate_query = d
+        raise InputError(f"duplicate points: query point {d} has a neighbour closer than "
+                         f"{duplicate_tolerance:g}")
+    nbrs = ti.ndarray(ti.i32, shape=(max(int(total), 1),))
+    _fill_adaptive(particles.position, n, hs, grid.cell_start, reach, *args, offsets, nbrs)
+    pairs.offsets, pairs.neighbours = offsets, nbrs
+    pairs.n_queries, pairs.n_pairs = n, int(total)
