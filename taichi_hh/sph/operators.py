@@ -511,46 +511,30 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
                     ti.atomic_max(bad, i)
                 else:
                     Lg = Mg.inverse()
-            if ti.static(not with_gradient):
-                # sigma = sum_j a_ij x_ji is linear in B: Q (Bxx, Byy, 2 Bxy) from the
-                # first pass, so one more pass writes C_ij = a_ij - V_j beta . grad W_ij
-                sigma = Q @ ti.Vector([Bxx, Byy, 2.0 * Bxy])
-                beta = Linv.transpose() @ sigma
-                for k in range(offsets[i], offsets[i + 1]):
-                    j = nbrs[k]
-                    mj = _src_mass(mass, kind, j, src_kinds)
-                    x = pos[j] - pos[i]
-                    r = x.norm()
-                    _W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
-                    e = x / r
-                    V = mj / rho[j]
-                    C[k] = V * F * (beta.dot(x) - 2.0 * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
-                                                         + 2.0 * Bxy * e[0] * e[1]))
-            else:
-                # the flow's stencils: sigma summed from the a_ij themselves, three
-                # passes (its results are kept as they were measured)
-                sigma = ti.Vector.zero(float, 2)
-                for k in range(offsets[i], offsets[i + 1]):
-                    j = nbrs[k]
-                    mj = _src_mass(mass, kind, j, src_kinds)
-                    x = pos[j] - pos[i]
+            # sigma = sum_j a_ij x_ji is linear in B: Q (Bxx, Byy, 2 Bxy) from the
+            # first pass, so one more pass writes C_ij = a_ij - V_j beta . grad W_ij
+            # (and, for the flow, the gradient and both density-weighted copies)
+            sigma = Q @ ti.Vector([Bxx, Byy, 2.0 * Bxy])
+            beta = Linv.transpose() @ sigma
+            for k in range(offsets[i], offsets[i + 1]):
+                j = nbrs[k]
+                mj = _src_mass(mass, kind, j, src_kinds)
+                x = pos[j] - pos[i]
+                r = 0.0
+                F = 0.0
+                if ti.static(with_gradient):
                     r = Gw[k][1]
                     F = Gw[k][0]
-                    e = x / r
-                    a_ij = -2.0 * (mj / rho[j]) * F * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
-                                                       + 2.0 * Bxy * e[0] * e[1])
-                    C[k] = a_ij
-                    sigma += a_ij * x
+                else:
+                    r = x.norm()
+                    _W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
+                e = x / r
+                V = mj / rho[j]
+                C[k] = V * F * (beta.dot(x) - 2.0 * (Bxx * e[0] * e[0] + Byy * e[1] * e[1]
+                                                     + 2.0 * Bxy * e[0] * e[1]))
+                if ti.static(with_gradient):
                     # _gradient_coeffs' corrected coefficient (x_ij = -x exactly)
-                    G[k] = (mj / rho[j]) * (Lg @ (F * (-x)))
-                beta = Linv.transpose() @ sigma
-                for k in range(offsets[i], offsets[i + 1]):
-                    j = nbrs[k]
-                    mj = _src_mass(mass, kind, j, src_kinds)
-                    x = pos[j] - pos[i]
-                    F = Gw[k][0]
-                    # C_ij = a_ij - V_j beta . grad W_ij,  grad W_ij = -F x_ji
-                    C[k] += (mj / rho[j]) * F * beta.dot(x)
+                    G[k] = V * (Lg @ (F * (-x)))
                     Cw[k] = C[k] * (2.0 / (rho[i] + rho[j]))
                     Gw[k] = G[k] * (2.0 * rho[i] / (rho[i] + rho[j]))
             if ti.static(with_gradient):
