@@ -266,15 +266,15 @@ def _csr_galerkin(particles: ti.template(), fill: ti.template(), rows: ti.i32, r
     mapped up (``up``) and summed.  A row's columns lie within ``reach`` cells
     of its own, so a (2 reach + 1)^2 window of markers (``mark``, ``where``;
     -1 on entry) finds the repeats without sorting.  Two passes: counting
-    (``out_off[1 + C]``: row C's entries) and, with ``fill``, writing at the
-    row starts ``out_off[C]``.  Serial: deterministic sums, one window."""
+    (``out_off[g + 1]``: global row g's entries) and, with ``fill``, writing at
+    the row starts ``out_off[g]``.  Serial: deterministic sums, one window."""
     w = 2 * reach + 1
     ti.loop_config(serialize=True)
     for C in range(rows):
         g = row0 + C
         base = 0
         if ti.static(fill):
-            base = out_off[C]
+            base = out_off[g]
         cnt = 0
         for m in range(kid_start[kid0 + C], kid_start[kid0 + C + 1]):
             c = kids[m]
@@ -303,30 +303,37 @@ def _csr_galerkin(particles: ti.template(), fill: ti.template(), rows: ti.i32, r
                 elif ti.static(fill):
                     out_val[where[slot]] += v
         if ti.static(not fill):
-            out_off[C + 1] = cnt
+            out_off[g + 1] = cnt
 
 
 @ti.kernel
-def _running_sum(off: ti.types.ndarray(), rows: ti.i32) -> ti.i32:
-    """Row counts in ``off[1:]`` to row starts, in place; returns the total."""
-    off[0] = 0
+def _running_sum(off: ti.types.ndarray(), row0: ti.i32, rows: ti.i32, base: ti.i32) -> ti.i32:
+    """Row counts in ``off[row0 + 1 .. row0 + rows]`` to row starts from
+    ``base``, in place; returns the level's end."""
+    off[row0] = base
     ti.loop_config(serialize=True)
     for C in range(rows):
-        off[C + 1] += off[C]
-    return off[rows]
+        off[row0 + C + 1] += off[row0 + C]
+    return off[row0 + rows]
 
 
 @ti.kernel
-def _copy_level(rows: ti.i32, row0: ti.i32, base: ti.i32, off: ti.types.ndarray(),
-                col: ti.types.ndarray(), val: ti.types.ndarray(), S_off: ti.types.ndarray(),
-                S_col: ti.types.ndarray(), S_val: ti.types.ndarray()):
-    """A level's CSR into the flat arrays of every level (entries from ``base``)."""
-    S_off[row0 + rows] = base + off[rows]
-    for C in range(rows):
-        S_off[row0 + C] = base + off[C]
-        for e in range(off[C], off[C + 1]):
-            S_col[base + e] = col[e]
-            S_val[base + e] = val[e]
+def _copy_prefix(n: ti.i32, src: ti.types.ndarray(), dst: ti.types.ndarray()):
+    for i in range(n):
+        dst[i] = src[i]
+
+
+@ti.kernel
+def _dense_rows(lo: ti.i32, m: ti.i32, S_off: ti.types.ndarray(), S_col: ti.types.ndarray(),
+                S_val: ti.types.ndarray(), out: ti.types.ndarray()):
+    """Rows lo .. lo + m of the flat CSR (columns in the same range) as a dense
+    m x m matrix: the coarsest level, for its pseudo-inverse."""
+    for q in range(m * m):
+        out[q] = 0.0
+    ti.loop_config(serialize=True)
+    for i in range(m):
+        for e in range(S_off[lo + i], S_off[lo + i + 1]):
+            out[i * m + S_col[e] - lo] += S_val[e]
 
 
 @ti.kernel
@@ -873,46 +880,52 @@ class MultilevelPreconditioner:
         reach = _pair_reach(n, pr.offsets, pr.neighbours, self.cell_of, cix, ciy) + 1
         real = runtime.real_dtype()
         dummy = ti.ndarray(real, shape=(1,))
-        level_csr = []
+        # every level straight into the cycle's flat CSR: level k's rows read the
+        # rows of level k - 1 (global row indices) already written there
+        self.S_off = self._vector("S_off", ti.i32, size=total + 1)
+        self.S_col = self.S_val = None
+        level_nnz = []
+        end = 0
         for k, rows in enumerate(sizes):
             if k == 0:       # the particle rows: pairs and diagonal, up by cell_of
                 src = (0, self.pstart, self.porder, 0, pr.offsets, pr.neighbours, A.K,
                        self.cell_of)
-            else:            # the level below's CSR, up by parent
-                f_off, f_col, f_val = level_csr[-1][:3]
-                src = (int(starts[k]), self.kid_start, self.kids, int(starts[k - 1]), f_off,
-                       f_col, f_val, self.parent)
+            else:            # the level below's rows, up by parent
+                src = (int(starts[k]), self.kid_start, self.kids, 0, self.S_off, self.S_col,
+                       self.S_val, self.parent)
             window = (2 * reach + 1) ** 2
             mark = ti.ndarray(ti.i32, shape=(window,))
             where = ti.ndarray(ti.i32, shape=(window,))
-            off = ti.ndarray(ti.i32, shape=(rows + 1,))
-            args = (*src[:7], A.D, self.dinv, src[7], cix, ciy, reach, mark, where, off)
+            args = (*src[:7], A.D, self.dinv, src[7], cix, ciy, reach, mark, where, self.S_off)
             mark.fill(-1)
             _csr_galerkin(k == 0, False, rows, int(starts[k]), *args, mark, dummy)
-            nnz = _running_sum(off, rows)
-            col = ti.ndarray(ti.i32, shape=(max(nnz, 1),))
-            val = ti.ndarray(real, shape=(max(nnz, 1),))
+            base = end
+            end = int(_running_sum(self.S_off, int(starts[k]), rows, base))
+            level_nnz.append(end - base)
+            if self.S_col is None or end > self.S_col.shape[0]:
+                # the coarser levels hold far fewer entries than level 0 (a fifth
+                # to a quarter on the decomposition's cells): 30% more is room for
+                # all of them, else grow once more
+                room = max(end + (3 * end // 10 if k == 0 else 0), 1)
+                S_col = ti.ndarray(ti.i32, shape=(room,))
+                S_val = ti.ndarray(real, shape=(room,))
+                if self.S_col is not None and base > 0:
+                    _copy_prefix(base, self.S_col, S_col)
+                    _copy_prefix(base, self.S_val, S_val)
+                self.S_col, self.S_val = S_col, S_val
+                self._arrays["S_col"], self._arrays["S_val"] = S_col, S_val
+                if k > 0:       # the level below's columns moved with them
+                    args = (*src[:4], self.S_off, self.S_col, self.S_val, *args[7:])
             mark.fill(-1)
-            _csr_galerkin(k == 0, True, rows, int(starts[k]), *args, col, val)
-            level_csr.append((off, col, val, nnz))
+            _csr_galerkin(k == 0, True, rows, int(starts[k]), *args, self.S_col, self.S_val)
             reach = reach // 2 + 1          # the next level's cells are twice as wide
-        level_nnz = [csr[3] for csr in level_csr]
-        bases = np.concatenate([[0], np.cumsum(level_nnz)])
-        self.S_off = self._vector("S_off", ti.i32, size=total + 1)
-        self.S_col = self._vector("S_col", ti.i32, size=int(bases[-1]))
-        self.S_val = self._vector("S_val", None, size=int(bases[-1]))
-        for k, (off, col, val, _) in enumerate(level_csr):
-            _copy_level(sizes[k], int(starts[k]), int(bases[k]), off, col, val, self.S_off,
-                        self.S_col, self.S_val)
         self.cdinv = self._vector("cdinv", None, size=total)
         noise = _diagonal_inverse(sizes[0], total, self.S_off, self.S_col, self.S_val,
                                   float(np.finfo(runtime.np_real()).eps), self.cdinv)
-        off, col, val, nnz = level_csr[-1]
         m = sizes[-1]
-        rows = np.repeat(np.arange(m), np.diff(off.to_numpy()[: m + 1]))
-        coarsest = np.zeros((m, m))
-        np.add.at(coarsest, (rows, col.to_numpy()[:nnz] - starts[-2]),
-                  val.to_numpy()[:nnz].astype(np.float64))
+        dense = ti.ndarray(real, shape=(max(m * m, 1),))
+        _dense_rows(int(starts[-2]), m, self.S_off, self.S_col, self.S_val, dense)
+        coarsest = dense.to_numpy()[: m * m].astype(np.float64).reshape(m, m)
         self.level_sizes = sizes
         self._levels = None                  # CellMatrix views, built on request
         self._parents = None
