@@ -370,6 +370,28 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
 
 
 @ti.func
+def _add_laplacian_moments(u, P, Q, x, r, V, F):
+    """One pair's share of the corrected Laplacian's moments (x = x_j - x_i,
+    r = |x|, V = m_j / rho_j, F = W'(r) / r): u rows sum V q_k grad W, P rows
+    sum w q_k (exx, eyy, exy), Q rows sum w x_a (exx, eyy, exy), with
+    q = (x^2, y^2, xy) and w = -2 V F."""
+    gw = -F * x
+    q = ti.Vector([x[0] * x[0], x[1] * x[1], x[0] * x[1]])
+    e = x / r
+    ee = ti.Vector([e[0] * e[0], e[1] * e[1], e[0] * e[1]])
+    w = -2.0 * V * F
+    for a in ti.static(range(3)):
+        for b in ti.static(range(2)):
+            u[a, b] += V * q[a] * gw[b]
+        for b in ti.static(range(3)):
+            P[a, b] += w * q[a] * ee[b]
+    for a in ti.static(range(2)):
+        for b in ti.static(range(3)):
+            Q[a, b] += w * x[a] * ee[b]
+    return u, P, Q
+
+
+@ti.func
 def _laplacian_correction(M, u, P, Q):
     """(M^-1, Bxx, Byy, Bxy, ok) of the renormalised Laplacian from its first
     pass's sums (``_laplacian_coeffs``): B makes the stencil exact on x^2, y^2,
@@ -489,18 +511,7 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
                     Mg += (mj / rho[j]) * (-F) * x.outer_product(x)
                     g1 += V * gw
                     Gw[k] = ti.Vector([F, r])   # kept for the next two loops (then Gw)
-                q = ti.Vector([x[0] * x[0], x[1] * x[1], x[0] * x[1]])
-                e = x / r
-                ee = ti.Vector([e[0] * e[0], e[1] * e[1], e[0] * e[1]])
-                w = -2.0 * V * F
-                for a in ti.static(range(3)):
-                    for b in ti.static(range(2)):
-                        u[a, b] += V * q[a] * gw[b]
-                    for b in ti.static(range(3)):
-                        P[a, b] += w * q[a] * ee[b]
-                for a in ti.static(range(2)):
-                    for b in ti.static(range(3)):
-                        Q[a, b] += w * x[a] * ee[b]
+                u, P, Q = _add_laplacian_moments(u, P, Q, x, r, V, F)
             Linv, Bxx, Byy, Bxy, ok = _laplacian_correction(M, u, P, Q)
             if not ok:
                 ti.atomic_max(bad, i)
@@ -603,18 +614,7 @@ def _decomposition_coeffs(kernel_id: ti.template(), pos: ti.types.ndarray(),
             if fluid_row:
                 gw = -F * x
                 M += V * gw.outer_product(x)
-                q = ti.Vector([x[0] * x[0], x[1] * x[1], x[0] * x[1]])
-                e = x / r
-                ee = ti.Vector([e[0] * e[0], e[1] * e[1], e[0] * e[1]])
-                w = -2.0 * V * F
-                for a in ti.static(range(3)):
-                    for b in ti.static(range(2)):
-                        u[a, b] += V * q[a] * gw[b]
-                    for b in ti.static(range(3)):
-                        P[a, b] += w * q[a] * ee[b]
-                for a in ti.static(range(2)):
-                    for b in ti.static(range(3)):
-                        Q[a, b] += w * x[a] * ee[b]
+                u, P, Q = _add_laplacian_moments(u, P, Q, x, r, V, F)
         # the divergence's cubic fit, else quadratic (the leading block), else linear
         R3 = ti.Matrix.zero(float, 2, 9)
         L3 = ti.Matrix.identity(float, 2)
