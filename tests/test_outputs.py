@@ -94,13 +94,20 @@ def test_a_scene_script_as_main_does_not_bring_taichi_into_the_worker(tmp_path):
     assert (tmp_path / "run" / "frame_00000.png").exists()
 
 
-def test_a_failed_write_is_one_error_at_the_next_hand_off_and_nothing_follows(tmp_path):
+def _outputs_that_fail(tmp_path):
+    """A worker whose first particle file cannot be written (``particles`` is a
+    file, not a folder), one frame handed over: (out, outputs, pos, data)."""
     out = tmp_path / "run"
     out.mkdir()
     (out / "particles").write_text("a file, not a folder")
     outputs = Outputs(_spec(out), workers=1)
     pos, data = _particles()
     outputs.frame(0, 0.0, pos, data)
+    return out, outputs, pos, data
+
+
+def test_a_failed_write_is_one_error_at_the_next_hand_off_and_nothing_follows(tmp_path):
+    out, outputs, pos, data = _outputs_that_fail(tmp_path)
     outputs.checkpoint(str(out / "checkpoint.npz"), {"time": 0.0})
     with pytest.raises(OutputError) as err:
         outputs.drain()
@@ -184,12 +191,7 @@ def test_a_scene_stopped_by_ctrl_c_or_a_blow_up_has_every_output_it_handed_over(
 
 
 def test_after_a_failure_every_hand_off_and_drain_raises_again_never_hangs(tmp_path):
-    out = tmp_path / "run"
-    out.mkdir()
-    (out / "particles").write_text("a file, not a folder")
-    outputs = Outputs(_spec(out), workers=1)
-    pos, data = _particles()
-    outputs.frame(0, 0.0, pos, data)
+    out, outputs, pos, data = _outputs_that_fail(tmp_path)
     with pytest.raises(OutputError):
         outputs.drain()
     with pytest.raises(OutputError, match="t=0"):

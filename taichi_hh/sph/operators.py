@@ -554,6 +554,22 @@ def _laplacian_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.
     return bad
 
 
+@ti.func
+def _decomposition_pair(kernel_id: ti.template(), pos: ti.template(), mass: ti.template(),
+                        rho: ti.template(), adaptive: ti.template(), hs: ti.template(), H,
+                        Hi, i, j):
+    """What both passes of :func:`_decomposition_coeffs` need of pair (i, j):
+    x = x_j - x_i, r = |x|, W, F = W'/r, V = m_j / rho_j and the cubic monomials
+    of x / Hi (recomputed in the second pass: storing them would cost more
+    memory traffic than the arithmetic)."""
+    x = pos[j] - pos[i]
+    r = x.norm()
+    W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
+    V = mass[j] / rho[j]
+    p = _monomials(3, x / Hi)
+    return x, r, W, F, V, p
+
+
 @ti.kernel
 def _decomposition_coeffs(kernel_id: ti.template(), pos: ti.types.ndarray(),
                           mass: ti.types.ndarray(), rho: ti.types.ndarray(), n: ti.i32,
@@ -597,11 +613,8 @@ def _decomposition_coeffs(kernel_id: ti.template(), pos: ti.types.ndarray(),
         Q = ti.Matrix.zero(float, 2, 3)
         for k in range(offsets[i], offsets[i + 1]):
             j = nbrs[k]
-            x = pos[j] - pos[i]
-            r = x.norm()
-            W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
-            V = mass[j] / rho[j]
-            p = _monomials(3, x / Hi)
+            x, r, W, F, V, p = _decomposition_pair(kernel_id, pos, mass, rho, adaptive, hs, H,
+                                                   Hi, i, j)
             cp = (V * W) * p                    # one multiply-add per moment below
             if kind[j] == FLUID:
                 for a in ti.static(range(9)):
@@ -676,11 +689,8 @@ def _decomposition_coeffs(kernel_id: ti.template(), pos: ti.types.ndarray(),
             beta = Linv.transpose() @ (Q @ ti.Vector([Bxx, Byy, 2.0 * Bxy]))
         for k in range(offsets[i], offsets[i + 1]):
             j = nbrs[k]
-            x = pos[j] - pos[i]
-            r = x.norm()
-            W, F, _L = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
-            V = mass[j] / rho[j]
-            p = _monomials(3, x / Hi)
+            x, r, W, F, V, p = _decomposition_pair(kernel_id, pos, mass, rho, adaptive, hs, H,
+                                                   Hi, i, j)
             gw = F * (-x)                       # grad_i W_ij = F x_ij
             g3 = ti.Vector.zero(float, 2)
             if fluid_row and kind[j] == FLUID:
