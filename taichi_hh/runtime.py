@@ -29,6 +29,7 @@ class RuntimeState:
     requested_arch: str = ""
     precision: str = ""
     generation: int = 0      # bumped on every (re)initialisation
+    pinned: tuple = ()       # CPUs Taichi's worker threads were bound to, in order
 
 
 _state = RuntimeState()
@@ -76,7 +77,8 @@ def _free_vector_ndarrays() -> None:
 
 
 def init(arch: str = "cpu", precision: str = "f64", *, offline_cache_dir: str | None = None,
-         threads: int | None = None, debug: bool = False, verbose: bool = True) -> RuntimeState:
+         threads: int | None = None, debug: bool = False, verbose: bool = True,
+         pin_threads: bool | None = None) -> RuntimeState:
     """Initialise Taichi for this package.
 
     arch: ``"cpu"``, ``"gpu"`` (falls back to CPU with one message when no GPU
@@ -85,6 +87,12 @@ def init(arch: str = "cpu", precision: str = "f64", *, offline_cache_dir: str | 
     offline_cache_dir: where Taichi keeps compiled kernels between runs
     (default: Taichi's own, or ``$TAICHI_HH_CACHE`` when set).
     threads: CPU worker threads (default: all cores).
+    pin_threads: bind each of Taichi's CPU worker threads to its own core
+    (default: on where the process may use two or more cores; off with
+    ``$TAICHI_HH_PIN_THREADS=0``).  Unbound, Linux wakes both workers on the
+    core that launched the loop and moves one away only after a few
+    milliseconds, so loops shorter than that ran on one core
+    (docs/notes/flow.md, "Worker threads").
     """
     if arch not in _ARCHES:
         raise ValueError(f"arch must be one of {_ARCHES}, got {arch!r}")
@@ -118,12 +126,90 @@ def init(arch: str = "cpu", precision: str = "f64", *, offline_cache_dir: str | 
         ti.init(arch=ti.cpu, **kwargs)
     if arch == "gpu" and actual == "cpu" and verbose:
         print("taichi_hh: no usable GPU found; running on the CPU instead.", file=sys.stderr)
+    _state.pinned = ()
+    if actual == "cpu":
+        if pin_threads is None:
+            pin_threads = os.environ.get("TAICHI_HH_PIN_THREADS", "1") != "0"
+        if pin_threads:
+            _state.pinned = _pin_workers(ti)
     _state.initialized = True
     _state.arch = actual
     _state.requested_arch = arch
     _state.precision = precision
     _state.generation += 1
     return _state
+
+
+def _thread_runtimes() -> dict:
+    """Nanoseconds each thread of this process has run (Linux schedstat)."""
+    out = {}
+    for name in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{name}/schedstat") as f:
+                out[int(name)] = int(f.read().split()[0])
+        except (OSError, ValueError, IndexError):
+            pass
+    return out
+
+
+def _pin_workers(ti) -> tuple:
+    """Bind Taichi's CPU worker threads one to a core; return the cores used.
+
+    Taichi starts its thread pool in ``ti.init`` and does not expose it, so the
+    workers are found by what they do: the threads other than this one that
+    ran a parallel loop launched for the purpose.  Nothing is bound unless the
+    count found equals Taichi's worker count (a foreign thread busy at the same
+    time, an unknown Taichi layout), nor where the process may use one core.
+    """
+    if not (hasattr(os, "sched_setaffinity") and os.path.isdir("/proc/self/task")):
+        return ()
+    cpus = sorted(os.sched_getaffinity(0))
+    workers = int(ti.lang.impl.current_cfg().cpu_max_num_threads)
+    if len(cpus) < 2 or workers < 2:
+        return ()
+    import threading
+
+    def spin(out):
+        for i in range(4096):
+            a = ti.cast(i, ti.f32) * 1e-6
+            for _ in range(400):
+                a = a * 0.999 + 0.001 * ti.sin(a)
+            out[i] = a
+
+    # set by hand: this module's postponed annotations would be strings
+    spin.__annotations__ = {"out": ti.types.ndarray()}
+    spin = ti.kernel(spin)
+    out = ti.ndarray(ti.f64, shape=(4096,))
+    spin(out)                                  # compiled, pool running
+    ti.sync()
+    main = threading.get_native_id()
+    start = _thread_runtimes()
+    busy = []
+    for _ in range(4):              # a busy machine may wake a worker late
+        spin(out)
+        ti.sync()
+        now = _thread_runtimes()
+        ran = {t: now[t] - start.get(t, 0) for t in now if t != main}
+        total = sum(ran.values())
+        busy = sorted(t for t, dt in ran.items() if total and dt > 0.1 * total / workers)
+        if len(busy) == workers:
+            break
+    if len(busy) != workers:
+        return ()
+    used = []
+    try:
+        for j, tid in enumerate(busy):
+            cpu = cpus[j % len(cpus)]
+            os.sched_setaffinity(tid, {cpu})
+            used.append(cpu)
+    except OSError:
+        for tid in busy:
+            try:
+                os.sched_setaffinity(tid, set(cpus))
+            except OSError:
+                pass
+        return ()
+    return tuple(used)
 
 
 def _gpu_backends(ti):

@@ -75,8 +75,10 @@ COARSEST = 16
 
 #: below this many particles every loop of the cycle runs on one thread: a
 #: cycle has about 15 loops, and waking the thread pool for each costs more
-#: than the second core saves on small levels (docs/notes/linalg.md)
-SERIAL_MAX_N = 64_000
+#: than the second core saves on small levels (with the workers bound to
+#: their cores, 2.5k particles: serial faster; 10k: parallel faster;
+#: docs/notes/flow.md, "Worker threads")
+SERIAL_MAX_N = 5_000
 
 #: cell levels below the first with at least this many entries run in parallel
 #: loops (with the particles, from SERIAL_MAX_N on); smaller ones in the serial
