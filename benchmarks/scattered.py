@@ -23,6 +23,7 @@ add_repo_to_path()
 import taichi_hh as thh
 from taichi_hh.errors import TaichiHHError
 from taichi_hh.hhd.decompose import poisson_problems
+from taichi_hh.linalg import multilevel
 from taichi_hh.validation import fields, layouts
 
 OUT = REPO_ROOT / "outputs" / "benchmarks"
@@ -101,12 +102,16 @@ def main():
     options = json.loads(args.options)
     thh.init(arch="cpu", precision="f64")
     F = fields.get("gaussian")
-    for layout in args.layouts.split(","):      # compile every kernel the layouts use
-        pts, domain = points_and_domain(layout, 2000, F)
-        try:
-            thh.decompose(pts, F.evaluate(pts).v, domain, **options)
-        except TaichiHHError:
-            pass
+    # compile every kernel the layouts use: below multilevel.SERIAL_MAX_N points
+    # the cycle is one serial loop, above it a parallel schedule (a kernel of
+    # its own); a larger N may add parallel levels, compiled on its first call
+    for n_warm in sorted({2000, multilevel.SERIAL_MAX_N + 1000}):
+        for layout in args.layouts.split(","):
+            pts, domain = points_and_domain(layout, n_warm, F)
+            try:
+                thh.decompose(pts, F.evaluate(pts).v, domain, **options)
+            except TaichiHHError:
+                pass
     rows = []
     head = (f"{'layout':10s} {'n':>8s} {'err d/r/h %':>20s} {'its':>9s} {'nbrs':>5s} "
             f"{'seconds':>8s} {'superlu s':>9s} {'call/slu':>8s}")
