@@ -80,6 +80,13 @@ COARSEST = 16
 #: docs/notes/flow.md, "Worker threads")
 SERIAL_MAX_N = 5_000
 
+#: rows per parallel run of the Galerkin products' set-up (:func:`_csr_galerkin`),
+#: and the most runs: Taichi's CPU backend hands its threads 512 iterations of a
+#: parallel loop at a time (measured: 64 runs stayed on one thread, 1000 used
+#: two), so the runs must be many and short
+GALERKIN_CHUNK_ROWS = 32
+GALERKIN_MAX_CHUNKS = 4096
+
 #: cell levels below the first with at least this many entries run in parallel
 #: loops (with the particles, from SERIAL_MAX_N on); smaller ones in the serial
 #: state machine (docs/notes/scattered.md)
@@ -258,9 +265,9 @@ def _csr_galerkin(particles: ti.template(), fill: ti.template(), rows: ti.i32, r
                   f_row0: ti.i32, f_off: ti.types.ndarray(), f_col: ti.types.ndarray(),
                   f_val: ti.types.ndarray(), D: ti.types.ndarray(), dinv: ti.types.ndarray(),
                   up: ti.types.ndarray(), cix: ti.types.ndarray(), ciy: ti.types.ndarray(),
-                  reach: ti.i32, mark: ti.types.ndarray(), where: ti.types.ndarray(),
-                  out_off: ti.types.ndarray(), out_col: ti.types.ndarray(),
-                  out_val: ti.types.ndarray()):
+                  reach: ti.i32, chunks: ti.i32, stride: ti.i32, mark: ti.types.ndarray(),
+                  where: ti.types.ndarray(), out_off: ti.types.ndarray(),
+                  out_col: ti.types.ndarray(), out_val: ti.types.ndarray()):
     """One level's Galerkin operator ``P^T S P`` in CSR, rows ``row0 ..
     row0 + rows`` (global), from the level below (``particles``: the particle
     rows ``D^-1 A``, i.e. the pairs scaled by ``dinv`` and the diagonal; else a
@@ -269,43 +276,61 @@ def _csr_galerkin(particles: ti.template(), fill: ti.template(), rows: ti.i32, r
     of its own, so a (2 reach + 1)^2 window of markers (``mark``, ``where``;
     -1 on entry) finds the repeats without sorting.  Two passes: counting
     (``out_off[g + 1]``: global row g's entries) and, with ``fill``, writing at
-    the row starts ``out_off[g]``.  Serial: deterministic sums, one window."""
+    the row starts ``out_off[g]``.  The rows are split into ``chunks``
+    contiguous runs, in parallel, each run serial with a window of its own
+    (``stride`` entries apart: whole cache lines, not shared between threads):
+    a row's sums are the same in any split (deterministic)."""
+    for t in range(chunks):
+        for C in range(t * rows // chunks, (t + 1) * rows // chunks):
+            _galerkin_row(particles, fill, row0 + C, t * stride, kid0 + C, kid_start, kids,
+                          f_row0, f_off, f_col, f_val, D, dinv, up, cix, ciy, reach, mark,
+                          where, out_off, out_col, out_val)
+
+
+@ti.func
+def _galerkin_row(particles: ti.template(), fill: ti.template(), g, slot0, kid_row,
+                  kid_start: ti.template(), kids: ti.template(), f_row0,
+                  f_off: ti.template(), f_col: ti.template(), f_val: ti.template(),
+                  D: ti.template(), dinv: ti.template(), up: ti.template(),
+                  cix: ti.template(), ciy: ti.template(), reach, mark: ti.template(),
+                  where: ti.template(), out_off: ti.template(), out_col: ti.template(),
+                  out_val: ti.template()):
+    """Row ``g`` of :func:`_csr_galerkin`, with the window at ``slot0``."""
     w = 2 * reach + 1
-    ti.loop_config(serialize=True)
-    for C in range(rows):
-        g = row0 + C
-        base = 0
-        if ti.static(fill):
-            base = out_off[g]
-        cnt = 0
-        for m in range(kid_start[kid0 + C], kid_start[kid0 + C + 1]):
-            c = kids[m]
-            extra = 1 if ti.static(particles) else 0
-            for e in range(f_off[c - f_row0], f_off[c - f_row0 + 1] + extra):
-                j = c
-                v = 0.0
-                if ti.static(particles):
-                    if e < f_off[c + 1]:
-                        j = f_col[e]
-                        v = dinv[c] * f_val[e]
-                    else:
-                        v = D[c] * dinv[c]
-                else:
+    base = 0
+    if ti.static(fill):
+        base = out_off[g]
+    cnt = 0
+    for m in range(kid_start[kid_row], kid_start[kid_row + 1]):
+        c = kids[m]
+        extra = 1 if ti.static(particles) else 0
+        for e in range(f_off[c - f_row0], f_off[c - f_row0 + 1] + extra):
+            j = c
+            v = 0.0
+            if ti.static(particles):
+                if e < f_off[c + 1]:
                     j = f_col[e]
-                    v = f_val[e]
-                J = up[j]
-                slot = (ciy[J] - ciy[g] + reach) * w + cix[J] - cix[g] + reach
-                if mark[slot] != g:
-                    mark[slot] = g
-                    if ti.static(fill):
-                        where[slot] = base + cnt
-                        out_col[base + cnt] = J
-                        out_val[base + cnt] = v
-                    cnt += 1
-                elif ti.static(fill):
-                    out_val[where[slot]] += v
-        if ti.static(not fill):
-            out_off[g + 1] = cnt
+                    v = dinv[c] * f_val[e]
+                else:
+                    v = D[c] * dinv[c]
+            else:
+                j = f_col[e]
+                v = f_val[e]
+            J = up[j]
+            slot = slot0 + (ciy[J] - ciy[g] + reach) * w + cix[J] - cix[g] + reach
+            if mark[slot] != g:
+                mark[slot] = g
+                if ti.static(fill):
+                    where[slot] = base + cnt
+                    out_col[base + cnt] = J
+                    out_val[base + cnt] = v
+                cnt += 1
+            elif ti.static(fill):
+                # not +=: that would be an atomic add in this parallel loop,
+                # and no two runs share a row
+                out_val[where[slot]] = out_val[where[slot]] + v
+    if ti.static(not fill):
+        out_off[g + 1] = cnt
 
 
 @ti.kernel
@@ -566,6 +591,18 @@ def _cycle(serial: ti.template(), schedule: ti.template(), post: ti.template(),
             z[i] += shift
 
 
+def _unique_keys(keys: np.ndarray, size: int):
+    """``np.unique(keys, return_inverse=True)`` for keys in ``0 .. size - 1``:
+    by a presence table when it is not much larger than the keys (no sort)."""
+    if size <= 8 * len(keys) + 4096:
+        present = np.zeros(size, dtype=bool)
+        present[keys] = True
+        rank = np.cumsum(present, dtype=np.int64) - 1
+        return np.flatnonzero(present), rank[keys]
+    uniq, inverse = np.unique(keys, return_inverse=True)
+    return uniq, inverse.reshape(-1)
+
+
 class CellMatrix:
     """A level's Galerkin operator in CSR form, built from (row, column, value)
     entries with the duplicates summed (a piecewise-constant aggregation's
@@ -711,26 +748,31 @@ class MultilevelPreconditioner:
 
     @staticmethod
     def _aggregates(pos, lo, extent, size: float) -> list:
-        """Particle -> aggregate maps of every cell level (level k: its row indices).
+        """The aggregation maps of every cell level: level 0's maps each particle
+        to its row, level k >= 1's each row of level k - 1 to its row of level k.
 
         Level k aggregates the particles by the non-empty cells of side
         ``size 2^k`` of a grid from ``lo`` (nested: level k+1 aggregates 2 x 2
         level-k cells), down to the first grid of at most COARSEST cells (and at
         least two levels).  Also each level's cells: their keys ``iy nx + ix``
-        (ascending, as its rows) and ``nx``."""
+        (ascending, as its rows) and ``nx``.  A level's cell indices are its
+        finer level's halved (floor(floor(x / s) / 2) = floor(x / 2s), exact in
+        floating point: the division by a power of two is), so only level 0
+        reads the particles."""
         maps = []
         cells = []
+        ij = np.floor((pos - lo) / size).astype(np.int64)
         k = 0
         while True:
-            ij = np.floor((pos - lo) / (size * 2.0 ** k)).astype(np.int64)
             shape = np.floor(extent / (size * 2.0 ** k)).astype(np.int64) + 1
             ij = np.minimum(ij, shape - 1)
-            keys, agg = np.unique(ij[:, 1] * shape[0] + ij[:, 0], return_inverse=True)
-            maps.append(agg.reshape(-1))
+            keys, agg = _unique_keys(ij[:, 1] * shape[0] + ij[:, 0], int(shape[0] * shape[1]))
+            maps.append(agg)
             cells.append((keys, int(shape[0])))
             k += 1
             if shape[0] * shape[1] <= COARSEST and k >= 2:
                 return maps, cells
+            ij = np.stack([keys % shape[0], keys // shape[0]], axis=1) // 2
 
     @staticmethod
     def grid_level_dims(nx: int, ny: int) -> list:
@@ -848,7 +890,8 @@ class MultilevelPreconditioner:
         """The Galerkin operators of every cell level, in kernels (once per
         matrix): B = D^-1 A on the particles, S_0 = P_0^T B P_0, S_k+1 = P_k^T S_k P_k,
         with the piecewise-constant aggregations P (``maps``: particle -> row of
-        level k; ``cells``: each level's cell keys, for the rows' coordinates);
+        level 0, then row of level k - 1 -> row of level k; ``cells``: each
+        level's cell keys, for the rows' coordinates);
         each level by :func:`_csr_galerkin`, then all in one flat CSR."""
         pr = A.ops.pairs
         self.dinv = self._vector("dinv", None, size=n)
@@ -866,8 +909,7 @@ class MultilevelPreconditioner:
         kid_count = np.zeros(total, dtype=np.int64)
         kids = []
         for k in range(len(maps) - 1):
-            par = np.zeros(sizes[k], dtype=np.int64)
-            par[maps[k]] = maps[k + 1]
+            par = maps[k + 1]               # level k's rows -> level k + 1's
             parent[starts[k]:starts[k + 1]] = par + starts[k + 1]
             kid_count[starts[k + 1]:starts[k + 2]] = np.bincount(par, minlength=sizes[k + 1])
             kids.append(np.argsort(par, kind="stable") + starts[k])
@@ -895,11 +937,13 @@ class MultilevelPreconditioner:
             else:            # the level below's rows, up by parent
                 src = (int(starts[k]), self.kid_start, self.kids, 0, self.S_off, self.S_col,
                        self.S_val, self.parent)
-            window = (2 * reach + 1) ** 2
-            if k == 0:               # the widest window: level 0's, reused above
-                mark = ti.ndarray(ti.i32, shape=(window,))
-                where = ti.ndarray(ti.i32, shape=(window,))
-            args = (*src[:7], A.D, self.dinv, src[7], cix, ciy, reach, mark, where, self.S_off)
+            chunks = max(1, min(rows // GALERKIN_CHUNK_ROWS, GALERKIN_MAX_CHUNKS))
+            if k == 0:      # the widest window and the most runs: level 0's, reused above
+                stride = -(-(2 * reach + 1) ** 2 // 32) * 32
+                mark = ti.ndarray(ti.i32, shape=(chunks * stride,))
+                where = ti.ndarray(ti.i32, shape=(chunks * stride,))
+            args = (*src[:7], A.D, self.dinv, src[7], cix, ciy, reach, chunks, stride, mark,
+                    where, self.S_off)
             mark.fill(-1)
             _csr_galerkin(k == 0, False, rows, int(starts[k]), *args, mark, dummy)
             base = end
