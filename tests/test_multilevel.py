@@ -79,6 +79,20 @@ def test_coarser_levels_are_galerkin_operators(square48, cells):
         assert np.abs(got - want).max() < 1e-12 * np.abs(fine).sum(), k
 
 
+def test_galerkin_levels_do_not_depend_on_the_parallel_split(square48, monkeypatch):
+    """The CSR levels are built in parallel runs of rows, each with its own
+    marker window: the same entries, bit for bit, as one serial run."""
+    from taichi_hh.linalg import multilevel
+    ps, A, b = square48
+    split = MultilevelPreconditioner(A, cells=0.5, weak=0.5)
+    assert split.level_sizes[0] // multilevel.GALERKIN_CHUNK_ROWS > 1
+    monkeypatch.setattr(multilevel, "GALERKIN_CHUNK_ROWS", 10 ** 9)
+    whole = MultilevelPreconditioner(A, cells=0.5, weak=0.5)
+    for k in range(len(split.level_sizes)):
+        a, b_ = split.level_matrix(k), whole.level_matrix(k)
+        assert np.array_equal(a.toarray(), b_.toarray()), k
+
+
 @pytest.mark.parametrize("cycle", ["V", "W"])
 def test_cycle_is_a_fixed_linear_operator(square48, cycle):
     """BiCGSTAB needs M^-1 linear and the same at every call."""

@@ -280,8 +280,9 @@ def _csr_galerkin(particles: ti.template(), fill: ti.template(), rows: ti.i32, r
     contiguous runs, in parallel, each run serial with a window of its own
     (``stride`` entries apart: whole cache lines, not shared between threads):
     a row's sums are the same in any split (deterministic)."""
+    q, rem = rows // chunks, rows % chunks       # (not t * rows // chunks: i32 overflow)
     for t in range(chunks):
-        for C in range(t * rows // chunks, (t + 1) * rows // chunks):
+        for C in range(t * q + ti.min(t, rem), (t + 1) * q + ti.min(t + 1, rem)):
             _galerkin_row(particles, fill, row0 + C, t * stride, kid0 + C, kid_start, kids,
                           f_row0, f_off, f_col, f_val, D, dinv, up, cix, ciy, reach, mark,
                           where, out_off, out_col, out_val)
