@@ -89,8 +89,11 @@ GALERKIN_MAX_CHUNKS = 4096
 
 #: cell levels below the first with at least this many entries run in parallel
 #: loops (with the particles, from SERIAL_MAX_N on); smaller ones in the serial
-#: state machine (docs/notes/scattered.md)
-PARALLEL_MIN_NNZ = 400_000
+#: state machine.  A parallel loop needs about 1000 rows to reach the second
+#: thread (Taichi's 512-iteration tasks), some 30k-50k entries; with the
+#: worker threads bound to cores 50k beat 400k: 13k random points 0.41 against
+#: 0.44-0.51 s a call, 200k 5.7 against 6.8 s (docs/notes/scattered.md)
+PARALLEL_MIN_NNZ = 50_000
 
 # ---------------------------------------------------------------------------
 # Cell levels, stored flat as one CSR matrix: level k owns rows lvl[k, 0] ..
@@ -483,7 +486,8 @@ def _grid_values(serial: ti.template(), L: ti.i32, eps: float, cell_start: ti.ty
 
 
 @ti.kernel
-def _cycle(serial: ti.template(), schedule: ti.template(), post: ti.template(),
+def _cycle(serial: ti.template(), by_cell: ti.template(), schedule: ti.template(),
+           post: ti.template(),
            omega: ti.template(), correction: ti.template(),
            bordered: ti.template(), gamma: ti.template(), L: ti.i32, n: ti.i32,
            pstart: ti.types.ndarray(), porder: ti.types.ndarray(), cell_of: ti.types.ndarray(),
@@ -507,20 +511,38 @@ def _cycle(serial: ti.template(), schedule: ti.template(), post: ti.template(),
     m0 = lvl[0, 1]
     # particles: pre-smoothing from zero x = omega D^-1 r, stored so that the
     # gather below reads one value per neighbour; the scaled residual
-    # D^-1 (r - A x) summed per cell
+    # D^-1 (r - A x) summed per cell; unless the particles are sorted by cell,
+    # first in particle order (ftmp is free until the post-smoothing): read by
+    # cell, the rows came out of order, which made this pass twice an apply's
+    # time at 200k
     ti.loop_config(serialize=serial)
     for i in range(n):
         fx[i] = omega * dinv[i] * r[i]
-    ti.loop_config(serialize=serial)
-    for c in range(m0):
-        acc = 0.0
-        for s in range(pstart[c], pstart[c + 1]):
-            i = porder[s]
+    if ti.static(by_cell):
+        # the particles are sorted by their cells (the neighbour grid's): one loop
+        ti.loop_config(serialize=serial)
+        for c in range(m0):
+            acc = 0.0
+            for s in range(pstart[c], pstart[c + 1]):
+                i = porder[s]
+                ax = D[i] * fx[i]
+                for k in range(offsets[i], offsets[i + 1]):
+                    ax += K[k] * fx[nbrs[k]]
+                acc += dinv[i] * (r[i] - ax)
+            cr[c] = acc
+    else:
+        ti.loop_config(serialize=serial)
+        for i in range(n):
             ax = D[i] * fx[i]
             for k in range(offsets[i], offsets[i + 1]):
                 ax += K[k] * fx[nbrs[k]]
-            acc += dinv[i] * (r[i] - ax)
-        cr[c] = acc
+            ftmp[i] = dinv[i] * (r[i] - ax)
+        ti.loop_config(serialize=serial)
+        for c in range(m0):
+            acc = 0.0
+            for s in range(pstart[c], pstart[c + 1]):
+                acc += ftmp[porder[s]]
+            cr[c] = acc
     for op in ti.static(schedule):
         if ti.static(op[0] == "down"):
             # pre-smoothing from zero, restriction of the residual
@@ -713,7 +735,9 @@ class MultilevelPreconditioner:
         self._bordered = bool(getattr(A, "bordered", False))
         self._border_c = float(getattr(A, "border_c", 1.0)) if self._bordered else 1.0
         grid = getattr(ops.pairs, "grid", None)
-        if cells is None and self.weak == 0 and not self.l1 and grid is not None:
+        # the grid levels' particles are sorted by their level-0 cells
+        self._by_cell = cells is None and self.weak == 0 and not self.l1 and grid is not None
+        if self._by_cell:
             self._setup_grid_levels(A, n, grid)
         else:
             pos = ops.particles.position.to_numpy()[:n].astype(np.float64)
@@ -996,7 +1020,7 @@ class MultilevelPreconditioner:
         self.cx = self._vector("cx", None, size=total)
         self.ctmp = self._vector("ctmp", None, size=total)
         self.fx = self._vector("fx", None, size=n)
-        self.ftmp = self._vector("ftmp", None, size=n if self.post > 1 else 1)
+        self.ftmp = self._vector("ftmp", None, size=n)
         # coarsest level: pseudo-inverse (singular for a Neumann problem)
         U, sv, Vt = np.linalg.svd(coarsest)
         self._constant_mode_setup(A, n)
@@ -1104,7 +1128,7 @@ class MultilevelPreconditioner:
     def apply(self, r, z) -> None:
         """z = M^-1 r (one cycle from zero)."""
         A, pr = self.A, self.A.ops.pairs
-        _cycle(self.serial, self.schedule, self.post, self.omega, self.correction,
+        _cycle(self.serial, self._by_cell, self.schedule, self.post, self.omega, self.correction,
                self._bordered, self.gamma, len(self.level_sizes), self.n, self.pstart, self.porder, self.cell_of, pr.offsets,
                pr.neighbours, A.K, A.D, self.dinv, self.lvl, self.visits, self.S_off,
                self.S_col, self.S_val, self.parent, self.kid_start, self.kids, self.cdinv,
