@@ -199,7 +199,7 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
         A = PoissonMatrix(ops, laplacian=opts.laplacian if st_lap is None else st_lap,
                           gradient=opts.neumann_gradient if st_neumann is None else st_neumann,
                           kappa=opts.kappa, near=near, bordered=opts.bordered and not dirichlet,
-                          dirichlet=dirichlet)
+                          dirichlet=dirichlet, overwrite_laplacian=True)
         seconds["assemble"] = time.perf_counter() - t
 
     stats = {"n_points": n, "n_boundary": int((kind == BOUNDARY).sum()),

@@ -80,6 +80,10 @@ COARSEST = 16
 #: docs/notes/flow.md, "Worker threads")
 SERIAL_MAX_N = 5_000
 
+#: parallel loops of the cycle's unrolled schedule at most (a W-cycle's
+#: doubles per parallel level: 4, 10, 22, 46, ...; Taichi warns beyond 32)
+MAX_SCHEDULE_OPS = 32
+
 #: rows per parallel run of the Galerkin products' set-up (:func:`_csr_galerkin`),
 #: and the most runs: Taichi's CPU backend hands its threads 512 iterations of a
 #: parallel loop at a time (measured: 64 runs stayed on one thread, 1000 used
@@ -1011,7 +1015,10 @@ class MultilevelPreconditioner:
         # cell levels 1 .. k0-1 in parallel loops, k0 .. L-1 in the serial machine
         k0 = 1
         if not self.serial:
-            while k0 < len(level_nnz) - 2 and level_nnz[k0] >= PARALLEL_MIN_NNZ:
+            # the schedule is unrolled into the kernel, and a W-cycle doubles it
+            # per parallel level: at most MAX_SCHEDULE_OPS loops (compile time)
+            while (k0 < len(level_nnz) - 2 and level_nnz[k0] >= PARALLEL_MIN_NNZ
+                   and len(_schedule(k0 + 1, self.gamma, False)) <= MAX_SCHEDULE_OPS):
                 k0 += 1
         self.schedule = _schedule(k0, self.gamma, self.serial)
         total = sum(self.level_sizes)
