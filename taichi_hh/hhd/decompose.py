@@ -44,6 +44,7 @@ from .. import runtime
 from ..sph.operators import ALL_KINDS
 from ..sph.particles import BOUNDARY, FLUID, GHOST
 from ..sph.pointset import PointSet
+from ..sph.positive import make_rows_positive
 from ..linalg.poisson import PoissonMatrix
 from .boundary import collocation_particles, far_from
 from .inputs import check_data_reach_boundary, check_point_count, validate_input
@@ -191,11 +192,16 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
     seconds["divergence"] = time.perf_counter() - t
 
     A = None
+    stats_positive = None
     if opts.boundary_condition != "natural":
         say("assemble")
         t = time.perf_counter()
         # normal-parallel: Dirichlet rows, a regular problem, nothing to border
         dirichlet = opts.boundary_condition == "normal-parallel"
+        if opts.positive_rows is not None and opts.laplacian == "corrected":
+            if st_lap is None:
+                st_lap = ops.laplacian_coefficients("corrected", row_kinds=(FLUID,))
+            stats_positive = make_rows_positive(ops, st_lap, opts.positive_rows, FLUID)
         A = PoissonMatrix(ops, laplacian=opts.laplacian if st_lap is None else st_lap,
                           gradient=opts.neumann_gradient if st_neumann is None else st_neumann,
                           kappa=opts.kappa, near=near, bordered=opts.bordered and not dirichlet,
@@ -205,6 +211,8 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
     stats = {"n_points": n, "n_boundary": int((kind == BOUNDARY).sum()),
              "n_ghosts": int((kind == GHOST).sum()), "support": support, "spacing": spacing,
              "mean_neighbours": float(ps.neighbour_counts.mean())}
+    if stats_positive is not None:
+        stats["positive_rows"] = stats_positive
     return PoissonProblems(opts, pts, ps, A, {"phi": div_slots, "psi": -curl_slots}, vec, kind,
                            seconds, stats, domain, st_div)
 

@@ -11,7 +11,10 @@
                     cubic (MLS) gradient over the data points (the quadratic
                     fit's error on random points is noise that the potentials
                     inherit); corrected
-                    Laplacian (exact on quadratics) on the data points and
+                    Laplacian (exact on quadratics) on the data points, its
+                    rows that lose their sign made positive (sph.positive:
+                    a few per thousand, near the boundary; they made the
+                    iterations grow with N on random points), and
                     Neumann rows on boundary particles sampled along the
                     boundary, with the quadratic gradient (second order up to
                     the boundary); bordered system for the pure-Neumann
@@ -60,6 +63,10 @@ class HHDOptions:
     gradient: str = "quadratic"         # gradient variant for d = grad phi, r = J grad psi
     laplacian: str = "corrected"        # Laplacian variant of the Poisson rows
     neumann_gradient: str = "quadratic"  # gradient variant of the Neumann rows
+    # corrected-Laplacian rows with sum |C_ij| > positive_rows * sum C_ij (or a
+    # diagonal of the wrong sign) replaced by the positive stencil exact on
+    # quadratics (sph.positive); None: off
+    positive_rows: float | None = 1.5
     boundary: str = "collocation"       # collocation | petronetto | colin | none
     kappa: float = 0.0                  # ridge term (Petronetto Sec. 6a)
     bordered: bool = True               # compatibility unknown for pure Neumann
@@ -88,6 +95,9 @@ class HHDOptions:
             raise ValueError(f"support_ratio must be positive, got {self.support_ratio}")
         if not 1 <= self.support_neighbours <= 24:
             raise ValueError(f"support_neighbours must be 1..24, got {self.support_neighbours}")
+        if self.positive_rows is not None and not self.positive_rows >= 1:
+            raise ValueError(f"positive_rows must be None or a number >= 1, got "
+                             f"{self.positive_rows!r}")
         if not (self.tol > 0):
             raise ValueError(f"tol must be positive, got {self.tol}")
         if self.boundary_condition not in BOUNDARY_CONDITIONS:
