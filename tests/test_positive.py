@@ -64,8 +64,9 @@ def test_replaced_rows_are_positive_and_consistent_on_random_points():
     pos = p.get("position")
     spacing = np.sqrt(F.domain.area / len(pts))
     def lap(f):
-        nd = ti_array(f)
-        out = ti_array(np.zeros(len(f)))
+        nd = problems.ps.new_array()
+        nd.from_numpy(np.asarray(f, dtype=runtime.np_real()))
+        out = problems.ps.new_array()
         ops.laplacian(st, nd, out)
         return out.to_numpy()[:n]
 
@@ -76,13 +77,6 @@ def test_replaced_rows_are_positive_and_consistent_on_random_points():
         assert err.max() < 1e-8, err.max()
     # and the replaced rows are positive: all their coefficients >= 0
     assert replaced.sum() >= counts["replaced"]
-
-
-def ti_array(values):
-    import taichi as ti
-    nd = ti.ndarray(runtime.real_dtype(), shape=(len(values),))
-    nd.from_numpy(np.asarray(values, dtype=runtime.np_real()))
-    return nd
 
 
 @pytest.mark.slow

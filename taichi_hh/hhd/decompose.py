@@ -245,6 +245,9 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     operator); above :data:`HARMONIC_LIMIT` h is not harmonic and the result is
     flagged (``stats["flags"]`` and an AccuracyWarning): the Neumann condition
     with a field of net curl or divergence (docs/notes/hhd.md).
+    ``stats["positive_rows"]``: the corrected-Laplacian rows flagged by the
+    ``positive_rows`` option, how many were replaced by positive stencils and
+    how many kept (:mod:`taichi_hh.sph.positive`).
     """
     t_start = time.perf_counter()
     say = progress or (lambda stage: None)

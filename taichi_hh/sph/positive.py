@@ -124,9 +124,9 @@ def positive_quadratic_weights(g: np.ndarray, prior: np.ndarray, target=None):
     g: ``(R, m, 5)`` monomials ``(x, y, x^2, xy, y^2)`` of each row's pair
     offsets in units of a length ``h`` (zero rows for padding); prior: ``(R, m)``
     positive weights (0 on padding); target: the moments (default the five of
-    every quadratic, ``(0, 0, 2, 0, 2)``).  Returns ``(w, ok)``: ``w`` (R, m) with
-    ``sum_j w_j g_j = (0, 0, 2, 0, 2)`` on the rows where ``ok`` (Newton
-    converged: the row's pairs admit a positive stencil exact on quadratics),
+    every quadratic, ``(0, 0, 2, 0, 2)``; g's columns must match it).  Returns
+    ``(w, ok)``: ``w`` (R, m) with ``sum_j w_j g_j = target`` on the rows where
+    ``ok`` (Newton converged: the row's pairs admit such a positive stencil),
     in units of ``h^-2``.
     """
     target = np.array([0.0, 0.0, 2.0, 0.0, 2.0]) if target is None else np.asarray(target, float)
