@@ -221,6 +221,28 @@ def test_box_corner_normal_and_sign():
     np.testing.assert_allclose(dist, [2 ** 0.5, 1.0, 0.4], atol=1e-15)
 
 
+def test_closest_wall_is_nan_only_where_a_corner_is_closest():
+    b = Box((0, 0), (1, 1))
+    dist, n = b.closest_wall([[0.5, 0.01], [0.02, 0.5], [0.5, 0.0], [0.03, 0.01]])
+    np.testing.assert_allclose(dist, [0.01, 0.02, 0.0, 0.01], atol=1e-15)
+    np.testing.assert_allclose(n, [[0, -1], [-1, 0], [0, -1], [0, -1]], atol=1e-15)
+    # a square hole's corner, seen from the domain: on its diagonal the vertex
+    # normal points along the way to it; off the diagonal the corner is still
+    # the closest boundary point, but no single wall's
+    holed = Polygon(UNIT, holes=[[(0.4, 0.4), (0.4, 0.6), (0.6, 0.6), (0.6, 0.4)]])
+    dist, n = holed.closest_wall([[0.62, 0.62], [0.62, 0.63], [0.5, 0.61]])
+    np.testing.assert_allclose(dist[0], 0.02 * 2 ** 0.5, atol=1e-15)
+    assert np.isnan(dist[1]) and np.isnan(n[1]).all()
+    np.testing.assert_allclose(n[2], [0, -1], atol=1e-15)
+    # a finely segmented circle: its vertices pass (normal within acos(0.999))
+    disc = Polygon(ngon((0, 0), 1.0, 400))
+    angle = np.linspace(0, 2 * np.pi, 1000, endpoint=False)
+    p = 0.97 * np.c_[np.cos(angle), np.sin(angle)]
+    dist, n = disc.closest_wall(p)
+    assert np.isfinite(dist).all()
+    np.testing.assert_allclose((n * p).sum(axis=1) / 0.97, 1.0, atol=1e-3)
+
+
 # ---- boundary samples -----------------------------------------------------------------
 @pytest.mark.parametrize("dom, spacing", [
     (Box((0, 0), (2, 1)), 0.07),

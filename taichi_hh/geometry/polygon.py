@@ -222,6 +222,22 @@ class Polygon:
         dist, q, n, _ = self._segments.features(p, seg)
         return dist, q, n, seg
 
+    def closest_wall(self, points, parallel: float = 0.999):
+        """``(distance, normal)``: for every point, the distance (N,) to the one
+        wall it is closest to and that wall's outward unit normal (N, 2); NaN
+        where the closest boundary point is a corner, the direction to it more
+        than ``acos(parallel)`` off the vertex normal, so that no single wall's
+        boundary condition describes the solution between the point and the
+        boundary (vertices of a finely segmented curve pass)."""
+        p = check_points(points, allow_empty=True)
+        dist, foot, normal, _ = self.closest_boundary(p)
+        towards = foot - p
+        length = np.linalg.norm(towards, axis=1)
+        on_wall = length <= self._eps
+        along = (towards * normal).sum(axis=1) / np.where(on_wall, 1.0, length)
+        single = on_wall | (along >= parallel)
+        return np.where(single, dist, np.nan), np.where(single[:, None], normal, np.nan)
+
     def classify_discs(self, p: np.ndarray, radius: float, lo: float, hi: float) -> np.ndarray:
         """For discs of ``radius`` around the (N, 2) float64 points ``p``: 1 if every
         point of the disc has ``lo < signed_distance <= hi``, 0 if none has, 2 if

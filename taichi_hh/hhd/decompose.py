@@ -201,7 +201,11 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
         if opts.positive_rows is not None and opts.laplacian == "corrected":
             if st_lap is None:
                 st_lap = ops.laplacian_coefficients("corrected", row_kinds=(FLUID,))
-            stats_positive = make_rows_positive(ops, st_lap, opts.positive_rows, FLUID)
+            wall = None
+            if opts.boundary == "collocation":
+                # the boundary rows' homogeneous condition holds all along the wall
+                wall = (domain.closest_wall, "dirichlet" if dirichlet else "neumann")
+            stats_positive = make_rows_positive(ops, st_lap, opts.positive_rows, FLUID, wall)
         A = PoissonMatrix(ops, laplacian=opts.laplacian if st_lap is None else st_lap,
                           gradient=opts.neumann_gradient if st_neumann is None else st_neumann,
                           kappa=opts.kappa, near=near, bordered=opts.bordered and not dirichlet,
