@@ -244,6 +244,28 @@ def test_closest_wall_is_nan_only_where_a_corner_is_closest():
 
 
 # ---- boundary samples -----------------------------------------------------------------
+def test_sample_boundary_follows_a_local_spacing():
+    # spacing 0.01 at x = 0 rising to 0.05 at x = 2: gaps follow it to within 3%
+    # (each side rounded into whole gaps: 1% here); the corners stay samples
+    box = Box((0, 0), (2, 1))
+    def wanted(q):
+        return 0.01 + 0.02 * q[:, 0]
+    pts, nrm, piece = box.sample_boundary(0.04, spacing_at=wanted)     # resolves 0.01
+    assert np.abs(box.signed_distance(pts)).max() < 1e-12
+    gaps = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
+    mid = 0.5 * (pts + np.roll(pts, -1, axis=0))
+    ratio = gaps / wanted(mid)
+    assert 0.97 < ratio.min() and ratio.max() < 1.03, (ratio.min(), ratio.max())
+    corners = np.array([[0, 0], [2, 0], [2, 1], [0, 1]], float)
+    assert cKDTree(pts).query(corners)[0].max() == 0.0
+    # a side's samples: its length over the mean spacing, rounded up
+    bottom = pts[(np.abs(pts[:, 1]) < 1e-12)]
+    n_expected = np.log(0.05 / 0.01) / 0.02                # integral of dx / (0.01 + 0.02 x)
+    assert abs(len(bottom) - 1 - n_expected) <= 2
+    with pytest.raises(InputError, match="spacing_at"):
+        box.sample_boundary(0.05, spacing_at=lambda q: np.zeros(len(q)))
+
+
 @pytest.mark.parametrize("dom, spacing", [
     (Box((0, 0), (2, 1)), 0.07),
     (Polygon(UNIT, holes=[HOLE_A, HOLE_B]), 0.03),

@@ -288,7 +288,9 @@ def test_weak_rows_share_the_cells_of_their_strongest_neighbour():
     """The default decomposition's rows on a 1:10 density gradient include a few
     far from diagonally dominant; with ``weak`` each joins its strongest
     neighbour's cell on every level, and the levels stay Galerkin operators of
-    nested aggregates.  (0.3 here to have a dozen such rows at 5k points.)"""
+    nested aggregates.  (0.5 here to have some such rows at 5k points: with
+    the positive rows and boundary samples at the data's spacing only 2 rows
+    have ``|a_ii| < 0.3 sum_j |a_ij|``, 99 below 0.5.)"""
     from taichi_hh.hhd.decompose import poisson_problems
     from taichi_hh.validation import fields, layouts
     F = fields.get("gaussian")
@@ -298,9 +300,9 @@ def test_weak_rows_share_the_cells_of_their_strongest_neighbour():
     B = A.to_scipy()[:n, :n].tocsr()
     d = np.abs(B.diagonal())
     off = np.abs(B).sum(axis=1).A1 - d
-    weak = np.flatnonzero(d < 0.3 * off)
+    weak = np.flatnonzero(d < 0.5 * off)
     assert weak.size > 5
-    M = MultilevelPreconditioner(A, cells=0.25, weak=0.3)
+    M = MultilevelPreconditioner(A, cells=0.25, weak=0.5)
     plain = MultilevelPreconditioner(A, cells=0.25)
     cell, cell_plain = M.aggregation(0), plain.aggregation(0)
     joined = 0

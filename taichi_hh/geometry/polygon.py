@@ -287,7 +287,7 @@ class Polygon:
 
     # ---- samplers (see taichi_hh.geometry.sampling) -------------------------------------
     def sample_boundary(self, spacing: float,
-                        corner_angle: float = sampling.DEFAULT_CORNER_ANGLE):
+                        corner_angle: float = sampling.DEFAULT_CORNER_ANGLE, spacing_at=None):
         """``(points, normals, piece)``: points about ``spacing`` apart along every ring.
 
         Every vertex whose boundary turns by more than ``corner_angle`` degrees
@@ -295,8 +295,11 @@ class Polygon:
         are equally spaced by arc length at a spacing in (spacing/2, spacing]
         (shorter only where two such vertices are closer than ``spacing``).
         ``normals`` are outward unit normals, averaged at vertices; ``piece`` is
-        the ring index (0 outer, k for ``holes[k-1]``)."""
-        return sampling.sample_boundary(self, spacing, corner_angle)
+        the ring index (0 outer, k for ``holes[k-1]``).  ``spacing_at``: an
+        optional function giving the wanted spacing at (M, 2) boundary points
+        (e.g. the local spacing of data near the boundary), which the samples
+        then follow; ``spacing`` is then the finest resolved."""
+        return sampling.sample_boundary(self, spacing, corner_angle, spacing_at)
 
     def sample_ghosts(self, spacing: float, width: float, seed=0, avoid=None) -> np.ndarray:
         """(G, 2) Poisson-disk points outside the domain with ``0 < signed_distance <= width``.

@@ -42,14 +42,19 @@ MAX_POINTS = 5e7
 
 
 # --------------------------------------------------------------------------- boundary
-def sample_boundary(domain, spacing: float, corner_angle: float = DEFAULT_CORNER_ANGLE):
+def sample_boundary(domain, spacing: float, corner_angle: float = DEFAULT_CORNER_ANGLE,
+                    spacing_at=None):
     """``(points, normals, piece)`` along every ring of ``domain`` (see
-    :meth:`Polygon.sample_boundary <taichi_hh.geometry.polygon.Polygon.sample_boundary>`)."""
+    :meth:`Polygon.sample_boundary <taichi_hh.geometry.polygon.Polygon.sample_boundary>`).
+    spacing_at: optional ``f(points) -> spacings`` (M, 2) -> (M,): the samples
+    follow that local spacing instead, evaluated every ``spacing / 4`` along
+    the boundary (so ``spacing`` is the finest resolved)."""
     spacing = check_real(spacing, "spacing")
     corner_angle = check_real(corner_angle, "corner_angle", allow_zero=True)
     if corner_angle >= 180.0:
         raise InputError(f"corner_angle must be below 180 degrees, got {corner_angle}")
-    if domain.perimeter / spacing > MAX_POINTS:
+    fine = spacing / 4 if spacing_at is not None else spacing
+    if domain.perimeter / fine > MAX_POINTS:
         raise InputError(f"spacing {spacing:g} is too small: it would give more than "
                          f"5e7 boundary points")
     segs = domain.segment_table
@@ -68,18 +73,49 @@ def sample_boundary(domain, spacing: float, corner_angle: float = DEFAULT_CORNER
         # arcs between consecutive corners (cyclic)
         a_start = cum[corners]
         a_len = np.diff(np.concatenate([a_start, [a_start[0] + total]]))
-        nsub = np.maximum(1, np.ceil(a_len / spacing * (1 - 1e-12)).astype(np.int64))
-        owner = np.repeat(np.arange(corners.size), nsub)
-        j = np.arange(nsub.sum()) - np.repeat(np.cumsum(nsub) - nsub, nsub)
-        arc = a_start[owner] + a_len[owner] * j / nsub[owner]
-        arc = np.where(arc >= total, arc - total, arc)
-        seg = np.clip(np.searchsorted(cum, arc, side="right") - 1, 0, m - 1)
-        t = (arc - cum[seg]) / seglen[seg]
+
+        def on_ring(arc):
+            """points, normals and "at a vertex" at arc positions of this ring"""
+            arc = np.where(arc >= total, arc - total, arc)
+            seg = np.clip(np.searchsorted(cum, arc, side="right") - 1, 0, m - 1)
+            t = (arc - cum[seg]) / seglen[seg]
+            g = s0 + seg
+            return segs.starts[g] + t[:, None] * segs.direction[g], seg, t
+
+        if spacing_at is None:
+            nsub = np.maximum(1, np.ceil(a_len / spacing * (1 - 1e-12)).astype(np.int64))
+            owner = np.repeat(np.arange(corners.size), nsub)
+            j = np.arange(nsub.sum()) - np.repeat(np.cumsum(nsub) - nsub, nsub)
+            arc = a_start[owner] + a_len[owner] * j / nsub[owner]
+        else:
+            # per arc: the number of local spacings it spans, cumulated at fine
+            # steps (trapezoids of 1 / spacing_at); samples where it crosses
+            # equal shares of its total
+            nfine = np.maximum(1, np.ceil(a_len / fine)).astype(np.int64)
+            owner_f = np.repeat(np.arange(corners.size), nfine + 1)
+            i_f = np.arange(owner_f.size) - np.repeat(np.cumsum(nfine + 1) - (nfine + 1), nfine + 1)
+            arc_f = a_start[owner_f] + a_len[owner_f] * i_f / nfine[owner_f]
+            local = np.asarray(spacing_at(on_ring(arc_f)[0]), dtype=np.float64)
+            if local.shape != arc_f.shape or not (np.isfinite(local) & (local > 0)).all():
+                raise InputError("spacing_at must give a positive finite spacing per point")
+            rate = 1.0 / np.maximum(local, fine)
+            arcs, owners, js = [], [], []
+            for a in range(corners.size):
+                sel = owner_f == a
+                x = arc_f[sel] - a_start[a]
+                r = rate[sel]
+                count = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(x))])
+                n_a = max(1, int(math.ceil(count[-1] * (1 - 1e-12))))
+                want = count[-1] * np.arange(n_a) / n_a
+                arcs.append(a_start[a] + np.interp(want, count, x))
+                owners.append(np.full(n_a, a))
+                js.append(np.arange(n_a))
+            arc, owner, j = np.concatenate(arcs), np.concatenate(owners), np.concatenate(js)
+        p, seg, t = on_ring(arc)
         # snap to vertices where the arc position is (numerically) one
         at_start = (j == 0) | (t <= 1e-12)
         at_end = ~at_start & (t >= 1 - 1e-12)
         g = s0 + seg
-        p = segs.starts[g] + t[:, None] * segs.direction[g]
         n = segs.normal[g].copy()
         p[at_start] = segs.starts[g[at_start]]
         n[at_start] = segs.vertex_normal_start[g[at_start]]

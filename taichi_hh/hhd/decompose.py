@@ -47,7 +47,7 @@ from ..sph.pointset import PointSet
 from ..sph.positive import make_rows_positive
 from ..linalg.poisson import PoissonMatrix
 from .boundary import collocation_particles, far_from
-from .inputs import check_data_reach_boundary, check_point_count, validate_input
+from .inputs import check_data_reach_boundary, check_point_count, refuse_too_few, validate_input
 from .natural import natural_potentials
 from .options import (BOUNDARY_CONDITIONS, BOUNDARY_METHODS, METHODS, PRECONDITIONERS,
                       HHDOptions, options_for)
@@ -91,7 +91,7 @@ def _extra_particles(domain, pts, opts: HHDOptions, spacing: float, support: flo
     if opts.boundary == "none":
         return None, None
     if opts.boundary == "collocation":
-        return collocation_particles(domain, pts, spacing), None
+        return collocation_particles(domain, pts, spacing, local=opts.adaptive_support), None
     band = domain.sample_ghosts(spacing, support, seed=opts.seed, avoid=pts)
     if opts.boundary == "colin":
         _, _, nrm, _ = domain.closest_boundary(band)
@@ -130,6 +130,7 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
     say = progress or (lambda stage: None)
     seconds = {}
     n = len(pts)
+    refuse_too_few(n)
     spacing = math.sqrt(domain.area / n)
     support = opts.support_ratio * spacing
 

@@ -40,14 +40,19 @@ def validate_input(points, vectors, domain):
     return pts, vec, domain
 
 
-def check_point_count(n: int, stats: dict, *, stacklevel: int = 3) -> None:
+def refuse_too_few(n: int) -> None:
     """Refuse a decomposition of fewer than :data:`MIN_POINTS` points
-    (:class:`~taichi_hh.errors.InputError`); flag one of fewer than
-    :data:`FEW_POINTS` in ``stats["flags"]`` and by an
-    :class:`~taichi_hh.errors.AccuracyWarning`."""
+    (:class:`~taichi_hh.errors.InputError`), before any particle is built."""
     if n < MIN_POINTS:
         raise InputError(f"{n} point(s) are too few to decompose: at least {MIN_POINTS} are "
                          f"needed, and below {FEW_POINTS} the result is unreliable")
+
+
+def check_point_count(n: int, stats: dict, *, stacklevel: int = 3) -> None:
+    """Refuse a decomposition of fewer than :data:`MIN_POINTS` points
+    (:func:`refuse_too_few`); flag one of fewer than :data:`FEW_POINTS` in
+    ``stats["flags"]`` and by an :class:`~taichi_hh.errors.AccuracyWarning`."""
+    refuse_too_few(n)
     stats.setdefault("flags", [])
     if n < FEW_POINTS:
         msg = (f"only {n} points: below {FEW_POINTS} nearly every particle's kernel support "

@@ -294,17 +294,24 @@ def make_rows_positive(ops, stencil, threshold: float, row_kind: int, wall=None)
         closest, condition = wall
         distance, normal = closest(p.position.to_numpy()[rows].astype(np.float64))
         has_wall = np.isfinite(distance) & np.isfinite(normal).all(axis=1) & (distance < h)
-        offset = np.where(has_wall[:, None], distance[:, None] * normal / h[:, None], 0.0)
-        moments = np.where(has_wall[:, None], wall_moments(offset, np.nan_to_num(normal),
-                                                           condition), 0.0)
+        normal_or_0 = np.where(has_wall[:, None], np.nan_to_num(normal), 0.0)
+        distance_or_0 = np.where(has_wall, np.nan_to_num(distance), 0.0)
+        offset = distance_or_0[:, None] * normal_or_0 / h[:, None]
+        moments = np.where(has_wall[:, None], wall_moments(offset, normal_or_0, condition), 0.0)
         if condition == "neumann":
             free = moments
         else:
             # the wall point as one more neighbour of known value 0: its weight
-            # goes to the diagonal only; its prior is the row's largest
+            # goes to the diagonal only.  Its prior balances the others' first
+            # moment along the normal, as Shortley-Weller's weight does (of
+            # order 1 / delta: within the exponential family of the weights
+            # no finite multiplier reaches it from a prior of order one)
+            along = -(prior * (g[..., 0] * normal_or_0[:, None, 0]
+                               + g[..., 1] * normal_or_0[:, None, 1])).sum(axis=1)
+            depth = np.maximum(distance_or_0 / h, 1e-6)
+            wall_prior = np.maximum(prior.max(axis=1), along / depth)
             g = np.concatenate([g, moments[:, None, :]], axis=1)
-            prior = np.concatenate([prior, np.where(has_wall, prior.max(axis=1), 0.0)[:, None]],
-                                   axis=1)
+            prior = np.concatenate([prior, np.where(has_wall, wall_prior, 0.0)[:, None]], axis=1)
     w, ok = positive_quadratic_weights(g, prior, free=free)
     self_weight = w[:, m] if w.shape[1] > m else np.zeros(rows.size)
     w_nd = ti.ndarray(real, shape=(rows.size, m))
