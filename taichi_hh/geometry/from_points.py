@@ -20,10 +20,15 @@ DOMAINS_FROM_POINTS = ("bbox", "hull", "alpha")
 #: clustered or 1:10 graded points (their largest ratio is 1.8-2.1 at 1M points)
 ALPHA = 3.0
 #: the margin, in local spacings, by which a shape drawn through the outermost
-#: points is moved out: data points on the boundary itself (the hull's and the
-#: alpha shape's vertices) cost the solves 2.5x the iterations (34/30 against
-#: 9/8 with the margin at 13k random points), at the same accuracy
-MARGIN = 0.5
+#: points is moved out.  Data points on the boundary itself (the hull's and the
+#: alpha shape's vertices) once cost the solves 2.5x the iterations (34/30
+#: against 9/8 with a margin of 0.5 at 13k random points); since the positive
+#: rows' wall term they take 10/10.  A margin of 0.5 then left data in the
+#: filled notches up to about 2 spacings from the wall, and iterations grew with
+#: N (1M random points in [0.05, 0.95]^2: 17/19, against 12/12 with 0.25;
+#: 13k 11/11, 200k 14/13; d and r errors 1-4% higher than with 0.5;
+#: docs/notes/scattered.md)
+MARGIN = 0.25
 #: notches of the alpha shape's boundary shallower than this many local spacings
 #: are filled (the boundary zigzags between the outermost data points otherwise)
 NOTCH_DEPTH = 1.0

@@ -57,7 +57,9 @@ class HHDOptions:
     """Numerical choices of :func:`~taichi_hh.hhd.decompose.decompose` (bundles: :data:`METHODS`)."""
     kernel: str = "wendland"
     support_ratio: float = 3.5          # kernel support / (local) mean spacing
-    adaptive_support: bool = True       # per-point support from the local spacing (sph.support)
+    # per-point support from the local spacing (sph.support); the boundary
+    # samples then follow the data's spacing next to the wall (hhd.boundary)
+    adaptive_support: bool = True
     support_neighbours: int = 12        # k of that local spacing estimate
     divergence: str = "cubic"           # gradient variant for div v and curl v
     gradient: str = "quadratic"         # gradient variant for d = grad phi, r = J grad psi
