@@ -99,18 +99,26 @@ def sample_boundary(domain, spacing: float, corner_angle: float = DEFAULT_CORNER
             if local.shape != arc_f.shape or not (np.isfinite(local) & (local > 0)).all():
                 raise InputError("spacing_at must give a positive finite spacing per point")
             rate = 1.0 / np.maximum(local, fine)
-            arcs, owners, js = [], [], []
-            for a in range(corners.size):
-                sel = owner_f == a
-                x = arc_f[sel] - a_start[a]
-                r = rate[sel]
-                count = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(x))])
-                n_a = max(1, int(math.ceil(count[-1] * (1 - 1e-12))))
-                want = count[-1] * np.arange(n_a) / n_a
-                arcs.append(a_start[a] + np.interp(want, count, x))
-                owners.append(np.full(n_a, a))
-                js.append(np.arange(n_a))
-            arc, owner, j = np.concatenate(arcs), np.concatenate(owners), np.concatenate(js)
+            # the count cumulated along the whole ring (no increment across an
+            # arc's end, where the next arc starts at the same position): one
+            # interpolation places every arc's samples, no loop over arcs
+            same = owner_f[1:] == owner_f[:-1]
+            step = np.where(same, 0.5 * (rate[1:] + rate[:-1]) * np.diff(arc_f), 0.0)
+            count = np.concatenate([[0.0], np.cumsum(step)])
+            first = np.cumsum(nfine + 1) - (nfine + 1)
+            base = count[first]
+            total_a = count[first + nfine] - base
+            nsub = np.maximum(1, np.ceil(total_a * (1 - 1e-12)).astype(np.int64))
+            owner = np.repeat(np.arange(corners.size), nsub)
+            j = np.arange(nsub.sum()) - np.repeat(np.cumsum(nsub) - nsub, nsub)
+            want = base[owner] + total_a[owner] * j / nsub[owner]
+            # within arc a, interpolate on its own fine points only (the join's
+            # duplicate count value belongs to both neighbours)
+            pos = np.searchsorted(count, want, side="right") - 1
+            pos = np.clip(pos, first[owner], first[owner] + nfine[owner] - 1)
+            c0, c1 = count[pos], count[pos + 1]
+            frac = np.where(c1 > c0, (want - c0) / np.where(c1 > c0, c1 - c0, 1.0), 0.0)
+            arc = arc_f[pos] + frac * (arc_f[pos + 1] - arc_f[pos])
         p, seg, t = on_ring(arc)
         # snap to vertices where the arc position is (numerically) one
         at_start = (j == 0) | (t <= 1e-12)
