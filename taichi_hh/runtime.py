@@ -253,3 +253,52 @@ def check_generation(made_in: int, what: str = "object") -> None:
         raise RuntimeError(
             f"this {what} was created before taichi_hh.init() re-initialised Taichi; "
             "its arrays are gone. Create it again.")
+
+
+def array(dtype, shape, vector: int | None = None, *, zeroed: bool = True):
+    """A Taichi ndarray of ``dtype`` (None: :func:`real_dtype`) and ``shape``, of
+    scalars or, with ``vector``, of vectors of that many components: what
+    ``ti.ndarray`` and ``ti.Vector.ndarray`` make, without their two hidden costs.
+
+    Taichi 1.7 records the caller's Python traceback for every ndarray (0.1-0.2 ms:
+    a tenth of a 13k-point decomposition's allocations) and zero-fills it
+    serially, the first touch of fresh pages: 0.4-1.25 s for a 720 MB pair
+    array of 1M points, slower the more memory the process holds (4.9 s of a
+    1M-point decomposition; docs/notes/scattered.md, "Eighth session").  Here
+    the traceback is left out and, with ``zeroed=False``, the fill: for arrays
+    a kernel writes in full before anything reads them, whose pages the
+    kernel's parallel loop then touches first.  Built with the constructor
+    Taichi's own classes call; where that is missing or changed (Taichi is
+    pinned below 1.8) the public constructors are used instead, zeroed."""
+    ti = _taichi()
+    ensure_init()
+    dtype = real_dtype() if dtype is None else dtype
+    shape = (int(shape),) if np.isscalar(shape) else tuple(int(s) for s in shape)
+    try:
+        from taichi._lib import core
+        from taichi.lang import _ndarray, impl, matrix
+        from taichi.lang.enums import Layout
+        from taichi.lang.util import cook_dtype
+        prog = impl.get_runtime().prog
+        if vector is None:
+            element = cook_dtype(dtype)
+            made = prog.create_ndarray(element, shape, layout=Layout.NULL, zero_fill=zeroed,
+                                       dbg_info=core.DebugInfo(""))
+            out = _ndarray.ScalarNdarray.__new__(_ndarray.ScalarNdarray)
+            _ndarray.Ndarray.__init__(out)
+            out.dtype, out.element_type = element, dtype
+        else:
+            element = matrix._type_factory.get_tensor_type((int(vector),), cook_dtype(dtype))
+            made = prog.create_ndarray(cook_dtype(element), shape, Layout.AOS,
+                                       zero_fill=zeroed, dbg_info=core.DebugInfo(""))
+            out = matrix.VectorNdarray.__new__(matrix.VectorNdarray)
+            _ndarray.Ndarray.__init__(out)
+            out.n, out.dtype, out.element_type = int(vector), cook_dtype(dtype), element
+            out.layout = Layout.AOS
+        out.arr = made
+        out.shape = tuple(made.shape) if vector is None else shape
+        return out
+    except (ImportError, AttributeError, TypeError):
+        if vector is None:
+            return ti.ndarray(dtype, shape=shape)
+        return ti.Vector.ndarray(int(vector), dtype, shape=shape)

@@ -65,3 +65,55 @@ def test_one_thread_is_left_unbound():
     got = _probe("{'threads': 1}")
     assert got["workers"] == 1
     assert got["pinned"] == [] and got["single"] == []
+
+
+# ---- runtime.array: Taichi arrays without the traceback and, on request, the fill
+
+
+def _fill_kernel():
+    import taichi as ti
+
+    @ti.kernel
+    def fill(x: ti.types.ndarray(), y: ti.types.ndarray(), n: ti.i32):
+        for i in range(n):
+            x[i] = 2.0 * i
+            y[i] = ti.Vector([1.0, -1.0]) * i
+    return fill
+
+
+def test_array_is_what_the_public_constructors_make():
+    import numpy as np
+    import taichi as ti
+    from taichi_hh import runtime
+    runtime.ensure_init()
+    real = runtime.real_dtype()
+    for mine, public in ((runtime.array(None, 7), ti.ndarray(real, shape=(7,))),
+                         (runtime.array(real, 7, vector=2), ti.Vector.ndarray(2, real, shape=(7,))),
+                         (runtime.array(ti.i32, (3, 4)), ti.ndarray(ti.i32, shape=(3, 4)))):
+        assert type(mine) is type(public)
+        assert mine.shape == public.shape
+        assert vars(mine.get_type()) == vars(public.get_type())
+        assert np.array_equal(mine.to_numpy(), public.to_numpy())     # zeroed by default
+        assert not mine.to_numpy().any()
+    # written by a kernel, read back; an unzeroed array is whatever the kernel wrote
+    fill = _fill_kernel()
+    x, y = runtime.array(None, 5, zeroed=False), runtime.array(None, 5, vector=2, zeroed=False)
+    fill(x, y, 5)
+    assert np.array_equal(x.to_numpy(), 2.0 * np.arange(5))
+    assert np.array_equal(y.to_numpy(), np.arange(5)[:, None] * [1.0, -1.0])
+    x.from_numpy(np.full(5, 3.0))
+    assert np.array_equal(x.to_numpy(), np.full(5, 3.0))
+
+
+def test_array_falls_back_to_the_public_constructors(monkeypatch):
+    import taichi.lang.enums
+    from taichi_hh import runtime
+    runtime.ensure_init()
+    # another Taichi layout: a name the fast path imports is gone (Taichi's own
+    # classes bound it at their import and still work)
+    monkeypatch.delattr(taichi.lang.enums, "Layout")
+    a = runtime.array(None, 4, zeroed=False)
+    b = runtime.array(None, 4, vector=2)
+    monkeypatch.undo()
+    assert a.shape == (4,) and b.shape == (4,) and b.n == 2
+    assert not a.to_numpy().any() and not b.to_numpy().any()      # the public ones: zeroed

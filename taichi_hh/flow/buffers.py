@@ -10,11 +10,11 @@ from .. import runtime
 
 
 def _scalars(size: int):
-    return ti.ndarray(runtime.real_dtype(), shape=(size,))
+    return runtime.array(runtime.real_dtype(), size)
 
 
 def _vectors(size: int):
-    return ti.Vector.ndarray(2, runtime.real_dtype(), shape=(size,))
+    return runtime.array(runtime.real_dtype(), size, vector=2)
 
 
 @dataclass

@@ -440,6 +440,6 @@ def _petronetto_band(ps, domain):
     normals[band] = nrm[band]
     p.set("normal", normals)
     w = np.where(band, -1.0, 0.0).astype(runtime.np_real())
-    near = ti.ndarray(runtime.real_dtype(), shape=(max(ps.n_total, 1),))
+    near = runtime.array(runtime.real_dtype(), max(ps.n_total, 1))
     near.from_numpy(np.resize(w, max(ps.n_total, 1)))
     return near

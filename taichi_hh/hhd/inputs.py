@@ -6,6 +6,7 @@ import warnings
 import numpy as np
 import taichi as ti
 
+from .. import runtime
 from ..errors import AccuracyWarning, InputError
 from ..sph.pointset import check_points, check_values
 
@@ -88,7 +89,7 @@ def check_data_reach_boundary(ps, boundary_kind: int, fluid_kind: int) -> None:
     boundary rows would have no data to read).  Raises
     :class:`~taichi_hh.errors.InputError` saying where, and the remedy."""
     p = ps.particles
-    first = ti.ndarray(ti.i32, shape=(1,))
+    first = runtime.array(ti.i32, 1)
     first.fill(ps.n_total)
     n_empty = _rows_without_source(ps.n_total, ps.pairs.offsets, ps.pairs.neighbours, p.kind,
                                    int(boundary_kind), int(fluid_kind), first)

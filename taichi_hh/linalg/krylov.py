@@ -546,7 +546,7 @@ def _upload_csr(indptr, indices, data):
     ti = _ti()
     out = []
     for arr, dtype in ((indptr, ti.i32), (indices, ti.i32), (data, runtime.real_dtype())):
-        nd = ti.ndarray(dtype, shape=(max(arr.size, 1),))   # Taichi has no empty ndarrays
+        nd = runtime.array(dtype, max(arr.size, 1))   # Taichi has no empty ndarrays
         if arr.size:
             nd.from_numpy(np.ascontiguousarray(arr))
         out.append(nd)

@@ -764,7 +764,7 @@ class MultilevelPreconditioner:
         position of its most strongly coupled neighbour, so that it shares that
         neighbour's cell on every level: Jacobi barely moves such a row, and a
         cell of its own would leave its error to the Krylov method."""
-        strongest = ti.ndarray(ti.i32, shape=(max(n, 1),))
+        strongest = runtime.array(ti.i32, max(n, 1))
         pr = A.ops.pairs
         _strongest_neighbour(n, self.weak, pr.offsets, pr.neighbours, A.K, A.D, strongest)
         partner = strongest.to_numpy()[:n]
@@ -952,7 +952,7 @@ class MultilevelPreconditioner:
         ciy = self._vector("ciy", ti.i32, np.concatenate([keys // nx for keys, nx in cells]))
         reach = _pair_reach(n, pr.offsets, pr.neighbours, self.cell_of, cix, ciy) + 1
         real = runtime.real_dtype()
-        dummy = ti.ndarray(real, shape=(1,))
+        dummy = runtime.array(real, 1)
         # every level straight into the cycle's flat CSR: level k's rows read the
         # rows of level k - 1 (global row indices) already written there
         self.S_off = self._vector("S_off", ti.i32, size=total + 1)
@@ -969,8 +969,8 @@ class MultilevelPreconditioner:
             chunks = max(1, min(rows // GALERKIN_CHUNK_ROWS, GALERKIN_MAX_CHUNKS))
             if k == 0:      # the widest window and the most runs: level 0's, reused above
                 stride = -(-(2 * reach + 1) ** 2 // 32) * 32
-                mark = ti.ndarray(ti.i32, shape=(chunks * stride,))
-                where = ti.ndarray(ti.i32, shape=(chunks * stride,))
+                mark = runtime.array(ti.i32, chunks * stride)
+                where = runtime.array(ti.i32, chunks * stride)
             args = (*src[:7], A.D, self.dinv, src[7], cix, ciy, reach, chunks, stride, mark,
                     where, self.S_off)
             mark.fill(-1)
@@ -984,8 +984,8 @@ class MultilevelPreconditioner:
                 # 3.6%, 0.7%, ...): 35% more is room for all of them; a regrowth
                 # keeps a quarter more, so that it happens once, not per level
                 room = max(end + (7 * end // 20 if k == 0 else end // 4), 1)
-                S_col = ti.ndarray(ti.i32, shape=(room,))
-                S_val = ti.ndarray(real, shape=(room,))
+                S_col = runtime.array(ti.i32, room, zeroed=False)
+                S_val = runtime.array(real, room, zeroed=False)
                 if self.S_col is not None and base > 0:
                     _copy_prefix(base, self.S_col, S_col)
                     _copy_prefix(base, self.S_val, S_val)
@@ -1000,7 +1000,7 @@ class MultilevelPreconditioner:
         noise = _diagonal_inverse(sizes[0], total, self.S_off, self.S_col, self.S_val,
                                   float(np.finfo(runtime.np_real()).eps), self.cdinv)
         m = sizes[-1]
-        dense = ti.ndarray(real, shape=(max(m * m, 1),))
+        dense = runtime.array(real, max(m * m, 1))
         _dense_rows(int(starts[-2]), m, self.S_off, self.S_col, self.S_val, dense)
         coarsest = dense.to_numpy()[: m * m].astype(np.float64).reshape(m, m)
         self.level_sizes = sizes
@@ -1058,7 +1058,7 @@ class MultilevelPreconditioner:
         if old is not None and old.shape[0] >= need:
             nd = old
         else:
-            nd = ti.ndarray(dtype, shape=(need + need // 4 if self._old_arrays else need,))
+            nd = runtime.array(dtype, need + need // 4 if self._old_arrays else need)
         if values is not None:
             buf = np.zeros(nd.shape[0], dtype=np_dtype)
             buf[:len(values)] = values
@@ -1071,7 +1071,7 @@ class MultilevelPreconditioner:
         is the same."""
         old = self._old_arrays.get(name)
         nd = old if old is not None and tuple(old.shape) == tuple(shape) \
-            else ti.ndarray(dtype, shape=shape)
+            else runtime.array(dtype, shape)
         if values is not None:
             nd.from_numpy(values)
         self._arrays[name] = nd
@@ -1109,7 +1109,7 @@ class MultilevelPreconditioner:
         self._constant_mode = False
         if self._bordered or not callable(getattr(A, "apply_transpose", None)):
             return
-        ones = ti.ndarray(real, shape=(A.n,))
+        ones = runtime.array(real, A.n)
         ones.fill(1.0)
         A.apply_transpose(ones, self.colsum)
         colsum = self.colsum.to_numpy()[:n]

@@ -251,17 +251,17 @@ class PoissonMatrix:
         elif overwrite_laplacian and self.lap.C.shape[0] >= npairs:
             self.K = self.lap.C
         else:
-            self.K = ti.ndarray(real, shape=(room,))
-        self.D = reuse.D if reuse is not None else ti.ndarray(real, shape=(size,))
+            self.K = runtime.array(real, room)
+        self.D = reuse.D if reuse is not None else runtime.array(real, size)
         self._zero_near = near is None
         if near is None:
             if reuse is not None and reuse._zero_near:
                 near = reuse.near
             else:
-                near = ti.ndarray(real, shape=(size,))
+                near = runtime.array(real, size)
                 near.fill(0.0)
         self.near = near
-        orphan = self._orphan = reuse._orphan if reuse is not None else ti.ndarray(ti.i32, shape=(1,))
+        orphan = self._orphan = reuse._orphan if reuse is not None else runtime.array(ti.i32, 1)
         orphan.fill(-1)
         pr = ops.pairs
         _assemble(ops.kernel_id, p.n, pr.offsets, pr.neighbours, p.position, p.volume, p.kind,
@@ -294,8 +294,8 @@ class PoissonMatrix:
             self.border_e, self.border_w = reuse.border_e, reuse.border_w
             size = self.border_e.shape[0]
         else:
-            self.border_e = ti.ndarray(real, shape=(size,))
-            self.border_w = ti.ndarray(real, shape=(size,))
+            self.border_e = runtime.array(real, size)
+            self.border_w = runtime.array(real, size)
         self.border_e.from_numpy(_padded(fluid, size))
         self.border_w.from_numpy(_padded(fluid * vol, size))
         # the corner's sign (class doc): regular for every kappa >= 0

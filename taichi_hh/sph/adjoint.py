@@ -82,7 +82,7 @@ class NormalOperator:
         self.cols = kind_bits(ALL_KINDS if cols is None else cols)
         self.reverse = pairs.reverse_index()
         self.tmp = scratch if scratch is not None else \
-            ti.Vector.ndarray(2, runtime.real_dtype(), shape=(max(n, 1),))
+            runtime.array(runtime.real_dtype(), max(n, 1), vector=2)
 
     @classmethod
     def of_pointset(cls, ps: PointSet, st) -> "NormalOperator":

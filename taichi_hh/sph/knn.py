@@ -124,11 +124,11 @@ class KNearest:
         order = self._order = np.argsort(cells, kind="stable")
         start = np.zeros(self.spec.ncells + 1, dtype=np.int32)
         np.cumsum(np.bincount(cells, minlength=self.spec.ncells), out=start[1:])
-        self.order = ti.ndarray(ti.i32, shape=(n,))
+        self.order = runtime.array(ti.i32, n)
         self.order.from_numpy(order.astype(np.int32))
-        self.start = ti.ndarray(ti.i32, shape=(len(start),))
+        self.start = runtime.array(ti.i32, len(start))
         self.start.from_numpy(start)
-        self.pos = ti.Vector.ndarray(2, ti.f64, shape=(n,))
+        self.pos = runtime.array(ti.f64, n, vector=2)
         self.pos.from_numpy(pts[order])
 
     def cells(self, points) -> np.ndarray:
@@ -150,12 +150,12 @@ class KNearest:
         nq = len(tg)
         if nq == 0:
             return np.zeros((0, k)), np.zeros((0, k), dtype=np.int64)
-        qpos = ti.Vector.ndarray(2, ti.f64, shape=(nq,))
+        qpos = runtime.array(ti.f64, nq, vector=2)
         qpos.from_numpy(tg)
-        qorder = ti.ndarray(ti.i32, shape=(nq,))
+        qorder = runtime.array(ti.i32, nq)
         qorder.from_numpy(np.argsort(self.cells(tg), kind="stable").astype(np.int32))
-        dist = ti.ndarray(ti.f64, shape=(nq, k))
-        idx = ti.ndarray(ti.i32, shape=(nq, k))
+        dist = runtime.array(ti.f64, (nq, k))
+        idx = runtime.array(ti.i32, (nq, k))
         s = self.spec
         _k_nearest(k, nq, qpos, qorder, self.pos, self.order, self.start, s.lo_x, s.lo_y, s.inv_cell,
                    s.cell_size, s.nx, s.ny, dist, idx, False)
@@ -170,7 +170,7 @@ class KNearest:
                              f"({self.n} points), got {k}")
         # the sources are their own queries, already sorted by cell: slot order
         # is query order, and the sorted positions serve as the query positions
-        dist = ti.ndarray(ti.f64, shape=(self.n, 1))
+        dist = runtime.array(ti.f64, (self.n, 1))
         s = self.spec
         _k_nearest(k + 1, self.n, self.pos, self._slots(), self.pos, self.order, self.start,
                    s.lo_x, s.lo_y, s.inv_cell, s.cell_size, s.nx, s.ny, dist, self._no_idx(),
@@ -180,13 +180,13 @@ class KNearest:
         return out
 
     def _slots(self):
-        slots = ti.ndarray(ti.i32, shape=(self.n,))
+        slots = runtime.array(ti.i32, self.n)
         slots.from_numpy(np.arange(self.n, dtype=np.int32))
         return slots
 
     @staticmethod
     def _no_idx():
-        return ti.ndarray(ti.i32, shape=(1, 1))
+        return runtime.array(ti.i32, (1, 1))
 
 
 def k_nearest(points, targets, k: int) -> tuple[np.ndarray, np.ndarray]:

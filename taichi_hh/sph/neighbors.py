@@ -142,8 +142,8 @@ class CellGrid:
     def __init__(self, spec: GridSpec):
         runtime.ensure_init()
         self.spec = spec
-        self.cell_start = ti.ndarray(ti.i32, shape=(spec.ncells + 1,))
-        self._count = ti.ndarray(ti.i32, shape=(spec.ncells + 1,))
+        self.cell_start = runtime.array(ti.i32, spec.ncells + 1)
+        self._count = runtime.array(ti.i32, spec.ncells + 1)
         self._capacity = 0
         self.cell_of = None
         self.order = None
@@ -154,8 +154,8 @@ class CellGrid:
     def _ensure(self, n: int) -> None:
         if n > self._capacity:
             cap = max(n, 1)
-            self.cell_of = ti.ndarray(ti.i32, shape=(cap,))
-            self.order = ti.ndarray(ti.i32, shape=(cap,))
+            self.cell_of = runtime.array(ti.i32, cap)
+            self.order = runtime.array(ti.i32, cap)
             self._capacity = cap
             self._rank_nd = None
 
@@ -180,7 +180,7 @@ class CellGrid:
         self._rank = None
         if n >= self.RANK_MIN_N and _sample_descents(self.cell_of, n, self.SAMPLES) * 8 > self.SAMPLES:
             if self._rank_nd is None:
-                self._rank_nd = ti.ndarray(ti.i32, shape=(self._capacity,))
+                self._rank_nd = runtime.array(ti.i32, self._capacity)
             self._rank = self._rank_nd
         _stable_scatter(self.cell_of, n, self.cell_start, self._count, self.order, s.ncells,
                         self.order if self._rank is None else self._rank,
@@ -323,8 +323,8 @@ class PairList:
         self._cap_q = 0
         self._cap_p = 0
         self._count = None
-        self._dup = ti.ndarray(ti.i32, shape=(1,))
-        self._no_supports = ti.ndarray(runtime.real_dtype(), shape=(1,))   # fixed support
+        self._dup = runtime.array(ti.i32, 1)
+        self._no_supports = runtime.array(runtime.real_dtype(), 1)   # fixed support
         self._reverse = None
         #: the grid whose cell-sorted points are both the queries and the sources
         #: (every pair then joins a cell to its 3 x 3 block); None for other queries
@@ -344,8 +344,8 @@ class PairList:
         """
         if nq + 1 > self._cap_q:
             self._cap_q = nq + 1
-            self.offsets = ti.ndarray(ti.i32, shape=(self._cap_q,))
-            self._count = ti.ndarray(ti.i32, shape=(self._cap_q,))
+            self.offsets = runtime.array(ti.i32, self._cap_q)
+            self._count = runtime.array(ti.i32, self._cap_q)
         s = grid.spec
         if supports is None:
             hq = hs = self._no_supports
@@ -368,7 +368,7 @@ class PairList:
                              f"{duplicate_tolerance:g}")
         if total > self._cap_p or self.neighbours is None:
             self._cap_p = max(int(total), int(self._cap_p * 1.25), 1)
-            self.neighbours = ti.ndarray(ti.i32, shape=(self._cap_p,))
+            self.neighbours = runtime.array(ti.i32, self._cap_p)
         _fill_pairs(qpos, nq, spos, grid.cell_start, *args, self.offsets, self.neighbours)
         self.n_queries = nq
         self.n_pairs = int(total)
@@ -381,8 +381,8 @@ class PairList:
         transposed gathers (built on first use, kept until the next build).
         Raises RuntimeError if the relation is not symmetric (other query points)."""
         if self._reverse is None:
-            reverse = ti.ndarray(ti.i32, shape=(max(self.n_pairs, 1),))
-            missing = ti.ndarray(ti.i32, shape=(1,))
+            reverse = runtime.array(ti.i32, max(self.n_pairs, 1))
+            missing = runtime.array(ti.i32, 1)
             missing.fill(-1)
             _reverse_pairs(self.n_queries, self.offsets, self.neighbours, reverse, missing)
             if int(missing.to_numpy()[0]) >= 0:

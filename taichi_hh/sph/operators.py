@@ -907,11 +907,11 @@ class Operators:
         self.kernel = kernel
         self.kernel_id = int(kernel_id(kernel))    # a plain int: the kernels take it as a template
         # stands in for the gradient arrays of a Laplacian-only coefficient build
-        self._no_vectors = ti.Vector.ndarray(2, runtime.real_dtype(), shape=(1,))
-        self._no_scalars = ti.ndarray(runtime.real_dtype(), shape=(1,))
+        self._no_vectors = runtime.array(runtime.real_dtype(), 1, vector=2)
+        self._no_scalars = runtime.array(runtime.real_dtype(), 1)
         self.supports = supports
         if supports is None:                       # fixed support: never read by the kernels
-            supports = ti.ndarray(runtime.real_dtype(), shape=(1,))
+            supports = runtime.array(runtime.real_dtype(), 1)
         self.adaptive = int(self.supports is not None)
         self._hs = supports
 
@@ -958,8 +958,8 @@ class Operators:
         p = self.particles
         real = runtime.real_dtype()
         if into is None:
-            G = ti.Vector.ndarray(2, real, shape=(max(self.pairs.n_pairs, 1),))
-            s = ti.Vector.ndarray(2, real, shape=(max(p.n, 1),))
+            G = runtime.array(real, max(self.pairs.n_pairs, 1), vector=2, zeroed=False)
+            s = runtime.array(real, max(p.n, 1), vector=2, zeroed=False)
         else:
             G, s = into
             if G.shape[0] < self.pairs.n_pairs or s.shape[0] < p.n:
@@ -998,8 +998,8 @@ class Operators:
         p = self.particles
         real = runtime.real_dtype()
         if into is None:
-            C = ti.ndarray(real, shape=(max(self.pairs.n_pairs, 1),))
-            s = ti.ndarray(real, shape=(max(p.n, 1),))
+            C = runtime.array(real, max(self.pairs.n_pairs, 1), zeroed=False)
+            s = runtime.array(real, max(p.n, 1), zeroed=False)
         else:
             C, s = into
             if C.shape[0] < self.pairs.n_pairs or s.shape[0] < p.n:
@@ -1044,10 +1044,10 @@ class Operators:
         p = self.particles
         real = runtime.real_dtype()
         npairs, size = max(self.pairs.n_pairs, 1), max(p.n, 1)
-        G3, G2 = (ti.Vector.ndarray(2, real, shape=(npairs,)) for _ in range(2))
-        s3, s2 = (ti.Vector.ndarray(2, real, shape=(size,)) for _ in range(2))
-        C = ti.ndarray(real, shape=(npairs,))
-        sC = ti.ndarray(real, shape=(size,))
+        G3, G2 = (runtime.array(real, npairs, vector=2, zeroed=False) for _ in range(2))
+        s3, s2 = (runtime.array(real, size, vector=2, zeroed=False) for _ in range(2))
+        C = runtime.array(real, npairs, zeroed=False)
+        sC = runtime.array(real, size, zeroed=False)
         bad = _decomposition_coeffs(self.kernel_id, p.position, p.mass, p.density, p.n,
                                     *self._pair_args(), *self.support_args(), p.kind,
                                     G3, s3, G2, s2, C, sC)
@@ -1065,7 +1065,7 @@ class Operators:
         if st.variant == "basic":
             raise ValueError("density weighting needs a difference-form Laplacian")
         if into is None:
-            into = ti.ndarray(runtime.real_dtype(), shape=st.C.shape)
+            into = runtime.array(runtime.real_dtype(), st.C.shape)
         elif into.shape[0] < self.pairs.n_pairs:
             raise ValueError(f"Laplacian array too small: {into.shape[0]} rows for "
                              f"{self.pairs.n_pairs} pairs")

@@ -89,10 +89,10 @@ def _scatter(rank: ti.types.ndarray(), n: ti.i32, src: ti.types.ndarray(), dst: 
 def _alloc(name: str, capacity: int):
     real = runtime.real_dtype()
     if name in VECTOR_QUANTITIES:
-        return ti.Vector.ndarray(2, real, shape=(capacity,))
+        return runtime.array(real, capacity, vector=2)
     if name in REAL_QUANTITIES:
-        return ti.ndarray(real, shape=(capacity,))
-    return ti.ndarray(ti.i32, shape=(capacity,))
+        return runtime.array(real, capacity)
+    return runtime.array(ti.i32, capacity)
 
 
 class Particles:
@@ -199,7 +199,7 @@ class Particles:
         runtime.check_generation(self._generation, "particle set")
         perm = order if inverse is None else inverse
         if isinstance(perm, np.ndarray):
-            nd = ti.ndarray(ti.i32, shape=(max(perm.shape[0], 1),))
+            nd = runtime.array(ti.i32, max(perm.shape[0], 1))
             nd.from_numpy(perm.astype(np.int32))
             perm = nd
         if self._scratch is None:

@@ -109,7 +109,7 @@ class PointSet:
         self.pairs = PairList()
         hs = None
         if supports is not None:
-            hs = ti.ndarray(runtime.real_dtype(), shape=(max(p.n, 1),))
+            hs = runtime.array(runtime.real_dtype(), max(p.n, 1))
             hs.from_numpy(np.resize(supports[p.get("original_index")],
                                     max(p.n, 1)).astype(runtime.np_real()))
         self.supports = supports[:n] if supports is not None else np.full(n, self.support)
@@ -161,8 +161,8 @@ class PointSet:
         real = runtime.real_dtype()
         size = max(self.n_total, 1)
         if ncomp == 1:
-            return ti.ndarray(real, shape=(size,))
-        return ti.Vector.ndarray(ncomp, real, shape=(size,))
+            return runtime.array(real, size)
+        return runtime.array(real, size, vector=ncomp)
 
     def upload(self, values):
         """Data-point values (caller order) -> Taichi array in slot order

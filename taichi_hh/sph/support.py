@@ -209,12 +209,12 @@ def adaptive_pairs(pairs, particles, grid, hs, duplicate_tolerance: float = 0.0)
     n = particles.n
     h_max = float(hs.to_numpy()[:n].max()) if n else 0.0
     k_max = int(math.ceil(h_max * _PAD / s.cell_size))
-    cmax = ti.ndarray(runtime.real_dtype(), shape=(s.ncells,))
-    reach = ti.ndarray(runtime.real_dtype(), shape=(s.ncells,))
+    cmax = runtime.array(runtime.real_dtype(), s.ncells)
+    reach = runtime.array(runtime.real_dtype(), s.ncells)
     _cell_reach(grid.cell_start, hs, s.nx, s.ny, s.inv_cell, k_max, cmax, reach)
-    count = ti.ndarray(ti.i32, shape=(n + 1,))
-    offsets = ti.ndarray(ti.i32, shape=(n + 1,))
-    dup = ti.ndarray(ti.i32, shape=(1,))
+    count = runtime.array(ti.i32, n + 1)
+    offsets = runtime.array(ti.i32, n + 1)
+    dup = runtime.array(ti.i32, 1)
     dup.fill(-1)
     tol2 = duplicate_tolerance ** 2 if duplicate_tolerance > 0 else -1.0
     args = (s.lo_x, s.lo_y, s.inv_cell, s.nx, s.ny)
@@ -228,7 +228,7 @@ def adaptive_pairs(pairs, particles, grid, hs, duplicate_tolerance: float = 0.0)
         pairs.duplicate_query = d
         raise InputError(f"duplicate points: query point {d} has a neighbour closer than "
                          f"{duplicate_tolerance:g}")
-    nbrs = ti.ndarray(ti.i32, shape=(max(int(total), 1),))
+    nbrs = runtime.array(ti.i32, max(int(total), 1), zeroed=False)
     _fill_adaptive(particles.position, n, hs, grid.cell_start, reach, *args, offsets, nbrs)
     pairs.offsets, pairs.neighbours = offsets, nbrs
     pairs.n_queries, pairs.n_pairs = n, int(total)

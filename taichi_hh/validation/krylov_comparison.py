@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import runtime
 from ..hhd.decompose import poisson_problems
 from . import fields
 
@@ -27,8 +28,8 @@ def gmres_iterations(A_scipy, M, b, tol: float) -> tuple[int, float]:
     import scipy.sparse.linalg as spla
     import taichi as ti
     n = A_scipy.shape[0]
-    r_nd = ti.ndarray(ti.f64, shape=(n,))
-    z_nd = ti.ndarray(ti.f64, shape=(n,))
+    r_nd = runtime.array(ti.f64, n)
+    z_nd = runtime.array(ti.f64, n)
 
     def cycle(r):
         r_nd.from_numpy(np.ascontiguousarray(r, dtype=np.float64))
