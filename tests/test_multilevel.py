@@ -106,27 +106,6 @@ def test_cycle_is_a_fixed_linear_operator(square48, cycle):
     assert np.array_equal(_apply(M, r1), z1)
 
 
-@pytest.mark.parametrize("options", [{}, {"cells": 0.25, "l1": True, "weak": 0.1}])
-def test_cycle_reads_the_entries_rounded_to_single_precision(square48, options):
-    """The cycle's copies of the particle rows and of every cell level are the
-    full-precision entries rounded to float32, and the cycle they make is the
-    full-precision one to within that rounding (its arithmetic is not rounded)."""
-    ps, A, b = square48
-    M = MultilevelPreconditioner(A, **options)
-    npairs = A.ops.pairs.n_pairs
-    nnz = int(M.S_off.to_numpy()[sum(M.level_sizes)])
-    for single, full, count in ((M.K_cycle, A.K, npairs), (M.S_val_cycle, M.S_val, nnz)):
-        assert single.to_numpy().dtype == np.float32
-        assert np.array_equal(single.to_numpy()[:count],
-                              full.to_numpy()[:count].astype(np.float32))
-    r = np.random.default_rng(3).standard_normal(A.n)
-    z_single = _apply(M, r)
-    M.K_cycle, M.S_val_cycle = A.K, M.S_val          # the same cycle on the full entries
-    z_full = _apply(M, r)
-    gap = np.abs(z_single - z_full).max() / np.abs(z_full).max()
-    assert 0 < gap < 1e-5
-
-
 def test_same_answer_as_jacobi_and_direct_with_far_fewer_iterations():
     ps, A, b = _matrix(96, seed=2)          # ~9.6k particles
     jac = A.solve(b, tol=1e-10, preconditioner="jacobi")

@@ -50,11 +50,7 @@ and the restriction are one gather loop over cells (a cell's particles are
 listed contiguously); the prolongation and the first post-smoothing sweep
 are another.  So a cycle costs ``1 + post`` passes over the pairs plus the
 cell levels (a few percent of that with the largest support's cells, about
-as much again with a quarter of the median support's), each reading the
-entries rounded to single precision (8 bytes an entry with its column
-instead of 12; the arithmetic stays in the runtime's precision, so the cycle
-is still a fixed linear operator: 1M random points 0.29 s an iteration
-against 0.35, the same iterations to one).  The first cell level
+as much again with a quarter of the median support's).  The first cell level
 and, from ``SERIAL_MAX_N`` particles on, the next ones with at least
 ``PARALLEL_MIN_NNZ`` entries run as parallel loops in a static schedule; the
 rest in one serial loop driven as a state machine (kernels cannot recurse).  The
@@ -360,12 +356,6 @@ def _running_sum(off: ti.types.ndarray(), row0: ti.i32, rows: ti.i32, base: ti.i
 def _copy_prefix(n: ti.i32, src: ti.types.ndarray(), dst: ti.types.ndarray()):
     for i in range(n):
         dst[i] = src[i]
-
-
-@ti.kernel
-def _single_precision(n: ti.i32, src: ti.types.ndarray(), dst: ti.types.ndarray()):
-    for i in range(n):
-        dst[i] = ti.cast(src[i], ti.f32)
 
 
 @ti.kernel
@@ -1053,26 +1043,10 @@ class MultilevelPreconditioner:
         Minv = (Vt[keep].T / sv[keep]) @ U[:, keep].T
         self.coarse_inverse = self._array("coarse_inverse", runtime.real_dtype(),
                                           coarsest.shape, Minv.astype(runtime.np_real()))
-        # the cycle reads the matrices' entries in single precision: the passes
-        # over them are bound by memory traffic, 12 bytes an entry in double
-        # (value and column), 8 in single.  Its arithmetic stays in the
-        # runtime's precision, so the cycle is still one fixed linear operator,
-        # as BiCGSTAB's right preconditioner must be, only a slightly other one
-        # (entries rounded to 6e-8 relative).  The set-up above summed the
-        # Galerkin entries in full precision: their cancelling sums (the
-        # constants' near null space) are not rounded before they are formed
-        npairs = A.ops.pairs.n_pairs
-        self.K_cycle = self._vector("K_cycle", ti.f32, size=npairs, zeroed=False)
-        _single_precision(npairs, A.K, self.K_cycle)
-        cell_nnz = int(sum(level_nnz))
-        self.S_val_cycle = self._vector("S_val_cycle", ti.f32, size=cell_nnz,
-                                        zeroed=False)
-        _single_precision(cell_nnz, self.S_val, self.S_val_cycle)
 
-    def _vector(self, name: str, dtype, values=None, size: int | None = None,
-                zeroed: bool = True):
-        """A 1-D Taichi array ``name`` holding ``values`` (or ``size`` entries,
-        zeros unless ``zeroed`` is False): the previous preconditioner's when it is large enough
+    def _vector(self, name: str, dtype, values=None, size: int | None = None):
+        """A 1-D Taichi array ``name`` holding ``values`` (or ``size`` entries
+        uninitialised): the previous preconditioner's when it is large enough
         (its tail then holds zeros: the kernels read within their ranges), else
         a new one with a quarter more room when reusing (the flow's counts grow
         and shrink a little from step to step)."""
@@ -1084,8 +1058,7 @@ class MultilevelPreconditioner:
         if old is not None and old.shape[0] >= need:
             nd = old
         else:
-            nd = runtime.array(dtype, need + need // 4 if self._old_arrays else need,
-                               zeroed=zeroed)
+            nd = runtime.array(dtype, need + need // 4 if self._old_arrays else need)
         if values is not None:
             buf = np.zeros(nd.shape[0], dtype=np_dtype)
             buf[:len(values)] = values
@@ -1164,7 +1137,7 @@ class MultilevelPreconditioner:
         A, pr = self.A, self.A.ops.pairs
         _cycle(self.serial, self._by_cell, self.schedule, self.post, self.omega, self.correction,
                self._bordered, self.gamma, len(self.level_sizes), self.n, self.pstart, self.porder, self.cell_of, pr.offsets,
-               pr.neighbours, self.K_cycle, A.D, self.dinv, self.lvl, self.visits, self.S_off,
-               self.S_col, self.S_val_cycle, self.parent, self.kid_start, self.kids, self.cdinv,
+               pr.neighbours, A.K, A.D, self.dinv, self.lvl, self.visits, self.S_off,
+               self.S_col, self.S_val, self.parent, self.kid_start, self.kids, self.cdinv,
                self.cr, self.cx, self.ctmp, self.coarse_inverse, self.fx, self.ftmp,
                self._border_c, self._constant_mode, self.colsum, self._constant_c, r, z)
