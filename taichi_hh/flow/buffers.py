@@ -4,8 +4,6 @@ its own (Taichi 1.7 frees dropped vector ndarrays only with the patch in
 :mod:`taichi_hh.runtime`; allocating per step also costs time)."""
 from dataclasses import dataclass, fields
 
-import taichi as ti
-
 from .. import runtime
 
 

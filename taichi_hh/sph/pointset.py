@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import taichi as ti
 
 from .. import runtime
 from ..checks import check_points, check_values
