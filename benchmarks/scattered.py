@@ -83,7 +83,7 @@ def run(layout: str, n: int, options: dict, superlu_max: int) -> dict:
             row[f"s_{stage}"] = sec
     if len(pts) <= superlu_max:
         row["superlu_seconds"] = superlu_seconds(pts, ex.v, domain, options)
-        solve = st["seconds"]["solve_phi"] + st["seconds"]["solve_psi"]
+        solve = st["seconds"]["preconditioner"] + st["seconds"]["solve"]
         row["solve_over_superlu"] = solve / row["superlu_seconds"]
         row["call_over_superlu"] = row["seconds"] / row["superlu_seconds"]
     return row
@@ -124,7 +124,7 @@ def main():
             row = ok[(len(ok) - 1) // 2] if len(ok) == len(runs) else runs[0]
             if "superlu_seconds" in runs[0] and row is not runs[0]:   # SuperLU once
                 slu = row["superlu_seconds"] = runs[0]["superlu_seconds"]
-                row["solve_over_superlu"] = (row["s_solve_phi"] + row["s_solve_psi"]) / slu
+                row["solve_over_superlu"] = (row["s_preconditioner"] + row["s_solve"]) / slu
                 row["call_over_superlu"] = row["seconds"] / slu
             rows.append(row)
             if "failure" in row:

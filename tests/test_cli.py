@@ -130,7 +130,7 @@ def test_decompose_summary_and_progress(decomposed, gaussian_files):
     assert f"Decomposed {n} points" in out
     assert "Critical points: 4" in out and "components.npz" in out and "magnitude.png" in out
     assert "Mean |v|" in out and "|h|" in out
-    for stage in ("reading", "setup", "solve phi", "solve psi", "drawing figures"):
+    for stage in ("reading", "setup", "preconditioner", "solve phi and psi", "drawing figures"):
         assert stage in err, stage
     assert "Traceback" not in err
 

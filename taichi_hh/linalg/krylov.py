@@ -94,9 +94,11 @@ import numpy as np
 
 from taichi_hh import runtime
 from taichi_hh.errors import InputError, SolverError
+from taichi_hh.linalg.columns import columns_of, zeros
 
 __all__ = ["LinearOperator", "CSRMatrix", "SolveResult", "Workspace", "get_workspace",
-           "clear_workspace_cache", "bicgstab", "cg", "cgnr", "FAILURE_REASONS",
+           "clear_workspace_cache", "bicgstab", "bicgstab_columns", "cg", "cgnr",
+           "FAILURE_REASONS",
            "PARALLEL_MIN_SIZE"]
 
 # Vector sizes below which loops run on one thread: a serial pass over 1e5
@@ -243,77 +245,7 @@ def _build_kernels(precision: str, serial: bool) -> SimpleNamespace:
             acc += a[i] * a[i]
         return acc
 
-    # --- BiCGSTAB (right-preconditioned, M^-1 = dinv) ----------------------
-    # Storage sharing (element-wise safe): s overwrites r, and z holds
-    # phat = M^-1 p until the half step turns it into shat = M^-1 s.
-    @ti.kernel
-    def bicg_restart(b: vec, ax: vec, r: vec, r_hat: vec, p: vec, z: vec, dinv: vec,
-                     n: ti.i32) -> real:
-        """r = b - A x; r_hat = p = r; z = M^-1 p.  Returns ||r||^2."""
-        rr = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            ri = b[i] - ax[i]
-            r[i] = ri
-            r_hat[i] = ri
-            p[i] = ri
-            z[i] = dinv[i] * ri
-            rr += ri * ri
-        return rr
-
-    @ti.kernel
-    def bicg_half(x: vec, r: vec, v: vec, z: vec, dinv: vec, rv: real, vv: real,
-                  rho: real, rhat2: real, btol: real, n: ti.i32) -> (real, real, real):
-        """Given v = A phat and its dots rv = <r_hat, v>, vv = <v, v> (from the
-        apply): alpha = rho / rv; x += alpha phat; s = r - alpha v (into r);
-        z = shat = M^-1 s.  Returns (||s||^2, alpha, breakdown flag); on
-        breakdown alpha = 0 and x, r are unchanged."""
-        alpha = 0.0
-        flag = 1.0
-        if not negligible(rv, rhat2, vv, btol):
-            alpha = rho / rv
-            flag = 0.0
-        ss = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            x[i] += alpha * z[i]
-            si = r[i] - alpha * v[i]
-            r[i] = si
-            z[i] = dinv[i] * si
-            ss += si * si
-        return ss, alpha, flag
-
-    @ti.kernel
-    def bicg_full(x: vec, r: vec, r_hat: vec, p: vec, v: vec, t: vec, z: vec, dinv: vec,
-                  ts: real, tt: real, ss: real, alpha: real, rho: real, rhat2: real,
-                  btol: real, n: ti.i32) -> (real, real, real, real):
-        """Given t = A shat and its dots ts = <s, t>, tt = <t, t> (from the apply)
-        and ss = ||s||^2: omega = ts / tt; x += omega shat; r = s - omega t;
-        then the next direction p = r + beta (p - omega v), z = phat = M^-1 p.
-        Returns (||r||^2, rho_new, omega flag, rho flag)."""
-        omega = 0.0
-        if tt > 0.0:
-            omega = ts / tt
-        omega_flag = 1.0 if negligible(ts, tt, ss, btol) else 0.0
-        rr = 0.0
-        rho_new = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            x[i] += omega * z[i]
-            ri = r[i] - omega * t[i]
-            r[i] = ri
-            rr += ri * ri
-            rho_new += r_hat[i] * ri
-        rho_flag = 1.0 if negligible(rho_new, rhat2, rr, btol) else 0.0
-        beta = 0.0
-        if omega_flag == 0.0 and rho_flag == 0.0:
-            beta = (rho_new / rho) * (alpha / omega)
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            pi = r[i] + beta * (p[i] - omega * v[i])
-            p[i] = pi
-            z[i] = dinv[i] * pi
-        return rr, rho_new, omega_flag, rho_flag
+    bicg = _build_column_kernels(precision, serial, 1)
 
     # --- CG (preconditioned, M^-1 = dinv) -----------------------------------
     @ti.kernel
@@ -431,9 +363,128 @@ def _build_kernels(precision: str, serial: bool) -> SimpleNamespace:
         csr_matvec_dot=csr_matvec_dot, dot2=dot2,
         csr_diagonal=csr_diagonal, csr_row_sq_norms=csr_row_sq_norms,
         invert_diagonal=invert_diagonal, fill=fill, copy=copy, norm2=norm2,
-        bicg_restart=bicg_restart, bicg_half=bicg_half, bicg_full=bicg_full,
+        bicg_restart=bicg.bicg_restart, bicg_half=bicg.bicg_half, bicg_full=bicg.bicg_full,
         cg_restart=cg_restart, cg_step=cg_step,
         nr_residual=nr_residual, nr_direction=nr_direction, nr_update=nr_update)
+
+
+def _column_kernels(size: int, cols: int) -> SimpleNamespace:
+    """BiCGSTAB's vector kernels for ``cols`` columns at once."""
+    runtime.ensure_init()
+    return _build_column_kernels(runtime.state().precision, _serial(size), cols)
+
+
+@lru_cache(maxsize=None)
+def _build_column_kernels(precision: str, serial: bool, cols: int) -> SimpleNamespace:
+    """BiCGSTAB's vector kernels on ``cols`` columns (vectors of scalars, or of
+    ``cols``-vectors: :mod:`taichi_hh.linalg.columns`), each column its own
+    iteration: the scalars (alpha, omega, rho, ...) are per column, and so
+    are ``active`` (1: iterating, 0: frozen, e.g. converged: x and r stay) and
+    the restart's ``mask`` (1: restart this column).  One column is the plain
+    BiCGSTAB of :func:`bicgstab`."""
+    ti = _ti()
+    real = ti.f64 if precision == "f64" else ti.f32
+    scal = real if cols == 1 else ti.types.vector(cols, real)
+    vec = ti.types.ndarray(dtype=scal, ndim=1)
+    rvec = ti.types.ndarray(dtype=real, ndim=1)
+
+    @ti.func
+    def negligible(dot, aa, bb, btol):
+        """|<a, b>| <= btol ||a|| ||b||, given <a, b>, ||a||^2 and ||b||^2."""
+        return ti.abs(dot) <= btol * ti.sqrt(aa) * ti.sqrt(bb)
+
+    @ti.func
+    def indicator(cond):
+        """1.0 where cond holds, else 0.0 (per column)."""
+        return ti.select(cond, 1.0, 0.0)
+
+    @ti.kernel
+    def fill(a: vec, value: real, n: ti.i32):
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            a[i] = value * (zeros(cols) + 1.0)
+
+    @ti.kernel
+    def norm2(a: vec, n: ti.i32) -> scal:
+        acc = zeros(cols)
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            acc += a[i] * a[i]
+        return acc
+
+    # --- BiCGSTAB (right-preconditioned, M^-1 = dinv) ----------------------
+    # Storage sharing (element-wise safe): s overwrites r, and z holds
+    # phat = M^-1 p until the half step turns it into shat = M^-1 s.
+    @ti.kernel
+    def bicg_restart(b: vec, ax: vec, r: vec, r_hat: vec, p: vec, z: vec, dinv: rvec,
+                     mask: scal, n: ti.i32) -> scal:
+        """In the masked columns r = b - A x and r_hat = p = r; z = M^-1 p.
+        Returns ||r||^2."""
+        rr = zeros(cols)
+        restart = mask > 0.0
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            ri = ti.select(restart, b[i] - ax[i], r[i])
+            pi = ti.select(restart, ri, p[i])
+            r[i] = ri
+            r_hat[i] = ti.select(restart, ri, r_hat[i])
+            p[i] = pi
+            z[i] = dinv[i] * pi
+            rr += ri * ri
+        return rr
+
+    @ti.kernel
+    def bicg_half(x: vec, r: vec, v: vec, z: vec, dinv: rvec, rv: scal, vv: scal,
+                  rho: scal, rhat2: scal, active: scal, btol: real,
+                  n: ti.i32) -> (scal, scal, scal):
+        """Given v = A phat and its dots rv = <r_hat, v>, vv = <v, v> (from the
+        apply): alpha = rho / rv; x += alpha phat; s = r - alpha v (into r);
+        z = shat = M^-1 s.  Returns (||s||^2, alpha, breakdown flag); on
+        breakdown alpha = 0 and x, r are unchanged."""
+        ok = active * (1.0 - indicator(negligible(rv, rhat2, vv, btol)))
+        alpha = ti.select(ok > 0.0, rho / rv, 0.0)
+        flag = active - ok
+        ss = zeros(cols)
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            x[i] += alpha * z[i]
+            si = r[i] - alpha * v[i]
+            r[i] = si
+            z[i] = dinv[i] * si
+            ss += si * si
+        return ss, alpha, flag
+
+    @ti.kernel
+    def bicg_full(x: vec, r: vec, r_hat: vec, p: vec, v: vec, t: vec, z: vec, dinv: rvec,
+                  ts: scal, tt: scal, ss: scal, alpha: scal, rho: scal, rhat2: scal,
+                  active: scal, btol: real, n: ti.i32) -> (scal, scal, scal, scal):
+        """Given t = A shat and its dots ts = <s, t>, tt = <t, t> (from the apply)
+        and ss = ||s||^2: omega = ts / tt; x += omega shat; r = s - omega t;
+        then the next direction p = r + beta (p - omega v), z = phat = M^-1 p.
+        Returns (||r||^2, rho_new, omega flag, rho flag)."""
+        omega = ti.select((tt > 0.0) & (active > 0.0), ts / tt, 0.0)
+        omega_flag = active * indicator(negligible(ts, tt, ss, btol))
+        rr = zeros(cols)
+        rho_new = zeros(cols)
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            x[i] += omega * z[i]
+            ri = r[i] - omega * t[i]
+            r[i] = ri
+            rr += ri * ri
+            rho_new += r_hat[i] * ri
+        rho_flag = active * indicator(negligible(rho_new, rhat2, rr, btol))
+        go = active * (1.0 - omega_flag) * (1.0 - rho_flag)
+        beta = ti.select(go > 0.0, (rho_new / rho) * (alpha / omega), 0.0)
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            pi = r[i] + beta * (p[i] - omega * v[i])
+            p[i] = pi
+            z[i] = dinv[i] * pi
+        return rr, rho_new, omega_flag, rho_flag
+
+    return SimpleNamespace(fill=fill, norm2=norm2, bicg_restart=bicg_restart,
+                           bicg_half=bicg_half, bicg_full=bicg_full)
 
 
 # --------------------------------------------------------------------------
@@ -572,12 +623,13 @@ class Workspace:
         self.generation = runtime.generation()
         self._vectors: dict[tuple[str, int], object] = {}
 
-    def vector(self, name: str, size: int):
-        """The work vector ``name`` of length ``size``."""
+    def vector(self, name: str, size: int, cols: int = 1):
+        """The work vector ``name`` of length ``size``, of ``cols`` columns
+        (:mod:`taichi_hh.linalg.columns`)."""
         runtime.check_generation(self.generation, "Workspace")
-        key = (name, size)
+        key = (name, size, cols)
         if key not in self._vectors:
-            self._vectors[key] = _ti().ndarray(runtime.real_dtype(), shape=(size,))
+            self._vectors[key] = runtime.array(None, size, None if cols == 1 else cols)
         return self._vectors[key]
 
 
@@ -627,6 +679,7 @@ class SolveResult:
     message: str = ""
     normal_residual: Optional[float] = None   # CGNR: ||A^T (b - A x)|| / ||A^T b||
     n: int = 0                                # unknowns: x is x_ndarray[:n]
+    detail: str = ""                          # the failure's cause, as in message
     _x: Optional[np.ndarray] = field(default=None, repr=False)
 
     @property
@@ -855,7 +908,7 @@ class _BiCGSTAB(_Method):
     def restart(self):
         self._apply(self.x, self.t)
         rr = self.k.bicg_restart(self.b, self.t, self.r, self.r_hat, self.p, self.z,
-                                 self.dinv, self.n)
+                                 self.dinv, 1.0, self.n)
         # z = M^-1 p is needed only if the iteration goes on (here and after each
         # step): a solve's last iteration and the restart that confirms
         # convergence skip that application of M
@@ -870,7 +923,7 @@ class _BiCGSTAB(_Method):
             self._z_pending = False
         rv, vv = self._apply_dot(self.z, self.v, self.r_hat)
         ss, alpha, half_flag = self.k.bicg_half(self.x, self.r, self.v, self.z, self.dinv, rv, vv,
-                                         self.rho, self.rhat2, self.btol, self.n)
+                                         self.rho, self.rhat2, 1.0, self.btol, self.n)
         if half_flag:   # x and r untouched
             relres = self._relres(self.rr)
             return relres, relres, "<r_hat, A M^-1 p> vanished"
@@ -878,7 +931,7 @@ class _BiCGSTAB(_Method):
         ts, tt = self._apply_dot(self.z, self.t, self.r)
         rr, rho, omega_flag, rho_flag = self.k.bicg_full(
             self.x, self.r, self.r_hat, self.p, self.v, self.t, self.z, self.dinv,
-            ts, tt, ss, alpha, self.rho, self.rhat2, self.btol, self.n)
+            ts, tt, ss, alpha, self.rho, self.rhat2, 1.0, self.btol, self.n)
         self.rr, self.rho = rr, rho
         self._z_pending = self.M is not None     # z = M^-1 p: in the next step, if any
         relres = self._relres(rr)
@@ -1035,7 +1088,8 @@ def _finish(method: _Method, mon: _Monitor, reason: str, detail: str, relres: fl
                          relative_residual=relres, history=np.asarray(mon.history, dtype=float),
                          seconds=time.perf_counter() - t0, applies=method.applies,
                          method=method.name, message=message,
-                         normal_residual=method.normal_residual)
+                         normal_residual=method.normal_residual,
+                         detail="" if converged else detail)
     if not converged and raise_on_failure:
         raise SolverError(message, reason=reason, iteration=mon.iterations, residual=relres)
     return result
@@ -1054,6 +1108,198 @@ def _solve(method: _Method, settings: _Settings, t0: float, raise_on_failure: bo
     else:
         reason, detail, relres = _iterate(method, mon)
     return _finish(method, mon, reason, detail, relres, t0, raise_on_failure)
+
+
+# --------------------------------------------------------------------------
+# Several right-hand sides at once
+# --------------------------------------------------------------------------
+
+@dataclass
+class _Column:
+    """One column's progress in :func:`bicgstab_columns`."""
+
+    monitor: _Monitor
+    bnorm: float
+    state: str = "running"          # "running", "converged" or "handover"
+    relres: float = math.nan
+    replacements: int = 0
+    breakdowns: int = 0
+
+
+def bicgstab_columns(A, B, *, tol: float = 1e-6, max_iterations: Optional[int] = None,
+                     preconditioner: Optional[str] = "jacobi", raise_on_failure: bool = True,
+                     stagnation_window: int = STAGNATION_WINDOW,
+                     divergence_factor: float = 1e6,
+                     workspace: Optional[Workspace] = None) -> list:
+    """Solve ``A x_c = b_c`` for every column ``b_c`` of ``B`` (shape ``(n, cols)``)
+    with BiCGSTAB, the columns together: each iteration applies ``A`` and the
+    preconditioner once to all columns, so an operator bound by memory traffic
+    (the SPH Poisson rows at large N) reads its coefficients once for all of
+    them.  Each column runs its own BiCGSTAB, with the iterates and the stopping
+    tests of :func:`bicgstab`; a converged column is frozen while the others
+    go on.  Returns one :class:`SolveResult` per column (``seconds`` and
+    ``applies`` are the joint solve's).
+
+    The joint iteration needs an operator and a preconditioner object that take
+    several columns (an attribute ``accepts_columns = True``: apply and
+    apply_dot then take vectors of ``cols``-vectors, :mod:`taichi_hh.linalg.columns`);
+    otherwise the columns are solved one after the other.  A column that
+    breaks down beyond the usual restarts, stagnates, diverges, turns
+    non-finite or reaches the iteration cap is handed to :func:`bicgstab`,
+    warm-started from its iterate with the iterations left, and goes on
+    alone: its result (or :class:`~taichi_hh.errors.SolverError`) is that
+    solve's, its iterations and history the two's together.  Other arguments
+    as :func:`bicgstab`.
+    """
+    t0 = time.perf_counter()
+    runtime.ensure_init()
+    _, n = _check_operator(A, "bicgstab", square=True)
+    B = np.asarray(B)
+    if B.ndim != 2 or B.shape[0] != n or B.shape[1] < 1:
+        raise InputError(f"bicgstab_columns: B must have shape ({n}, cols), got {B.shape}")
+    cols = B.shape[1]
+    single = dict(tol=tol, max_iterations=max_iterations, preconditioner=preconditioner,
+                  raise_on_failure=raise_on_failure, stagnation_window=stagnation_window,
+                  divergence_factor=divergence_factor, workspace=workspace)
+    M = preconditioner if _is_preconditioner_object(preconditioner) else None
+    joint = (cols > 1 and getattr(A, "accepts_columns", False)
+             and callable(getattr(A, "apply_dot", None))
+             and (M is None or getattr(M, "accepts_columns", False)))
+    if not joint:
+        return [bicgstab(A, B[:, c], **single) for c in range(cols)]
+    settings = _settings("bicgstab", n, tol, max_iterations, stagnation_window,
+                         divergence_factor, None)
+    ws = workspace or get_workspace(n)
+    k = _kernels(n)
+    kc = _column_kernels(n, cols)
+    b = ws.vector("b", n, cols)
+    b.from_numpy(_as_real_numpy(B.reshape(-1), n * cols, "B").reshape(n, cols))
+    dinv = _jacobi(preconditioner, A, ws, n, k, "bicgstab")
+    vec = {name: ws.vector(name, n, cols) for name in ("r", "r_hat", "p", "v", "t", "z")}
+    x = runtime.array(None, n, cols)
+    bnorm = np.sqrt(np.asarray(kc.norm2(b, n).to_numpy(), dtype=float))
+    columns = [_Column(_Monitor(settings), float(bn)) for bn in bnorm]
+    btol = float(np.finfo(runtime.np_real()).eps)
+    rho = np.zeros(cols)
+    rhat2 = np.zeros(cols)
+    applies = 0
+
+    def relres(rr):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(rr >= 0.0, np.sqrt(np.abs(rr)) / np.maximum(bnorm, 1e-300), np.nan)
+
+    def restart(mask):
+        """The true residual of the masked columns, restarted from it."""
+        nonlocal applies
+        A.apply_dot(x, vec["t"], vec["t"])
+        applies += 1
+        rr = np.asarray(kc.bicg_restart(b, vec["t"], vec["r"], vec["r_hat"], vec["p"], vec["z"],
+                                        dinv, mask.astype(float), n).to_numpy(), dtype=float)
+        rho[mask] = rr[mask]
+        rhat2[mask] = rr[mask]
+        return relres(rr)
+
+    for col in columns:
+        if not math.isfinite(col.bnorm):
+            col.state = "handover"      # b non-finite: bicgstab reports it
+        elif col.bnorm == 0.0:
+            col.state, col.relres = "converged", 0.0   # x = 0, the exact solution
+            col.monitor.start(0.0)
+    running = np.array([c.state == "running" for c in columns])
+    if running.any():
+        start = restart(running)
+        for c, col in enumerate(columns):
+            if col.state == "running":
+                col.monitor.start(start[c])
+                col.relres = start[c]
+                if not math.isfinite(start[c]):
+                    col.state = "handover"
+                elif start[c] <= settings.tol:
+                    col.state = "converged"
+    z_pending = M is not None
+    while True:
+        active = np.array([c.state == "running" for c in columns], dtype=float)
+        if not active.any():
+            break
+        if z_pending:
+            M.apply(vec["p"], vec["z"])
+        rv, vv = A.apply_dot(vec["z"], vec["v"], vec["r_hat"])
+        ss, alpha, half_flag = (np.asarray(a.to_numpy(), dtype=float) for a in kc.bicg_half(
+            x, vec["r"], vec["v"], vec["z"], dinv, rv, vv, rho, rhat2, active, btol, n))
+        if M is not None:
+            M.apply(vec["r"], vec["z"])       # r holds s
+        ts, tt = A.apply_dot(vec["z"], vec["t"], vec["r"])
+        applies += 2
+        # a column whose half step broke down keeps x and r: no second half either
+        going = active * (1.0 - half_flag)
+        rr, rho_new, omega_flag, rho_flag = (np.asarray(a.to_numpy(), dtype=float) for a in kc.bicg_full(
+            x, vec["r"], vec["r_hat"], vec["p"], vec["v"], vec["t"], vec["z"], dinv,
+            ts, tt, ss, alpha, rho, rhat2, going, btol, n))
+        z_pending = M is not None
+        value = relres(rr)
+        check = np.zeros(cols, dtype=bool)      # to restart from the true residual
+        for c, col in enumerate(columns):
+            if not active[c]:
+                continue
+            rho[c] = rho_new[c]
+            verdict = col.monitor.record(value[c])
+            col.relres = value[c]
+            if not math.isfinite(value[c]):
+                col.state = "handover"
+            elif value[c] <= settings.tol:
+                check[c] = True             # claimed convergence: confirmed or refuted
+            elif half_flag[c] or omega_flag[c] or rho_flag[c]:
+                col.breakdowns += 1
+                if col.breakdowns > _MAX_BREAKDOWN_RESTARTS:
+                    col.state = "handover"
+                else:
+                    check[c] = True
+            elif verdict or col.monitor.iterations >= settings.max_iterations:
+                col.state = "handover"
+        if check.any():
+            true = restart(check)
+            for c in np.flatnonzero(check):
+                col = columns[c]
+                col.relres = true[c]
+                if not math.isfinite(true[c]):
+                    col.state = "handover"
+                elif true[c] <= settings.tol:
+                    col.state = "converged"
+                elif value[c] <= settings.tol:
+                    col.replacements += 1
+                    if col.replacements > _MAX_RESIDUAL_REPLACEMENTS:
+                        col.state = "handover"
+    seconds = time.perf_counter() - t0
+    X = x.to_numpy().reshape(-1, cols)[:n].astype(np.float64)
+    results = []
+    for c, col in enumerate(columns):
+        if col.state == "converged":
+            results.append(SolveResult(
+                x_ndarray=None, n=n, converged=True, reason="converged",
+                iterations=col.monitor.iterations, relative_residual=float(col.relres),
+                history=np.asarray(col.monitor.history, dtype=float), seconds=seconds,
+                applies=applies, method="bicgstab", _x=X[:, c].copy()))
+            continue
+        # the column bicgstab reports on its own, from its iterate when finite
+        x0 = X[:, c] if np.all(np.isfinite(X[:, c])) and math.isfinite(col.bnorm) else None
+        rest = dict(single, raise_on_failure=False,
+                    max_iterations=max(settings.max_iterations - col.monitor.iterations, 0))
+        res = bicgstab(A, B[:, c], x0, **rest)
+        res.iterations += col.monitor.iterations
+        # its history goes on from the joint one's (its first entry: the same iterate)
+        joint_history = np.asarray(col.monitor.history, dtype=float)
+        res.history = np.concatenate([joint_history,
+                                      res.history[1:] if joint_history.size else res.history])
+        res.applies += applies
+        res.seconds += seconds
+        if not res.converged:
+            res.message = _failure_message("bicgstab", res.reason, res.iterations,
+                                           res.relative_residual, res.detail)
+            if raise_on_failure:
+                raise SolverError(res.message, reason=res.reason, iteration=res.iterations,
+                                  residual=res.relative_residual)
+        results.append(res)
+    return results
 
 
 # --------------------------------------------------------------------------

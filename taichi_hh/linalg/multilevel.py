@@ -69,6 +69,7 @@ import taichi as ti
 from .. import runtime
 from ..errors import InputError
 from ..sph.neighbors import CELL_PAD
+from .columns import columns_of, zeros
 
 #: cells of the coarsest level at most, solved by a dense pseudo-inverse
 COARSEST = 16
@@ -109,40 +110,40 @@ PARALLEL_MIN_NNZ = 50_000
 
 
 @ti.func
-def _row_apply(S_off: ti.template(), S_col: ti.template(), S_val: ti.template(),
-               x: ti.template(), c):
-    acc = 0.0
+def _row_apply(cols: ti.template(), S_off: ti.template(), S_col: ti.template(),
+               S_val: ti.template(), x: ti.template(), c):
+    acc = zeros(cols)
     for k in range(S_off[c], S_off[c + 1]):
         acc += S_val[k] * x[S_col[k]]
     return acc
 
 
 @ti.func
-def _restrict_row(S_off: ti.template(), S_col: ti.template(), S_val: ti.template(),
+def _restrict_row(cols: ti.template(), S_off: ti.template(), S_col: ti.template(), S_val: ti.template(),
                   kid_start: ti.template(), kids: ti.template(), cr: ti.template(),
                   cx: ti.template(), p):
     """Coarse row p: the sum over its children c of r_c - (S x)_c."""
-    acc = 0.0
+    acc = zeros(cols)
     for m in range(kid_start[p], kid_start[p + 1]):
         c = kids[m]
-        acc += cr[c] - _row_apply(S_off, S_col, S_val, cx, c)
+        acc += cr[c] - _row_apply(cols, S_off, S_col, S_val, cx, c)
     cr[p] = acc
 
 
 @ti.func
-def _smooth_level(S_off: ti.template(), S_col: ti.template(), S_val: ti.template(),
+def _smooth_level(cols: ti.template(), S_off: ti.template(), S_col: ti.template(), S_val: ti.template(),
                   cdinv: ti.template(), cr: ti.template(), cx: ti.template(),
                   ctmp: ti.template(), lo, hi, sweeps, omega):
     """``sweeps`` damped-Jacobi sweeps on the rows lo .. hi of a cell level (serial)."""
     for _s in range(sweeps):
         for c in range(lo, hi):
-            ctmp[c] = cx[c] + omega * cdinv[c] * (cr[c] - _row_apply(S_off, S_col, S_val, cx, c))
+            ctmp[c] = cx[c] + omega * cdinv[c] * (cr[c] - _row_apply(cols, S_off, S_col, S_val, cx, c))
         for c in range(lo, hi):
             cx[c] = ctmp[c]
 
 
 @ti.func
-def _serial_levels(k_start, L, gamma: ti.template(), post: ti.template(), omega: ti.template(),
+def _serial_levels(cols: ti.template(), k_start, L, gamma: ti.template(), post: ti.template(), omega: ti.template(),
                    correction: ti.template(), lvl: ti.template(), visits: ti.template(),
                    S_off: ti.template(), S_col: ti.template(), S_val: ti.template(),
                    parent: ti.template(), kid_start: ti.template(), kids: ti.template(),
@@ -158,7 +159,7 @@ def _serial_levels(k_start, L, gamma: ti.template(), post: ti.template(), omega:
         if k == L - 1:
             # coarsest: (pseudo-)inverse, from zero
             for i in range(hi - lo):
-                acc = 0.0
+                acc = zeros(cols)
                 for j in range(hi - lo):
                     acc += Minv[i, j] * cr[lo + j]
                 cx[lo + i] = acc
@@ -170,7 +171,7 @@ def _serial_levels(k_start, L, gamma: ti.template(), post: ti.template(), omega:
             for c in range(lo, hi):
                 cx[c] = omega * cdinv[c] * cr[c]
             for p in range(lvl[k + 1, 0], lvl[k + 1, 1]):
-                _restrict_row(S_off, S_col, S_val, kid_start, kids, cr, cx, p)
+                _restrict_row(cols, S_off, S_col, S_val, kid_start, kids, cr, cx, p)
             visits[k] = 1
             k += 1
         else:
@@ -181,11 +182,11 @@ def _serial_levels(k_start, L, gamma: ti.template(), post: ti.template(), omega:
                 # level is solved exactly: once is enough)
                 visits[k] += 1
                 for p in range(lvl[k + 1, 0], lvl[k + 1, 1]):
-                    _restrict_row(S_off, S_col, S_val, kid_start, kids, cr, cx, p)
+                    _restrict_row(cols, S_off, S_col, S_val, kid_start, kids, cr, cx, p)
                 k += 1
                 going_down = 1
             else:
-                _smooth_level(S_off, S_col, S_val, cdinv, cr, cx, ctmp, lo, hi, post, omega)
+                _smooth_level(cols, S_off, S_col, S_val, cdinv, cr, cx, ctmp, lo, hi, post, omega)
                 if k == k_start:
                     break
                 k -= 1
@@ -490,7 +491,7 @@ def _grid_values(serial: ti.template(), L: ti.i32, eps: float, cell_start: ti.ty
 
 
 @ti.kernel
-def _cycle(serial: ti.template(), by_cell: ti.template(), schedule: ti.template(),
+def _cycle(cols: ti.template(), serial: ti.template(), by_cell: ti.template(), schedule: ti.template(),
            post: ti.template(),
            omega: ti.template(), correction: ti.template(),
            bordered: ti.template(), gamma: ti.template(), L: ti.i32, n: ti.i32,
@@ -526,7 +527,7 @@ def _cycle(serial: ti.template(), by_cell: ti.template(), schedule: ti.template(
         # the particles are sorted by their cells (the neighbour grid's): one loop
         ti.loop_config(serialize=serial)
         for c in range(m0):
-            acc = 0.0
+            acc = zeros(cols)
             for s in range(pstart[c], pstart[c + 1]):
                 i = porder[s]
                 ax = D[i] * fx[i]
@@ -543,7 +544,7 @@ def _cycle(serial: ti.template(), by_cell: ti.template(), schedule: ti.template(
             ftmp[i] = dinv[i] * (r[i] - ax)
         ti.loop_config(serialize=serial)
         for c in range(m0):
-            acc = 0.0
+            acc = zeros(cols)
             for s in range(pstart[c], pstart[c + 1]):
                 acc += ftmp[porder[s]]
             cr[c] = acc
@@ -556,7 +557,7 @@ def _cycle(serial: ti.template(), by_cell: ti.template(), schedule: ti.template(
         if ti.static(op[0] == "down" or op[0] == "restrict"):
             ti.loop_config(serialize=op[2])
             for p in range(lvl[op[1] + 1, 0], lvl[op[1] + 1, 1]):
-                _restrict_row(S_off, S_col, S_val, kid_start, kids, cr, cx, p)
+                _restrict_row(cols, S_off, S_col, S_val, kid_start, kids, cr, cx, p)
         if ti.static(op[0] == "correct"):
             ti.loop_config(serialize=op[2])
             for c in range(lvl[op[1], 0], lvl[op[1], 1]):
@@ -566,14 +567,14 @@ def _cycle(serial: ti.template(), by_cell: ti.template(), schedule: ti.template(
                 ti.loop_config(serialize=op[2])
                 for c in range(lvl[op[1], 0], lvl[op[1], 1]):
                     ctmp[c] = cx[c] + omega * cdinv[c] * (
-                        cr[c] - _row_apply(S_off, S_col, S_val, cx, c))
+                        cr[c] - _row_apply(cols, S_off, S_col, S_val, cx, c))
                 ti.loop_config(serialize=op[2])
                 for c in range(lvl[op[1], 0], lvl[op[1], 1]):
                     cx[c] = ctmp[c]
         if ti.static(op[0] == "serial"):
             ti.loop_config(serialize=True)
             for _ in range(1):
-                _serial_levels(op[1], L, gamma, post, omega, correction, lvl, visits, S_off,
+                _serial_levels(cols, op[1], L, gamma, post, omega, correction, lvl, visits, S_off,
                                S_col, S_val, parent, kid_start, kids, cdinv, cr, cx, ctmp, Minv)
     # particles, up: x += correction P x_0, then post-smoothing
     ti.loop_config(serialize=serial)
@@ -606,8 +607,8 @@ def _cycle(serial: ti.template(), by_cell: ti.template(), schedule: ti.template(
     if ti.static(constant_mode):
         # Petrov-Galerkin correction along the constants (the near-null vector
         # of L + kappa I): z += 1 (1.(r - A z)) / (1.A 1), with 1.A z = colsum.z
-        rsum = 0.0
-        azsum = 0.0
+        rsum = zeros(cols)
+        azsum = zeros(cols)
         ti.loop_config(serialize=serial)
         for i in range(n):
             rsum += r[i]
@@ -708,6 +709,7 @@ class MultilevelPreconditioner:
                  weak: float = 0.0, reuse=None):
         runtime.ensure_init()
         self._arrays = {}
+        self._columns_scratch = {}
         self._old_arrays = reuse._arrays if reuse is not None else {}
         self.l1 = bool(l1)
         if cycle not in ("V", "W"):
@@ -1132,12 +1134,32 @@ class MultilevelPreconditioner:
         sizes = [str(self.n)] + [str(m) for m in self.level_sizes]
         return f"{self.cycle}-cycle, levels " + " > ".join(sizes)
 
+    #: the cycle runs on several columns at once (:mod:`taichi_hh.linalg.columns`)
+    accepts_columns = True
+
+    def _scratch(self, cols: int) -> tuple:
+        """The cycle's work vectors (cr, cx, ctmp on the cell levels, fx, ftmp on
+        the particles) for ``cols`` columns; made on first use for several."""
+        if cols == 1:
+            return self.cr, self.cx, self.ctmp, self.fx, self.ftmp
+        made = self._columns_scratch.get(cols)
+        if made is None:
+            cells, n = self.cr.shape[0], self.fx.shape[0]
+            made = tuple(runtime.array(None, size, vector=cols, zeroed=False)
+                         for size in (cells, cells, cells, n, n))
+            self._columns_scratch = {cols: made}
+        return made
+
     def apply(self, r, z) -> None:
-        """z = M^-1 r (one cycle from zero)."""
+        """z = M^-1 r (one cycle from zero); r, z hold one column or several
+        (vectors: each column cycled independently, the matrix read once)."""
         A, pr = self.A, self.A.ops.pairs
-        _cycle(self.serial, self._by_cell, self.schedule, self.post, self.omega, self.correction,
-               self._bordered, self.gamma, len(self.level_sizes), self.n, self.pstart, self.porder, self.cell_of, pr.offsets,
+        cols = columns_of(r)
+        cr, cx, ctmp, fx, ftmp = self._scratch(cols)
+        _cycle(cols, self.serial, self._by_cell, self.schedule, self.post, self.omega,
+               self.correction, self._bordered, self.gamma, len(self.level_sizes), self.n,
+               self.pstart, self.porder, self.cell_of, pr.offsets,
                pr.neighbours, A.K, A.D, self.dinv, self.lvl, self.visits, self.S_off,
                self.S_col, self.S_val, self.parent, self.kid_start, self.kids, self.cdinv,
-               self.cr, self.cx, self.ctmp, self.coarse_inverse, self.fx, self.ftmp,
+               cr, cx, ctmp, self.coarse_inverse, fx, ftmp,
                self._border_c, self._constant_mode, self.colsum, self._constant_c, r, z)

@@ -23,12 +23,15 @@ gather.  The transpose (for CG on the normal equations, Colin Sec. 3.5) is a
 gather too: the neighbour relation is symmetric, and ``reverse[k]`` indexes
 pair (j, i) for pair k = (i, j).
 """
+from functools import lru_cache
+
 import numpy as np
 import taichi as ti
 
 from .. import runtime
 
 from . import krylov as solvers
+from .columns import columns_of, zeros
 from ..errors import InputError, NeighbourError
 from ..sph.operators import GradientStencil, LaplacianStencil, shepard_sums, shepard_weight
 from ..sph.particles import BOUNDARY, FLUID, GHOST
@@ -77,20 +80,19 @@ def _assemble(kernel_id: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
             D[i] = 1.0
 
 
-@ti.kernel
-def _apply_rows(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
-                K: ti.types.ndarray(), D: ti.types.ndarray(), x: ti.types.ndarray(),
-                y: ti.types.ndarray(), bordered: ti.i32, e: ti.types.ndarray(),
-                w: ti.types.ndarray(), c: float, a: ti.types.ndarray()) -> (float, float):
+@ti.func
+def _apply_rows_body(cols: ti.template(), n, offsets: ti.template(), nbrs: ti.template(),
+                     K: ti.template(), D: ti.template(), x: ti.template(), y: ti.template(),
+                     bordered, e: ti.template(), w: ti.template(), c, a: ti.template()):
     """y = A x; bordered: y[:n] += e x[n], y[n] = w . x[:n] + c x[n].  Returns
     (<a, y>, <y, y>), reduced in the same loop (BiCGSTAB's dot products
-    without another pass over y)."""
-    lam = 0.0
+    without another pass over y); per column when x holds several."""
+    lam = zeros(cols)
     if bordered:
         lam = x[n]
-    border = 0.0
-    ay = 0.0
-    yy = 0.0
+    border = zeros(cols)
+    ay = zeros(cols)
+    yy = zeros(cols)
     for i in range(n):
         xi = x[i]
         acc = D[i] * xi
@@ -108,6 +110,32 @@ def _apply_rows(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray()
         ay += a[n] * yn
         yy += yn * yn
     return ay, yy
+
+
+@ti.kernel
+def _apply_rows(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                K: ti.types.ndarray(), D: ti.types.ndarray(), x: ti.types.ndarray(),
+                y: ti.types.ndarray(), bordered: ti.i32, e: ti.types.ndarray(),
+                w: ti.types.ndarray(), c: float, a: ti.types.ndarray()) -> (float, float):
+    """:func:`_apply_rows_body` on one column."""
+    return _apply_rows_body(1, n, offsets, nbrs, K, D, x, y, bordered, e, w, c, a)
+
+
+@lru_cache(maxsize=None)
+def _apply_rows_pair(precision: str):
+    """:func:`_apply_rows_body` on two columns, for the runtime's precision (a
+    kernel's return type is fixed when it is defined: one kernel per column
+    count and real type)."""
+    pair = ti.types.vector(2, ti.f64 if precision == "f64" else ti.f32)
+
+    @ti.kernel
+    def apply_rows_pair(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                        K: ti.types.ndarray(), D: ti.types.ndarray(), x: ti.types.ndarray(),
+                        y: ti.types.ndarray(), bordered: ti.i32, e: ti.types.ndarray(),
+                        w: ti.types.ndarray(), c: float, a: ti.types.ndarray()) -> (pair, pair):
+        return _apply_rows_body(2, n, offsets, nbrs, K, D, x, y, bordered, e, w, c, a)
+
+    return apply_rows_pair
 
 
 @ti.kernel
@@ -308,11 +336,20 @@ class PoissonMatrix:
     def apply(self, x, y) -> None:
         self.apply_dot(x, y, y)
 
+    #: apply and apply_dot take one column or two (:mod:`taichi_hh.linalg.columns`)
+    accepts_columns = True
+
     def apply_dot(self, x, y, a) -> tuple:
-        """y = A x; returns (<a, y>, <y, y>) (see :mod:`taichi_hh.linalg.krylov`)."""
+        """y = A x; returns (<a, y>, <y, y>) (see :mod:`taichi_hh.linalg.krylov`),
+        per column (numpy arrays) when x holds two."""
         pr = self.ops.pairs
-        return _apply_rows(self.n_particles, pr.offsets, pr.neighbours, self.K, self.D, x, y,
-                           *self._border(), a)
+        cols = columns_of(x)
+        if cols not in (1, 2):
+            raise InputError(f"PoissonMatrix applies to one or two columns, got {cols}")
+        kernel = _apply_rows if cols == 1 else _apply_rows_pair(runtime.state().precision)
+        out = kernel(self.n_particles, pr.offsets, pr.neighbours, self.K, self.D, x, y,
+                     *self._border(), a)
+        return out if cols == 1 else tuple(np.asarray(v.to_numpy()) for v in out)
 
     def diagonal(self, d) -> None:
         _copy_diagonal(self.n_particles, self.D, d, int(self.bordered), self.border_c)
@@ -384,6 +421,31 @@ class PoissonMatrix:
                                  f"{method!r}")
             return self.multilevel(**(multilevel_options or {}))
         return preconditioner
+
+    def solve_columns(self, B, *, tol: float = 1e-8, preconditioner="auto",
+                      multilevel_options: dict | None = None, **kwargs) -> list:
+        """Solve for the columns of ``B`` (shape ``(n_particles, cols)``) with
+        BiCGSTAB, two columns at a time together
+        (:func:`~taichi_hh.linalg.krylov.bicgstab_columns`: the matrix and the
+        preconditioner read once per iteration for both).  Returns one result
+        per column, as :meth:`solve` does; ``kwargs`` as
+        :func:`~taichi_hh.linalg.krylov.bicgstab_columns`."""
+        kwargs["preconditioner"] = self.preconditioner_for(preconditioner, "bicgstab",
+                                                           multilevel_options)
+        B = np.asarray(B, dtype=np.float64)
+        if B.ndim != 2 or B.shape[0] != self.n_particles:
+            raise InputError(f"right-hand sides must have shape ({self.n_particles}, cols), "
+                             f"got {B.shape}")
+        if self.bordered:
+            B = np.vstack([B, np.zeros((1, B.shape[1]))])
+        results = []
+        for c0 in range(0, B.shape[1], 2):      # the apply kernels take one or two
+            results += solvers.bicgstab_columns(self, B[:, c0:c0 + 2], tol=tol, **kwargs)
+        for res in results:
+            res.border = float(res.x[-1]) if self.bordered else 0.0
+            if self.bordered:
+                res.x = res.x[: self.n_particles]
+        return results
 
     def solve(self, b, x0=None, *, method: str = "bicgstab", tol: float = 1e-8,
               border0: float = 0.0, preconditioner="auto",

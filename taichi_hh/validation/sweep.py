@@ -119,7 +119,7 @@ def run_hhd(task: dict) -> dict:
             wall = time.perf_counter() - t0
             s = res.stats["seconds"]
             times["setup"].append(s["setup"] + s["divergence"] + s["assemble"])
-            times["solve"].append(s["solve_phi"] + s["solve_psi"])
+            times["solve"].append(s.get("preconditioner", 0.0) + s["solve"])
             times["components"].append(s["components"])
             times["total"].append(s["total"])
             times["wall"].append(wall)
