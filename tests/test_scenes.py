@@ -162,27 +162,45 @@ def test_scene_writes_particle_data_per_frame_for_paraview(tmp_path):
     assert sorted(p.suffix for p in (plain / "particles").iterdir()) == [".npz", ".npz"]
 
 
+def _matches(got, want) -> str:
+    """An empty string when the diagnostics ``got`` equal ``want`` to 1e-9 relative, else the first difference."""
+    if [r["step"] for r in got] != [r["step"] for r in want]:
+        return "the steps differ"
+    for g, w in zip(got, want):
+        for key, value in w.items():
+            if value == "":
+                if g[key] != "":
+                    return f"step {w['step']}: {key} {g[key]!r} where none was recorded"
+            elif float(g[key]) != pytest.approx(float(value), rel=1e-9, abs=1e-14):
+                return f"step {w['step']}: {key} {g[key]} against {value}"
+    return ""
+
+
+#: the droplet's diagnostics as recorded, one file per CPU family whose
+#: compiled kernels round differently: the redesign's machine, and one with
+#: AVX-512 (Xeon; the same code there differs by up to 1e-8 relative in max
+#: |div|, a solve stopped at tolerance 1e-4, and 1.5e-9 elsewhere)
+DROPLET_RECORDINGS = ("droplet_2500_t1_diagnostics.csv",
+                      "droplet_2500_t1_diagnostics_avx512.csv")
+
+
 @pytest.mark.slow
 def test_droplet_reproduces_its_recorded_diagnostics(tmp_path):
     """The droplet at 2.5k particles to t = 1 against the diagnostics recorded
     before the subpackage redesign (tests/data): refactoring must not change
-    the numbers.  Equal to the bit on the machine that recorded them (the
-    redesign's check); here to 1e-9 relative, since another CPU may round a
-    fused kernel differently.  A change meant to alter the numerics records
-    the file again and says why."""
+    the numbers.  Equal to the bit on a machine like the one that recorded
+    them; to 1e-9 relative, since a machine of the same family may still round
+    a fused kernel differently.  The recordings are one per CPU family
+    (:data:`DROPLET_RECORDINGS`); the run must match one of them.  A change
+    meant to alter the numerics records the files again and says why."""
     mod = load("rising_droplet")
     out = tmp_path / "run"
     assert mod.main(mod.SCENE, ["--particles", "2500", "--end-time", "1", "--quiet",
                                 "--frame-width", "100", "--no-vtk", "--out", str(out)]) == 0
     got = rows(out / "diagnostics.csv")
-    want = rows(pathlib.Path(__file__).parent / "data" / "droplet_2500_t1_diagnostics.csv")
-    assert [r["step"] for r in got] == [r["step"] for r in want]
-    for g, w in zip(got, want):
-        for key, value in w.items():
-            if value == "":
-                assert g[key] == ""
-            else:
-                assert float(g[key]) == pytest.approx(float(value), rel=1e-9, abs=1e-14), key
+    data = pathlib.Path(__file__).parent / "data"
+    mismatch = {name: _matches(got, rows(data / name)) for name in DROPLET_RECORDINGS}
+    assert not all(mismatch.values()), mismatch
 
 
 def test_docs_option_writes_the_montage_into_the_checkout(tmp_path, monkeypatch):
