@@ -177,7 +177,7 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
     else:
         st_div = ops.gradient_coefficients(opts.divergence, row_kinds=(FLUID,),
                                            source_kinds=div_sources)
-    dc_nd = ps.new_array(2)
+    dc_nd = ps.new_array(2, zeroed=False)
     ops.divergence_and_curl(st_div, v_nd, dc_nd)
     dc = dc_nd.to_numpy()[: ps.n_total].astype(np.float64)
     div_slots, curl_slots = dc[:, 0].copy(), dc[:, 1].copy()
@@ -335,9 +335,9 @@ def _solve_potentials(problems, say) -> dict:
 def _gradients(ps, st_grad, a, b) -> tuple:
     """Step (e): the gradients (stencil ``st_grad``) of two per-slot fields at the
     data points, one pass over the pairs."""
-    f_nd = ps.new_array(2)
+    f_nd = ps.new_array(2, zeroed=False)
     f_nd.from_numpy(np.stack([a, b], axis=1).astype(runtime.np_real()))
-    ga, gb = ps.new_array(2), ps.new_array(2)
+    ga, gb = ps.new_array(2, zeroed=False), ps.new_array(2, zeroed=False)
     ps.ops.gradients(st_grad, f_nd, ga, gb)
     return ps.download(ga), ps.download(gb)
 

@@ -1060,7 +1060,11 @@ class MultilevelPreconditioner:
         if old is not None and old.shape[0] >= need:
             nd = old
         else:
-            nd = runtime.array(dtype, need + need // 4 if self._old_arrays else need)
+            # not zero-filled: written in full below or, uninitialised, by the
+            # set-up's kernels before the cycle reads them (a serial fill of
+            # 10-30 ms an array at 1M particles)
+            nd = runtime.array(dtype, need + need // 4 if self._old_arrays else need,
+                               zeroed=False)
         if values is not None:
             buf = np.zeros(nd.shape[0], dtype=np_dtype)
             buf[:len(values)] = values

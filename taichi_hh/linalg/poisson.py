@@ -280,13 +280,14 @@ class PoissonMatrix:
             self.K = self.lap.C
         else:
             self.K = runtime.array(real, room)
-        self.D = reuse.D if reuse is not None else runtime.array(real, size)
+        # written in full below (by _assemble, fill and from_numpy): not zero-filled
+        self.D = reuse.D if reuse is not None else runtime.array(real, size, zeroed=False)
         self._zero_near = near is None
         if near is None:
             if reuse is not None and reuse._zero_near:
                 near = reuse.near
             else:
-                near = runtime.array(real, size)
+                near = runtime.array(real, size, zeroed=False)
                 near.fill(0.0)
         self.near = near
         orphan = self._orphan = reuse._orphan if reuse is not None else runtime.array(ti.i32, 1)
@@ -322,8 +323,8 @@ class PoissonMatrix:
             self.border_e, self.border_w = reuse.border_e, reuse.border_w
             size = self.border_e.shape[0]
         else:
-            self.border_e = runtime.array(real, size)
-            self.border_w = runtime.array(real, size)
+            self.border_e = runtime.array(real, size, zeroed=False)
+            self.border_w = runtime.array(real, size, zeroed=False)
         self.border_e.from_numpy(_padded(fluid, size))
         self.border_w.from_numpy(_padded(fluid * vol, size))
         # the corner's sign (class doc): regular for every kappa >= 0

@@ -153,15 +153,16 @@ class PointSet:
                           f"{d[j]:.3g} apart (at {pts[q].tolist()}); remove duplicates")
 
     # ---- slot <-> caller order ---------------------------------------------------
-    def new_array(self, ncomp: int = 1):
-        """A zeroed Taichi array with one entry per particle slot (Taichi
-        zero-fills every new ndarray: no fill pass, which for vectors is a
-        kernel launch of its own)."""
+    def new_array(self, ncomp: int = 1, *, zeroed: bool = True):
+        """A Taichi array with one entry per particle slot, zeroed (Taichi's fill
+        on allocation: no fill pass, which for vectors is a kernel launch of its
+        own) unless ``zeroed=False``, for an array written in full before it is
+        read (no serial fill: the writing kernel's loop touches its pages first)."""
         real = runtime.real_dtype()
         size = max(self.n_total, 1)
         if ncomp == 1:
-            return runtime.array(real, size)
-        return runtime.array(real, size, vector=ncomp)
+            return runtime.array(real, size, zeroed=zeroed)
+        return runtime.array(real, size, vector=ncomp, zeroed=zeroed)
 
     def upload(self, values):
         """Data-point values (caller order) -> Taichi array in slot order
