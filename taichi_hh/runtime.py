@@ -255,6 +255,26 @@ def check_generation(made_in: int, what: str = "object") -> None:
             "its arrays are gone. Create it again.")
 
 
+#: calls on at least this many particles free the arrays their kernel launches
+#: kept alive (:func:`release_launch_arguments`); below it the collection
+#: (14-27 ms) would cost more than the memory is worth
+RELEASE_MIN_PARTICLES = 100_000
+
+
+def release_launch_arguments(n_particles: int) -> None:
+    """Free what a large call's kernel launches still hold.  Taichi 1.7 builds the
+    argument setters of every launch as nested closures that refer to
+    themselves (a reference cycle) and to the launch's arguments, so every
+    array passed to a kernel stays alive until Python's cycle collector runs,
+    which may be long after: a 1M-point decomposition left 1.1 GB so, and
+    the next one, allocating beside it, took 11 s instead of 9
+    (docs/notes/scattered.md, "Ninth session").  For calls on at least
+    :data:`RELEASE_MIN_PARTICLES` particles, runs the collector."""
+    if n_particles >= RELEASE_MIN_PARTICLES:
+        import gc
+        gc.collect()
+
+
 def array(dtype, shape, vector: int | None = None, *, zeroed: bool = True):
     """A Taichi ndarray of ``dtype`` (None: :func:`real_dtype`) and ``shape``, of
     scalars or, with ``vector``, of vectors of that many components: what

@@ -159,3 +159,24 @@ def test_operators_without_columns_are_solved_one_column_after_the_other():
         alone = krylov.bicgstab(A, B[:, c], tol=1e-10)
         assert res.iterations == alone.iterations
         assert np.array_equal(res.x, alone.x)
+
+
+def test_the_matrix_and_its_preconditioner_are_freed_without_the_cycle_collector():
+    """The matrix caches its multilevel preconditioner; the preconditioner must
+    not refer back to the matrix, or the two (gigabytes at 1M particles) stay
+    alive until Python's cycle collector happens to run."""
+    import gc
+    import weakref
+    F = fields.get("gaussian")
+    pts = layouts.sample(F.domain, 2000, "random", seed=5)
+    gc.collect()
+    gc.disable()
+    try:
+        P = poisson_problems(pts, F.evaluate(pts).v, F.domain)
+        M = P.A.multilevel(**dict(P.opts.multilevel_options))
+        P.A.solve_columns(np.stack([P.rhs["phi"], P.rhs["psi"]], axis=1), preconditioner=M)
+        refs = [weakref.ref(P.A), weakref.ref(M)]
+        del P, M
+        assert [r() for r in refs] == [None, None]
+    finally:
+        gc.enable()

@@ -290,6 +290,7 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     stats["seconds"] = seconds
     _check_energy(stats, vec, d, r, h, ps.particles.get("volume")[ps.slot_of], opts)
     _check_harmonic(stats, problems, h)
+    runtime.release_launch_arguments(ps.n_total)
     return HHDResult(points=pts, vectors=vec, curl_free=d, div_free=r, harmonic=h,
                      phi=phi, psi=psi, divergence=div_slots[ps.slot_of],
                      curl=curl_slots[ps.slot_of], stats=stats, options=opts, pointset=ps)

@@ -455,6 +455,7 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
              "scheme": scheme, "n_boundary": projection.n_boundary,
              "support": projection.support, "spacing": projection.spacing,
              "divergence_operator": projection.divergence_operator()}
+    runtime.release_launch_arguments(len(pts))
     return ProjectionResult(points=pts, vectors=w, initial=vec,
                             max_divergence=np.array(max_div), sum_sq_divergence=np.array(sum_sq),
                             divergence=div, stats=stats, history=fields)

@@ -734,7 +734,12 @@ class MultilevelPreconditioner:
         self.weak = float(weak)
         # below SERIAL_MAX_N particles the cycle's loops run on one thread
         self.serial = A.n_particles < SERIAL_MAX_N
-        self.A = A
+        # the rows the cycle reads, not the matrix: the matrix caches this
+        # preconditioner (PoissonMatrix.multilevel), and a reference back would
+        # make a cycle that keeps both, gigabytes at 1M particles, alive until
+        # the garbage collector runs (a 1M decomposition after another took 11
+        # s instead of 9: docs/notes/scattered.md, "Ninth session")
+        self._rows = (A.ops.pairs.offsets, A.ops.pairs.neighbours, A.K, A.D)
         ops = A.ops
         n = ops.particles.n
         self.n = n
@@ -1157,13 +1162,13 @@ class MultilevelPreconditioner:
     def apply(self, r, z) -> None:
         """z = M^-1 r (one cycle from zero); r, z hold one column or several
         (vectors: each column cycled independently, the matrix read once)."""
-        A, pr = self.A, self.A.ops.pairs
+        offsets, neighbours, K, D = self._rows
         cols = columns_of(r)
         cr, cx, ctmp, fx, ftmp = self._scratch(cols)
         _cycle(cols, self.serial, self._by_cell, self.schedule, self.post, self.omega,
                self.correction, self._bordered, self.gamma, len(self.level_sizes), self.n,
-               self.pstart, self.porder, self.cell_of, pr.offsets,
-               pr.neighbours, A.K, A.D, self.dinv, self.lvl, self.visits, self.S_off,
+               self.pstart, self.porder, self.cell_of, offsets,
+               neighbours, K, D, self.dinv, self.lvl, self.visits, self.S_off,
                self.S_col, self.S_val, self.parent, self.kid_start, self.kids, self.cdinv,
                cr, cx, ctmp, self.coarse_inverse, fx, ftmp,
                self._border_c, self._constant_mode, self.colsum, self._constant_c, r, z)
