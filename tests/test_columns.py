@@ -180,3 +180,14 @@ def test_the_matrix_and_its_preconditioner_are_freed_without_the_cycle_collector
         assert [r() for r in refs] == [None, None]
     finally:
         gc.enable()
+
+
+def test_three_columns_together(bordered):
+    """Any number of columns: the kernels are generic over it."""
+    A, B = bordered
+    B3 = np.column_stack([B, B[:, 0] - 2.0 * B[:, 1]])
+    joint = A.solve_columns(B3, tol=1e-10)
+    for c, res in enumerate(joint):
+        alone = A.solve(B3[:, c], tol=1e-10)
+        assert res.converged and abs(res.iterations - alone.iterations) <= 1
+        assert np.abs(res.x - alone.x).max() <= 1e-8 * np.abs(alone.x).max()

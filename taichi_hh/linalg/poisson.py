@@ -112,30 +112,23 @@ def _apply_rows_body(cols: ti.template(), n, offsets: ti.template(), nbrs: ti.te
     return ay, yy
 
 
-@ti.kernel
-def _apply_rows(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
-                K: ti.types.ndarray(), D: ti.types.ndarray(), x: ti.types.ndarray(),
-                y: ti.types.ndarray(), bordered: ti.i32, e: ti.types.ndarray(),
-                w: ti.types.ndarray(), c: float, a: ti.types.ndarray()) -> (float, float):
-    """:func:`_apply_rows_body` on one column."""
-    return _apply_rows_body(1, n, offsets, nbrs, K, D, x, y, bordered, e, w, c, a)
-
-
 @lru_cache(maxsize=None)
-def _apply_rows_pair(precision: str):
-    """:func:`_apply_rows_body` on two columns, for the runtime's precision (a
-    kernel's return type is fixed when it is defined: one kernel per column
-    count and real type)."""
-    pair = ti.types.vector(2, ti.f64 if precision == "f64" else ti.f32)
+def _apply_rows_kernel(precision: str, cols: int):
+    """:func:`_apply_rows_body` on ``cols`` columns, for the runtime's precision:
+    a kernel's return type is fixed when it is defined (a vector type made
+    before ``ti.init`` would be f32 whatever the precision), so one kernel per
+    column count and real type, made on first use."""
+    real = ti.f64 if precision == "f64" else ti.f32
+    dots = real if cols == 1 else ti.types.vector(cols, real)
 
     @ti.kernel
-    def apply_rows_pair(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
-                        K: ti.types.ndarray(), D: ti.types.ndarray(), x: ti.types.ndarray(),
-                        y: ti.types.ndarray(), bordered: ti.i32, e: ti.types.ndarray(),
-                        w: ti.types.ndarray(), c: float, a: ti.types.ndarray()) -> (pair, pair):
-        return _apply_rows_body(2, n, offsets, nbrs, K, D, x, y, bordered, e, w, c, a)
+    def apply_rows(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
+                   K: ti.types.ndarray(), D: ti.types.ndarray(), x: ti.types.ndarray(),
+                   y: ti.types.ndarray(), bordered: ti.i32, e: ti.types.ndarray(),
+                   w: ti.types.ndarray(), c: real, a: ti.types.ndarray()) -> (dots, dots):
+        return _apply_rows_body(cols, n, offsets, nbrs, K, D, x, y, bordered, e, w, c, a)
 
-    return apply_rows_pair
+    return apply_rows
 
 
 @ti.kernel
@@ -337,17 +330,15 @@ class PoissonMatrix:
     def apply(self, x, y) -> None:
         self.apply_dot(x, y, y)
 
-    #: apply and apply_dot take one column or two (:mod:`taichi_hh.linalg.columns`)
+    #: apply and apply_dot take one column or several (:mod:`taichi_hh.linalg.columns`)
     accepts_columns = True
 
     def apply_dot(self, x, y, a) -> tuple:
         """y = A x; returns (<a, y>, <y, y>) (see :mod:`taichi_hh.linalg.krylov`),
-        per column (numpy arrays) when x holds two."""
+        per column (numpy arrays) when x holds several."""
         pr = self.ops.pairs
         cols = columns_of(x)
-        if cols not in (1, 2):
-            raise InputError(f"PoissonMatrix applies to one or two columns, got {cols}")
-        kernel = _apply_rows if cols == 1 else _apply_rows_pair(runtime.state().precision)
+        kernel = _apply_rows_kernel(runtime.state().precision, cols)
         out = kernel(self.n_particles, pr.offsets, pr.neighbours, self.K, self.D, x, y,
                      *self._border(), a)
         return out if cols == 1 else tuple(np.asarray(v.to_numpy()) for v in out)
@@ -426,9 +417,9 @@ class PoissonMatrix:
     def solve_columns(self, B, *, tol: float = 1e-8, preconditioner="auto",
                       multilevel_options: dict | None = None, **kwargs) -> list:
         """Solve for the columns of ``B`` (shape ``(n_particles, cols)``) with
-        BiCGSTAB, two columns at a time together
+        BiCGSTAB, the columns together
         (:func:`~taichi_hh.linalg.krylov.bicgstab_columns`: the matrix and the
-        preconditioner read once per iteration for both).  Returns one result
+        preconditioner read once per iteration for all of them).  Returns one result
         per column, as :meth:`solve` does; ``kwargs`` as
         :func:`~taichi_hh.linalg.krylov.bicgstab_columns`."""
         kwargs["preconditioner"] = self.preconditioner_for(preconditioner, "bicgstab",
@@ -439,9 +430,7 @@ class PoissonMatrix:
                              f"got {B.shape}")
         if self.bordered:
             B = np.vstack([B, np.zeros((1, B.shape[1]))])
-        results = []
-        for c0 in range(0, B.shape[1], 2):      # the apply kernels take one or two
-            results += solvers.bicgstab_columns(self, B[:, c0:c0 + 2], tol=tol, **kwargs)
+        results = solvers.bicgstab_columns(self, B, tol=tol, **kwargs)
         for res in results:
             res.border = float(res.x[-1]) if self.bordered else 0.0
             if self.bordered:
