@@ -1,0 +1,330 @@
+"""Delaunay triangulation of points in the plane, by sweep-hull (Sinclair 2010,
+as Agafonkin's Delaunator implements it): the points are taken in order of
+their distance from a seed triangle's circumcentre, each joins the convex
+hull of those before it through the hull edges it sees, and edges are
+flipped until every pair of triangles is Delaunay.  The sweep is one serial
+Taichi kernel: at 13k points it takes a few milliseconds where matplotlib's
+qhull takes 31-35 (docs/notes/scattered.md, "Ninth session").
+
+The arithmetic is plain floating point (no exact predicates), so the result
+is checked (:func:`valid_triangulation`: every point used, one orientation,
+Euler's count of triangles); a caller falls back to another triangulation
+when the check fails (:func:`taichi_hh.geometry.from_points.delaunay_triangles`
+does, to matplotlib's).
+"""
+
+import math
+
+import numpy as np
+import taichi as ti
+
+from .. import runtime
+
+__all__ = ["sweep_hull", "valid_triangulation"]
+
+#: the legalisation's stack of edges still to check (Delaunator's size: only
+#: extremely degenerate input reaches it, and then flips are left undone)
+EDGE_STACK = 512
+
+
+@ti.func
+def _ccw(ax, ay, bx, by, cx, cy):
+    """(b - a) x (c - a) > 0: a, b, c counter-clockwise."""
+    return (bx - ax) * (cy - ay) - (by - ay) * (cx - ax) > 0.0
+
+
+@ti.func
+def _in_circle(ax, ay, bx, by, cx, cy, px, py):
+    """p inside the circumcircle of the clockwise triangle a, b, c."""
+    dx = ax - px
+    dy = ay - py
+    ex = bx - px
+    ey = by - py
+    fx = cx - px
+    fy = cy - py
+    ap = dx * dx + dy * dy
+    bp = ex * ex + ey * ey
+    cp = fx * fx + fy * fy
+    return dx * (ey * cp - bp * fy) - dy * (ex * cp - bp * fx) + ap * (ex * fy - ey * fx) < 0.0
+
+
+@ti.func
+def _hash_key(x, y, cx, cy, hash_size):
+    dx = x - cx
+    dy = y - cy
+    p = 0.0
+    if ti.abs(dx) + ti.abs(dy) > 0.0:       # (a point at the centre: angle 1/4)
+        p = dx / (ti.abs(dx) + ti.abs(dy))
+    angle = (3.0 - p) / 4.0 if dy > 0.0 else (1.0 + p) / 4.0      # monotone in the angle
+    return ti.cast(ti.floor(angle * hash_size), ti.i32) % hash_size
+
+
+@ti.func
+def _link(halfedges: ti.template(), a, b):
+    halfedges[a] = b
+    if b != -1:
+        halfedges[b] = a
+
+
+@ti.func
+def _add_triangle(triangles: ti.template(), halfedges: ti.template(), state: ti.template(),
+                  i0, i1, i2, a, b, c):
+    t = state[1]
+    triangles[t] = i0
+    triangles[t + 1] = i1
+    triangles[t + 2] = i2
+    _link(halfedges, t, a)
+    _link(halfedges, t + 1, b)
+    _link(halfedges, t + 2, c)
+    state[1] = t + 3
+    return t
+
+
+@ti.func
+def _legalize(a0_edge, xy: ti.template(), triangles: ti.template(), halfedges: ti.template(),
+              hull_prev: ti.template(), hull_tri: ti.template(), stack: ti.template(),
+              state: ti.template()):
+    """Flip edges from ``a0_edge`` on until the triangles around them are
+    Delaunay; returns the edge the new point's last triangle ends with."""
+    a = a0_edge
+    i = 0
+    ar = 0
+    while True:
+        b = halfedges[a]
+        t0 = a - a % 3
+        ar = t0 + (a + 2) % 3
+        if b == -1:                             # a hull edge: nothing to flip
+            if i == 0:
+                break
+            i -= 1
+            a = stack[i]
+            continue
+        b0 = b - b % 3
+        al = t0 + (a + 1) % 3
+        bl = b0 + (b + 2) % 3
+        p0 = triangles[ar]
+        pr = triangles[a]
+        pl = triangles[al]
+        p1 = triangles[bl]
+        if _in_circle(xy[p0, 0], xy[p0, 1], xy[pr, 0], xy[pr, 1], xy[pl, 0], xy[pl, 1],
+                      xy[p1, 0], xy[p1, 1]):
+            triangles[a] = p1
+            triangles[b] = p0
+            hbl = halfedges[bl]
+            if hbl == -1:       # the flipped edge is on the hull: repoint its triangle
+                e = state[0]
+                while True:
+                    if hull_tri[e] == bl:
+                        hull_tri[e] = a
+                        break
+                    e = hull_prev[e]
+                    if e == state[0]:
+                        break
+            _link(halfedges, a, hbl)
+            _link(halfedges, b, halfedges[ar])
+            _link(halfedges, ar, bl)
+            br = b0 + (b + 1) % 3
+            if i < EDGE_STACK:
+                stack[i] = br
+                i += 1
+        else:
+            if i == 0:
+                break
+            i -= 1
+            a = stack[i]
+    return ar
+
+
+@ti.kernel
+def _sweep(n: ti.i32, xy: ti.types.ndarray(), ids: ti.types.ndarray(), seed: ti.types.ndarray(),
+           cx: ti.f64, cy: ti.f64, hash_size: ti.i32, eps: ti.f64,
+           triangles: ti.types.ndarray(), halfedges: ti.types.ndarray(),
+           hull_prev: ti.types.ndarray(), hull_next: ti.types.ndarray(),
+           hull_tri: ti.types.ndarray(), hull_hash: ti.types.ndarray(),
+           stack: ti.types.ndarray(), state: ti.types.ndarray()) -> ti.i32:
+    """The sweep (serial).  ``seed``: the first triangle, clockwise; ``ids``: the
+    points by distance from its circumcentre (cx, cy).  ``state``: [hull start,
+    3 x triangles made].  Returns how many points were skipped (no hull edge
+    found from them, or within ``eps`` of the point before)."""
+    skipped = 0
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        i0 = seed[0]
+        i1 = seed[1]
+        i2 = seed[2]
+        for h in range(hash_size):
+            hull_hash[h] = -1
+        state[0] = i0
+        hull_next[i0] = i1
+        hull_prev[i2] = i1
+        hull_next[i1] = i2
+        hull_prev[i0] = i2
+        hull_next[i2] = i0
+        hull_prev[i1] = i0
+        hull_tri[i0] = 0
+        hull_tri[i1] = 1
+        hull_tri[i2] = 2
+        hull_hash[_hash_key(xy[i0, 0], xy[i0, 1], cx, cy, hash_size)] = i0
+        hull_hash[_hash_key(xy[i1, 0], xy[i1, 1], cx, cy, hash_size)] = i1
+        hull_hash[_hash_key(xy[i2, 0], xy[i2, 1], cx, cy, hash_size)] = i2
+        state[1] = 0
+        _add_triangle(triangles, halfedges, state, i0, i1, i2, -1, -1, -1)
+        xp = 0.0
+        yp = 0.0
+        for k in range(n):
+            i = ids[k]
+            x = xy[i, 0]
+            y = xy[i, 1]
+            near = k > 0 and ti.abs(x - xp) <= eps and ti.abs(y - yp) <= eps
+            xp = x
+            yp = y
+            if near:
+                skipped += 1
+                continue
+            if i == i0 or i == i1 or i == i2:
+                continue
+            # a visible hull edge, found through the angular hash
+            start = 0
+            key = _hash_key(x, y, cx, cy, hash_size)
+            for j in range(hash_size):
+                start = hull_hash[(key + j) % hash_size]
+                if start != -1 and start != hull_next[start]:
+                    break
+            start = hull_prev[start]
+            e = start
+            while True:
+                q = hull_next[e]
+                if _ccw(x, y, xy[e, 0], xy[e, 1], xy[q, 0], xy[q, 1]):
+                    break
+                e = q
+                if e == start:
+                    e = -1
+                    break
+            if e == -1:                 # no edge sees it: a near-duplicate
+                skipped += 1
+                continue
+            t = _add_triangle(triangles, halfedges, state, e, i, hull_next[e], -1, -1,
+                              hull_tri[e])
+            hull_tri[i] = _legalize(t + 2, xy, triangles, halfedges, hull_prev, hull_tri,
+                                    stack, state)
+            hull_tri[e] = t
+            # forward along the hull
+            m = hull_next[e]
+            while True:
+                q = hull_next[m]
+                if not _ccw(x, y, xy[m, 0], xy[m, 1], xy[q, 0], xy[q, 1]):
+                    break
+                t = _add_triangle(triangles, halfedges, state, m, i, q, hull_tri[i], -1,
+                                  hull_tri[m])
+                hull_tri[i] = _legalize(t + 2, xy, triangles, halfedges, hull_prev, hull_tri,
+                                        stack, state)
+                hull_next[m] = m                # removed from the hull
+                m = q
+            # backward along the hull
+            if e == start:
+                while True:
+                    q = hull_prev[e]
+                    if not _ccw(x, y, xy[q, 0], xy[q, 1], xy[e, 0], xy[e, 1]):
+                        break
+                    t = _add_triangle(triangles, halfedges, state, q, i, e, -1, hull_tri[e],
+                                      hull_tri[q])
+                    _legalize(t + 2, xy, triangles, halfedges, hull_prev, hull_tri, stack, state)
+                    hull_tri[q] = t
+                    hull_next[e] = e
+                    e = q
+            state[0] = e
+            hull_prev[i] = e
+            hull_next[e] = i
+            hull_prev[m] = i
+            hull_next[i] = m
+            hull_hash[_hash_key(x, y, cx, cy, hash_size)] = i
+            hull_hash[_hash_key(xy[e, 0], xy[e, 1], cx, cy, hash_size)] = e
+    return skipped
+
+
+def _circumcentre(a, b, c):
+    d = b - a
+    e = c - a
+    bl = d @ d
+    cl = e @ e
+    den = 2.0 * (d[0] * e[1] - d[1] * e[0])
+    return a + np.array([e[1] * bl - d[1] * cl, d[0] * cl - e[0] * bl]) / den
+
+
+def sweep_hull(points: np.ndarray):
+    """(T, 3) vertex indices of the Delaunay triangles of distinct ``points``
+    ((N, 2), N >= 3), counter-clockwise; None where the sweep cannot start
+    (all points on a line), skipped a point or made an invalid triangulation
+    (:func:`valid_triangulation`)."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    n = len(pts)
+    if n < 3:
+        return None
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    i0 = int(np.argmin(((pts - centre) ** 2).sum(axis=1)))
+    d0 = ((pts - pts[i0]) ** 2).sum(axis=1)
+    d0[i0] = np.inf
+    d0[d0 == 0] = np.inf
+    i1 = int(np.argmin(d0))
+    if not np.isfinite(d0[i1]):
+        return None
+    a, b = pts[i0], pts[i1]
+    d = b - a
+    e = pts - a
+    bl = d @ d
+    cl = (e ** 2).sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = 0.5 / (d[0] * e[:, 1] - d[1] * e[:, 0])
+        ox = (e[:, 1] * bl - d[1] * cl) * den
+        oy = (d[0] * cl - e[:, 0] * bl) * den
+        radius = ox * ox + oy * oy
+    radius[[i0, i1]] = np.inf
+    radius[~np.isfinite(radius)] = np.inf
+    i2 = int(np.argmin(radius))
+    if not np.isfinite(radius[i2]):
+        return None                     # collinear
+    c = pts[i2]
+    if (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]) > 0:
+        i1, i2 = i2, i1                 # the sweep's triangles are clockwise
+    cc = _circumcentre(pts[i0], pts[i1], pts[i2])
+    ids = np.argsort(((pts - cc) ** 2).sum(axis=1), kind="stable").astype(np.int32)
+    max_t = max(2 * n - 5, 1)
+    hash_size = max(int(math.ceil(math.sqrt(n))), 1)
+
+    def arr(dtype, size):
+        return runtime.array(dtype, size, zeroed=False)
+
+    xy = runtime.array(ti.f64, (n, 2), zeroed=False)
+    xy.from_numpy(pts)
+    ids_nd = arr(ti.i32, n)
+    ids_nd.from_numpy(ids)
+    seed = arr(ti.i32, 3)
+    seed.from_numpy(np.array([i0, i1, i2], dtype=np.int32))
+    triangles, halfedges = arr(ti.i32, 3 * max_t), arr(ti.i32, 3 * max_t)
+    hull_prev, hull_next, hull_tri = arr(ti.i32, n), arr(ti.i32, n), arr(ti.i32, n)
+    hull_hash, stack, state = arr(ti.i32, hash_size), arr(ti.i32, EDGE_STACK), arr(ti.i32, 2)
+    skipped = _sweep(n, xy, ids_nd, seed, float(cc[0]), float(cc[1]), hash_size,
+                     float(np.finfo(np.float64).eps), triangles, halfedges, hull_prev,
+                     hull_next, hull_tri, hull_hash, stack, state)
+    if skipped:
+        return None
+    count = int(state.to_numpy()[1])
+    tri = triangles.to_numpy()[:count].reshape(-1, 3).astype(np.int64)
+    hull = int(np.count_nonzero(halfedges.to_numpy()[:count] == -1))
+    tri = tri[:, [0, 2, 1]]             # counter-clockwise
+    return tri if valid_triangulation(pts, tri, hull) else None
+
+
+def valid_triangulation(points: np.ndarray, tri: np.ndarray, hull: int) -> bool:
+    """Whether ``tri`` with ``hull`` edges on the convex hull is a triangulation
+    of all of ``points``: every point a vertex, every triangle counter-clockwise
+    with positive area, and Euler's count of triangles, 2 N - 2 - hull (a fold
+    or an overlap, which floating-point predicates can make on degenerate
+    input, breaks one of them)."""
+    n = len(points)
+    if len(tri) == 0 or np.bincount(tri.ravel(), minlength=n).min() == 0:
+        return False
+    a, b, c = (points[tri[:, k]] for k in range(3))
+    cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    return bool(np.all(cross > 0)) and len(tri) == 2 * n - 2 - hull
