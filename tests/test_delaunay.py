@@ -102,3 +102,13 @@ def test_the_check_rejects_a_fold_and_a_missing_point():
     assert not valid_triangulation(pts, tri[1:], hull)
     missing = np.r_[pts, [[5.0, 5.0]]]
     assert not valid_triangulation(missing, tri, hull)
+
+
+def test_a_sweep_past_its_flip_budget_gives_up_and_the_fallback_takes_over(monkeypatch):
+    """Every walk and the flips are bounded, so no input can hang the kernel;
+    a sweep that runs out gives None and delaunay_triangles uses Qhull."""
+    from taichi_hh.geometry import delaunay
+    pts = unique_points(np.random.default_rng(6).random((500, 2)))
+    monkeypatch.setattr(delaunay, "FLIPS_PER_POINT", 0)
+    assert delaunay.sweep_hull(pts) is None
+    assert _canonical(delaunay_triangles(pts)) == _canonical(_qhull(pts))

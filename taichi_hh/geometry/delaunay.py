@@ -25,6 +25,8 @@ __all__ = ["sweep_hull", "valid_triangulation"]
 #: the legalisation's stack of edges still to check (Delaunator's size: only
 #: extremely degenerate input reaches it, and then flips are left undone)
 EDGE_STACK = 512
+#: the sweep gives up (and the caller falls back) after this many edge flips a point
+FLIPS_PER_POINT = 64
 
 
 @ti.func
@@ -106,14 +108,18 @@ def _legalize(a0_edge, xy: ti.template(), triangles: ti.template(), halfedges: t
         pr = triangles[a]
         pl = triangles[al]
         p1 = triangles[bl]
+        if state[3] <= 0:              # the flip budget is spent: give up (checked after)
+            state[2] = 1
+            break
         if _in_circle(xy[p0, 0], xy[p0, 1], xy[pr, 0], xy[pr, 1], xy[pl, 0], xy[pl, 1],
                       xy[p1, 0], xy[p1, 1]):
+            state[3] -= 1
             triangles[a] = p1
             triangles[b] = p0
             hbl = halfedges[bl]
             if hbl == -1:       # the flipped edge is on the hull: repoint its triangle
                 e = state[0]
-                while True:
+                for _step in range(hull_prev.shape[0]):
                     if hull_tri[e] == bl:
                         hull_tri[e] = a
                         break
@@ -144,8 +150,10 @@ def _sweep(n: ti.i32, xy: ti.types.ndarray(), ids: ti.types.ndarray(), seed: ti.
            stack: ti.types.ndarray(), state: ti.types.ndarray()) -> ti.i32:
     """The sweep (serial).  ``seed``: the first triangle, clockwise; ``ids``: the
     points by distance from its circumcentre (cx, cy).  ``state``: [hull start,
-    3 x triangles made].  Returns how many points were skipped (no hull edge
-    found from them, or within ``eps`` of the point before)."""
+    3 x triangles made, failed, flips left] (the flips' budget set by the
+    caller; every walk is bounded too, so degenerate input cannot hang it).
+    Returns how many points were skipped (no hull edge found from them, or
+    within ``eps`` of the point before)."""
     skipped = 0
     ti.loop_config(serialize=True)
     for _ in range(1):
@@ -172,6 +180,8 @@ def _sweep(n: ti.i32, xy: ti.types.ndarray(), ids: ti.types.ndarray(), seed: ti.
         xp = 0.0
         yp = 0.0
         for k in range(n):
+            if state[2] != 0:
+                break
             i = ids[k]
             x = xy[i, 0]
             y = xy[i, 1]
@@ -192,17 +202,26 @@ def _sweep(n: ti.i32, xy: ti.types.ndarray(), ids: ti.types.ndarray(), seed: ti.
                     break
             start = hull_prev[start]
             e = start
-            while True:
+            ended = 0
+            for _step in range(n + 1):
                 q = hull_next[e]
                 if _ccw(x, y, xy[e, 0], xy[e, 1], xy[q, 0], xy[q, 1]):
+                    ended = 1
                     break
                 e = q
                 if e == start:
                     e = -1
+                    ended = 1
                     break
+            if ended == 0:              # the hull is no longer a cycle
+                state[2] = 1
+                break
             if e == -1:                 # no edge sees it: a near-duplicate
                 skipped += 1
                 continue
+            if state[1] + 3 > triangles.shape[0]:       # more triangles than a sweep makes
+                state[2] = 1
+                break
             t = _add_triangle(triangles, halfedges, state, e, i, hull_next[e], -1, -1,
                               hull_tri[e])
             hull_tri[i] = _legalize(t + 2, xy, triangles, halfedges, hull_prev, hull_tri,
@@ -210,9 +229,15 @@ def _sweep(n: ti.i32, xy: ti.types.ndarray(), ids: ti.types.ndarray(), seed: ti.
             hull_tri[e] = t
             # forward along the hull
             m = hull_next[e]
-            while True:
+            ended = 0
+            for _step in range(n):
                 q = hull_next[m]
                 if not _ccw(x, y, xy[m, 0], xy[m, 1], xy[q, 0], xy[q, 1]):
+                    ended = 1
+                    break
+                if state[1] + 3 > triangles.shape[0]:
+                    ended = 1
+                    state[2] = 1
                     break
                 t = _add_triangle(triangles, halfedges, state, m, i, q, hull_tri[i], -1,
                                   hull_tri[m])
@@ -220,11 +245,20 @@ def _sweep(n: ti.i32, xy: ti.types.ndarray(), ids: ti.types.ndarray(), seed: ti.
                                         stack, state)
                 hull_next[m] = m                # removed from the hull
                 m = q
+            if ended == 0 or state[2] != 0:
+                state[2] = 1
+                break
             # backward along the hull
             if e == start:
-                while True:
+                ended = 0
+                for _step in range(n):
                     q = hull_prev[e]
                     if not _ccw(x, y, xy[q, 0], xy[q, 1], xy[e, 0], xy[e, 1]):
+                        ended = 1
+                        break
+                    if state[1] + 3 > triangles.shape[0]:
+                        ended = 1
+                        state[2] = 1
                         break
                     t = _add_triangle(triangles, halfedges, state, q, i, e, -1, hull_tri[e],
                                       hull_tri[q])
@@ -232,6 +266,9 @@ def _sweep(n: ti.i32, xy: ti.types.ndarray(), ids: ti.types.ndarray(), seed: ti.
                     hull_tri[q] = t
                     hull_next[e] = e
                     e = q
+                if ended == 0 or state[2] != 0:
+                    state[2] = 1
+                    break
             state[0] = e
             hull_prev[i] = e
             hull_next[e] = i
@@ -303,13 +340,16 @@ def sweep_hull(points: np.ndarray):
     seed.from_numpy(np.array([i0, i1, i2], dtype=np.int32))
     triangles, halfedges = arr(ti.i32, 3 * max_t), arr(ti.i32, 3 * max_t)
     hull_prev, hull_next, hull_tri = arr(ti.i32, n), arr(ti.i32, n), arr(ti.i32, n)
-    hull_hash, stack, state = arr(ti.i32, hash_size), arr(ti.i32, EDGE_STACK), arr(ti.i32, 2)
+    hull_hash, stack, state = arr(ti.i32, hash_size), arr(ti.i32, EDGE_STACK), arr(ti.i32, 4)
+    # a sweep flips a few edges a point (about 2 on random points): far more
+    # means the predicates are going round in circles
+    state.from_numpy(np.array([0, 0, 0, min(FLIPS_PER_POINT * n, 2**31 - 1)], dtype=np.int32))
     skipped = _sweep(n, xy, ids_nd, seed, float(cc[0]), float(cc[1]), hash_size,
                      float(np.finfo(np.float64).eps), triangles, halfedges, hull_prev,
                      hull_next, hull_tri, hull_hash, stack, state)
-    if skipped:
+    _, count, failed, _ = (int(v) for v in state.to_numpy())
+    if skipped or failed:
         return None
-    count = int(state.to_numpy()[1])
     tri = triangles.to_numpy()[:count].reshape(-1, 3).astype(np.int64)
     hull = int(np.count_nonzero(halfedges.to_numpy()[:count] == -1))
     tri = tri[:, [0, 2, 1]]             # counter-clockwise
