@@ -1,7 +1,6 @@
 """The scene scripts end to end: frames, diagnostics, checkpoint, resume."""
 import csv
 import importlib.util
-import os
 import pathlib
 
 import imageio.v3 as iio

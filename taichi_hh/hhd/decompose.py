@@ -446,7 +446,6 @@ def _petronetto_band(ps, domain):
     """Petronetto Sec. 4: fluid particles within sqrt(m/rho)/pi of the boundary get
     the Neumann term, with the outward normal of the closest boundary point; their
     weights (-1) go to the Poisson rows, the normals to the particles."""
-    import taichi as ti
     p = ps.particles
     kind = p.get("kind")
     pos = p.get("position")

@@ -94,7 +94,7 @@ import numpy as np
 
 from taichi_hh import runtime
 from taichi_hh.errors import InputError, SolverError
-from taichi_hh.linalg.columns import columns_of, zeros
+from taichi_hh.linalg.columns import zeros
 
 __all__ = ["LinearOperator", "CSRMatrix", "SolveResult", "Workspace", "get_workspace",
            "clear_workspace_cache", "bicgstab", "bicgstab_columns", "cg", "cgnr",

@@ -34,7 +34,7 @@ from . import krylov as solvers
 from .columns import columns_of, zeros
 from ..errors import InputError, NeighbourError
 from ..sph.operators import GradientStencil, LaplacianStencil, shepard_sums, shepard_weight
-from ..sph.particles import BOUNDARY, FLUID, GHOST
+from ..sph.particles import BOUNDARY, FLUID
 from ..sph.support import pair_support
 
 
