@@ -7,7 +7,8 @@ from taichi_hh.errors import InputError
 from taichi_hh.geometry import from_points
 from taichi_hh.geometry.delaunay import sweep_hull, valid_triangulation
 from taichi_hh.geometry.domain import Box
-from taichi_hh.geometry.from_points import delaunay_triangles, unique_points
+from taichi_hh.geometry.from_points import (delaunay_triangles, delaunay_triangulation,
+                                           unique_points)
 from taichi_hh.validation import layouts
 
 
@@ -38,14 +39,13 @@ def _points_inside_circumcircles(pts, tri, rtol=1e-9):
 @pytest.mark.parametrize("layout", ["random", "poisson", "jitter0.6", "gradient", "clusters"])
 def test_the_same_triangles_as_qhull(layout):
     pts = unique_points(layouts.sample(Box((0, 0), (1, 1)), 2000, layout, seed=3))
-    tri = sweep_hull(pts)
-    assert tri is not None
+    tri, _ = sweep_hull(pts)
     assert _canonical(tri) == _canonical(_qhull(pts))
 
 
 def test_empty_circumcircles_and_counter_clockwise():
     pts = unique_points(np.random.default_rng(7).random((400, 2)))
-    tri = sweep_hull(pts)
+    tri, _ = sweep_hull(pts)
     assert _points_inside_circumcircles(pts, tri) == 0
     a, b, c = (pts[tri[:, k]] for k in range(3))
     assert np.all((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1])
@@ -93,7 +93,7 @@ def test_the_fallback_gives_the_same_triangulation(monkeypatch):
 
 def test_the_check_rejects_a_fold_and_a_missing_point():
     pts = unique_points(np.random.default_rng(4).random((300, 2)))
-    tri = sweep_hull(pts)
+    tri, _ = sweep_hull(pts)
     hull = 2 * len(pts) - 2 - len(tri)
     assert valid_triangulation(pts, tri, hull)
     folded = tri.copy()
@@ -112,3 +112,28 @@ def test_a_sweep_past_its_flip_budget_gives_up_and_the_fallback_takes_over(monke
     monkeypatch.setattr(delaunay, "FLIPS_PER_POINT", 0)
     assert delaunay.sweep_hull(pts) is None
     assert _canonical(delaunay_triangles(pts)) == _canonical(_qhull(pts))
+
+
+def _across_by_sorting(tri):
+    """The triangle across each edge, found by sorting the edges' vertex pairs."""
+    n = int(tri.max()) + 1
+    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    key = edges.min(axis=1) * n + edges.max(axis=1)
+    order = np.argsort(key)
+    twin = np.flatnonzero(key[order[1:]] == key[order[:-1]])
+    across = np.full(len(edges), -1)
+    across[order[twin]] = order[twin + 1] % len(tri)
+    across[order[twin + 1]] = order[twin] % len(tri)
+    return across
+
+
+@pytest.mark.parametrize("path", ["sweep", "qhull"])
+def test_the_triangle_across_each_edge(monkeypatch, path):
+    """From the sweep's halfedges and from Qhull's neighbours, reordered with
+    the triangles made counter-clockwise: the same as sorting the edges."""
+    from taichi_hh.geometry import delaunay
+    if path == "qhull":
+        monkeypatch.setattr(delaunay, "sweep_hull", lambda p: None)
+    pts = unique_points(np.random.default_rng(8).random((800, 2)))
+    tri, across = delaunay_triangulation(pts)
+    assert np.array_equal(across, _across_by_sorting(tri))

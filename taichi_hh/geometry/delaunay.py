@@ -289,10 +289,12 @@ def _circumcentre(a, b, c):
 
 
 def sweep_hull(points: np.ndarray):
-    """(T, 3) vertex indices of the Delaunay triangles of distinct ``points``
-    ((N, 2), N >= 3), counter-clockwise; None where the sweep cannot start
-    (all points on a line), skipped a point or made an invalid triangulation
-    (:func:`valid_triangulation`)."""
+    """The Delaunay triangulation of distinct ``points`` ((N, 2), N >= 3):
+    ``(triangles, across)``, the (T, 3) vertex indices counter-clockwise and,
+    for edge k (the vertices k, k + 1) of triangle t, the triangle across it
+    at ``across[k * T + t]`` (-1 on the hull); None where the sweep cannot
+    start (all points on a line), skipped a point or made an invalid
+    triangulation (:func:`valid_triangulation`)."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
     n = len(pts)
     if n < 3:
@@ -351,9 +353,16 @@ def sweep_hull(points: np.ndarray):
     if skipped or failed:
         return None
     tri = triangles.to_numpy()[:count].reshape(-1, 3).astype(np.int64)
-    hull = int(np.count_nonzero(halfedges.to_numpy()[:count] == -1))
-    tri = tri[:, [0, 2, 1]]             # counter-clockwise
-    return tri if valid_triangulation(pts, tri, hull) else None
+    half = halfedges.to_numpy()[:count].reshape(-1, 3).astype(np.int64)
+    hull = int(np.count_nonzero(half == -1))
+    # counter-clockwise (w0, w1, w2) = (v0, v2, v1): its edges (w0, w1), (w1, w2),
+    # (w2, w0) are the sweep's halfedges 2, 1, 0 of the triangle, reversed
+    tri = tri[:, [0, 2, 1]]
+    if not valid_triangulation(pts, tri, hull):
+        return None
+    twin = half[:, [2, 1, 0]]
+    across = np.where(twin >= 0, twin // 3, -1).T.ravel()
+    return tri, across
 
 
 def valid_triangulation(points: np.ndarray, tri: np.ndarray, hull: int) -> bool:

@@ -74,40 +74,39 @@ def unique_points(points) -> np.ndarray:
 
 def delaunay_triangles(points: np.ndarray) -> np.ndarray:
     """(T, 3) vertex indices of the Delaunay triangulation of distinct
-    ``points``, counter-clockwise.  By the sweep-hull of
-    :mod:`~taichi_hh.geometry.delaunay` (a Taichi kernel: 9 ms at 13k points, 1.6 s
-    at 1M), checked; where it fails (all points on a line, or floating-point
-    trouble on degenerate input) by Qhull as matplotlib (a dependency) ships
-    it (30 ms, 6.7 s): scipy is not a run-time dependency."""
-    from .delaunay import sweep_hull
+    ``points``, counter-clockwise (:func:`delaunay_triangulation`)."""
+    return delaunay_triangulation(points)[0]
+
+
+def delaunay_triangulation(points: np.ndarray):
+    """The Delaunay triangulation of distinct ``points``: ``(triangles, across)``,
+    the (T, 3) vertex indices counter-clockwise and, for edge k (the vertices
+    k, k + 1) of triangle t, the triangle across it at ``across[k * T + t]``
+    (-1 on the hull).  By the sweep-hull of :mod:`~taichi_hh.geometry.delaunay`
+    (a Taichi kernel: 9 ms at 13k points, 1.6 s at 1M), checked; where it fails
+    (all points on a line, or floating-point trouble on degenerate input) by
+    Qhull as matplotlib (a dependency) ships it (30 ms, 6.7 s): scipy is not a
+    run-time dependency."""
+    from . import delaunay
     pts = np.asarray(points, dtype=np.float64)
-    tri = sweep_hull(pts)
-    if tri is not None:
-        return tri
+    made = delaunay.sweep_hull(pts)
+    if made is not None:
+        return made
     from matplotlib.tri import Triangulation
     try:
-        tri = np.asarray(Triangulation(pts[:, 0], pts[:, 1]).triangles, dtype=np.int64)
+        qhull = Triangulation(pts[:, 0], pts[:, 1])
+        tri = np.asarray(qhull.triangles, dtype=np.int64)
+        # neighbors[t, j]: across the edge of the vertices j, j + 1
+        nbr = np.asarray(qhull.neighbors, dtype=np.int64)
     except (ValueError, RuntimeError) as exc:
         raise InputError(f"the points cannot be triangulated ({exc}): do they span an area?") \
             from None
     a, b, c = (pts[tri[:, k]] for k in range(3))
     cw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
+    # (a, c, b): its edges (a, c), (c, b), (b, a) are the old edges 2, 1, 0
     tri[cw] = tri[cw][:, [0, 2, 1]]
-    return tri
-
-
-def _edges_and_neighbours(tri: np.ndarray, n: int):
-    """The directed edges of every triangle, (3T, 2) (triangle ``e % T``), and
-    for each the triangle across it (-1 on the hull)."""
-    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
-    key = edges.min(axis=1) * n + edges.max(axis=1)
-    order = np.argsort(key)             # a key occurs at most twice: any order pairs them
-    twin = np.flatnonzero(key[order[1:]] == key[order[:-1]])
-    across = np.full(len(edges), -1, dtype=np.int64)
-    t = len(tri)
-    across[order[twin]] = order[twin + 1] % t
-    across[order[twin + 1]] = order[twin] % t
-    return edges, across
+    nbr[cw] = nbr[cw][:, [2, 1, 0]]
+    return tri, nbr.T.ravel()
 
 
 def _circumradii(pts: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -252,9 +251,10 @@ def alpha_shape(points, alpha: float = ALPHA, margin: float = MARGIN):
     if len(pts) < 3:
         raise InputError("the points span no area: no alpha shape")
     n = len(pts)
-    tri = delaunay_triangles(pts)
+    tri, across = delaunay_triangulation(pts)
     t = len(tri)
-    edges, across = _edges_and_neighbours(tri, n)
+    # the directed edges of every triangle (edge e of triangle e % T)
+    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     radius = _circumradii(pts, tri)
     spacing = _local_spacing(n, pts, edges, across)
     keep = radius < alpha * np.median(spacing[tri], axis=1)
