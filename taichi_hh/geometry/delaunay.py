@@ -69,6 +69,16 @@ def _link(halfedges: ti.template(), a, b):
 
 
 @ti.func
+def _full(triangles: ti.template(), state: ti.template()):
+    """Whether another triangle would overflow the arrays (a valid sweep makes
+    at most 2 N - 5): then the sweep is marked failed."""
+    full = state[1] + 3 > triangles.shape[0]
+    if full:
+        state[2] = 1
+    return full
+
+
+@ti.func
 def _add_triangle(triangles: ti.template(), halfedges: ti.template(), state: ti.template(),
                   i0, i1, i2, a, b, c):
     t = state[1]
@@ -219,8 +229,7 @@ def _sweep(n: ti.i32, xy: ti.types.ndarray(), ids: ti.types.ndarray(), seed: ti.
             if e == -1:                 # no edge sees it: a near-duplicate
                 skipped += 1
                 continue
-            if state[1] + 3 > triangles.shape[0]:       # more triangles than a sweep makes
-                state[2] = 1
+            if _full(triangles, state):
                 break
             t = _add_triangle(triangles, halfedges, state, e, i, hull_next[e], -1, -1,
                               hull_tri[e])
@@ -235,9 +244,8 @@ def _sweep(n: ti.i32, xy: ti.types.ndarray(), ids: ti.types.ndarray(), seed: ti.
                 if not _ccw(x, y, xy[m, 0], xy[m, 1], xy[q, 0], xy[q, 1]):
                     ended = 1
                     break
-                if state[1] + 3 > triangles.shape[0]:
+                if _full(triangles, state):
                     ended = 1
-                    state[2] = 1
                     break
                 t = _add_triangle(triangles, halfedges, state, m, i, q, hull_tri[i], -1,
                                   hull_tri[m])
@@ -256,9 +264,8 @@ def _sweep(n: ti.i32, xy: ti.types.ndarray(), ids: ti.types.ndarray(), seed: ti.
                     if not _ccw(x, y, xy[q, 0], xy[q, 1], xy[e, 0], xy[e, 1]):
                         ended = 1
                         break
-                    if state[1] + 3 > triangles.shape[0]:
+                    if _full(triangles, state):
                         ended = 1
-                        state[2] = 1
                         break
                     t = _add_triangle(triangles, halfedges, state, q, i, e, -1, hull_tri[e],
                                       hull_tri[q])
