@@ -190,12 +190,12 @@ def _bad_files(d, pts, vec):
     p = d / "no_v.csv"
     write_csv(p, pts[:50], vec[:50], header="x,y,u")
     files["no_column"] = p
-    p = d / "nan.csv"
+    p = d / "inf.csv"
     write_csv(p, pts[:50], vec[:50], header="x,y,u,v")
     lines = p.read_text().splitlines()
-    lines[3] = lines[3].rsplit(",", 1)[0] + ",nan"           # file line 4
+    lines[3] = lines[3].rsplit(",", 1)[0] + ",inf"           # file line 4
     p.write_text("\n".join(lines) + "\n")
-    files["nan_csv"] = p
+    files["inf_csv"] = p
     p = d / "word.csv"
     write_csv(p, pts[:50], vec[:50], header="")
     lines = p.read_text().splitlines()
@@ -203,10 +203,10 @@ def _bad_files(d, pts, vec):
     p.write_text("\n".join(lines) + "\n")
     files["word_csv"] = p
     v = vec.copy()
-    v[10, 1] = np.nan
-    p = d / "nan.npz"
+    v[10, 1] = np.inf
+    p = d / "inf.npz"
     np.savez(p, points=pts, vectors=v)
-    files["nan_npz"] = p
+    files["inf_npz"] = p
     p = d / "missing_array.npz"
     np.savez(p, points=pts, velocity=vec)
     files["missing_array"] = p
@@ -228,9 +228,9 @@ def bad_files(gaussian_files, tmp_path_factory):
 @pytest.mark.parametrize("case, extra, message", [
     ("missing", [], "no such file"),
     ("no_column", [], "lacks column(s) v"),
-    ("nan_csv", [], "line 4: column v is 'nan'"),
+    ("inf_csv", [], "line 4: column v is 'inf'"),
     ("word_csv", [], "line 7: column u is not a number"),
-    ("nan_npz", [], "NaN or inf, first at index 10"),
+    ("inf_npz", [], "with inf, first at index 10"),
     ("missing_array", [], "missing array(s) vectors"),
     ("shape", [], "shape (N, 2)"),
     ("notzip", [], "not a readable .npz"),
@@ -422,3 +422,29 @@ def test_scene_subcommand_runs_the_installed_scene(tmp_path):
         assert "mode_amplitude" in fh.readline()
     rc, _, err = run(["scene", "no-such-scene"])
     assert rc == 2 and "invalid choice" in err
+
+
+def test_decompose_leaves_out_missing_rows(gaussian_files, tmp_path):
+    """A CSV with NaN vectors, an empty cell and a ``valid`` column: the rows are
+    left out and counted in the summary, NaN in components.npz, the figures
+    drawn from the valid rows; ``--domain alpha`` is made from the valid points."""
+    pts, vec = gaussian_files["points"], gaussian_files["vectors"]
+    path = tmp_path / "gaps.csv"
+    with open(path, "w") as fh:
+        fh.write("x,y,u,v,valid\n")
+        for k, (p, q) in enumerate(zip(pts, vec)):
+            u = "nan" if k % 50 == 7 else repr(float(q[0]))
+            v = "" if k % 50 == 9 else repr(float(q[1]))
+            fh.write(f"{float(p[0])!r},{float(p[1])!r},{u},{v},{0 if k % 50 == 11 else 1}\n")
+    missing = np.array([k % 50 in (7, 9, 11) for k in range(len(pts))])
+    out = tmp_path / "out"
+    rc, stdout, err = run(["decompose", path, "-o", out, "--quiet", *RUNTIME])
+    assert rc == 0, err
+    assert f"Decomposed {len(pts) - missing.sum()} points" in stdout
+    assert f"({missing.sum()} rows missing" in stdout
+    with np.load(out / "components.npz") as z:
+        assert np.isnan(z["d"][missing]).all() and np.isfinite(z["d"][~missing]).all()
+    assert (out / "arrows.png").read_bytes()[:8] == PNG_MAGIC
+    rc, stdout, err = run(["decompose", path, "-o", tmp_path / "alpha", "--quiet",
+                           "--domain", "alpha", "--no-figures", *RUNTIME])
+    assert rc == 0, err

@@ -92,7 +92,10 @@ def test_bad_input_is_refused():
         thh.decompose(pts + [0.5, 0.0], v, F.domain)
     bad = v.copy()
     bad[7] = np.nan
-    with pytest.raises(thh.InputError, match="non-finite"):
+    with pytest.raises(thh.InputError, match=r"1 of \d+ rows are missing.*first row 7"):
+        thh.decompose(pts, bad, F.domain, invalid="error")
+    bad[7] = np.inf
+    with pytest.raises(thh.InputError, match="infinite values, first in row 7"):
         thh.decompose(pts, bad, F.domain)
     with pytest.raises(thh.InputError, match="shape"):
         thh.decompose(pts, v[:-1], F.domain)

@@ -130,7 +130,8 @@ def test_default_rows_are_positive_and_exact_on_quadratics_meeting_the_wall_cond
     st = ops.laplacian_coefficients("corrected", row_kinds=(FLUID,))
     wall_condition = "neumann" if condition == "neumann" else "dirichlet"
     C_before = st.C.to_numpy().copy()
-    counts = make_rows_positive(ops, st, 1.5, FLUID, (F.domain.closest_wall, wall_condition))
+    domain = problems.domain            # the particles are in the unit frame (hhd.units)
+    counts = make_rows_positive(ops, st, 1.5, FLUID, (domain.closest_wall, wall_condition))
     assert counts["flagged"] > 10 and counts["wall"] >= counts["flagged"] // 2, counts
     assert counts["kept"] <= counts["flagged"] // 20, counts
     n = p.n
@@ -143,7 +144,7 @@ def test_default_rows_are_positive_and_exact_on_quadratics_meeting_the_wall_cond
 
     rng = np.random.default_rng(3)
     _f0, a, H = random_quadratics(rng, n)
-    dist, normal = F.domain.closest_wall(pos)
+    dist, normal = domain.closest_wall(pos)
     known = np.isfinite(dist)
     e = np.where(known[:, None], dist[:, None] * np.nan_to_num(normal), 0.0)
     nrm = np.nan_to_num(normal)
@@ -157,7 +158,7 @@ def test_default_rows_are_positive_and_exact_on_quadratics_meeting_the_wall_cond
     applied = np.bincount(rows, weights=C * (fj - f0[rows]), minlength=n) + s_self * f0
     scale = np.abs(H).max(axis=(1, 2))
     err = (np.abs(applied - np.trace(H, axis1=1, axis2=2)) / scale)[fluid]
-    spacing = np.sqrt(F.domain.area / len(pts))
+    spacing = np.sqrt(domain.area / len(pts))
     assert err.max() * spacing ** 2 < 1e-8, err.max() * spacing ** 2
     # the flagged rows are positive now, but for those counted as kept
     def ratio(values):

@@ -151,7 +151,7 @@ def test_project_refuses_bad_input():
         project(pts, v, UNIT, method="petronetto2010")
     nan = v.copy()
     nan[7, 1] = np.nan
-    with pytest.raises(InputError, match="non-finite"):
+    with pytest.raises(InputError, match="first row 7; a projection needs a velocity on every"):
         project(pts, nan, UNIT)
     with pytest.raises(InputError, match="shape"):
         project(pts, v[:-1], UNIT)

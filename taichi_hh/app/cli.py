@@ -281,13 +281,18 @@ def _out_dir(args) -> str:
     return os.path.join("outputs", f"{stem}_{args.command}")
 
 
-def _read_inputs(args, say):
+def _read_inputs(args, say, *, domain_kind_as_name: bool = False):
+    """``(points, vectors, domain)`` from the command line.  A domain made from
+    the points (``bbox``, ``hull``, ``alpha``) is made here, or, with
+    ``domain_kind_as_name``, passed on by name for the library to make from
+    the valid points in its unit frame (the decomposition)."""
     from . import io
     say(f"reading {args.field}")
     points, vectors = io.read_field(args.field)
     from ..geometry.from_points import DOMAINS_FROM_POINTS, domain_from_points
     if args.domain is not None and args.domain.strip().lower() in DOMAINS_FROM_POINTS:
-        return points, vectors, domain_from_points(points, args.domain.strip().lower())
+        kind = args.domain.strip().lower()
+        return points, vectors, kind if domain_kind_as_name else domain_from_points(points, kind)
     domain = io.read_domain(args.domain)
     return points, vectors, domain
 
@@ -420,9 +425,10 @@ def _cmd_decompose(args) -> int:
     options_for(args.method, **overrides)           # bad combinations fail before any work
     out = _out_dir(args)
     _prepare_out(out)
-    points, vectors, domain = _read_inputs(args, say)
+    points, vectors, domain = _read_inputs(args, say, domain_kind_as_name=True)
     st = _init(args, say)
     res = decompose(points, vectors, domain, method=args.method, progress=say, **overrides)
+    domain = res.domain
     say("critical points")
     critical = res.critical_points(threshold=args.critical_threshold)
     written = [os.path.join(out, "components.npz")]
@@ -440,7 +446,7 @@ def _cmd_decompose(args) -> int:
             say("drawing figures")
             written += decomposition_figures(res, domain, out, critical=critical)
     s = res.stats
-    mean = {k: float(np.linalg.norm(a, axis=1).mean()) for k, a in
+    mean = {k: float(np.nanmean(np.linalg.norm(a, axis=1))) for k, a in
             (("v", res.vectors), ("d", res.curl_free), ("r", res.div_free),
              ("h", res.harmonic))}
     counts = {}
@@ -458,7 +464,9 @@ def _cmd_decompose(args) -> int:
         solved = "free-space potentials on a {} x {} grid".format(*s["natural_grid"])
     flags = "".join(f" Warning: {f}" for f in s.get("flags", []))
     print(_paragraph(
-        f"Decomposed {len(res.points)} points of {args.field} (method {args.method}"
+        f"Decomposed {len(res.points) - s['n_invalid']} points of {args.field}"
+        f"{' (' + str(s['n_invalid']) + ' rows missing: NaN or marked invalid, left out)' if s['n_invalid'] else ''}"
+        f" (method {args.method}"
         f"{', ' + ', '.join(f'{k}={v}' for k, v in overrides.items()) if overrides else ''}; "
         f"{st.arch}/{st.precision}): {solved}; decomposition {s['seconds']['total']:.2f} s, "
         f"{say.elapsed:.2f} s in all. Mean |v| = {mean['v']:.4g}, |d| = {mean['d']:.4g}, "

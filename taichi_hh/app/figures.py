@@ -249,6 +249,8 @@ def decomposition_figures(result, domain, out_dir, critical=None,
     critical: ``[(x, y, kind)]``; default ``result.critical_points(threshold)``."""
     if critical is None:
         critical = result.critical_points(threshold=threshold)
+    if hasattr(result, "valid_rows"):
+        result = result.valid_rows()          # missing rows (NaN) are not drawn
     return [arrows_figure(result, domain, os.path.join(out_dir, "arrows.png"), critical),
             magnitude_figure(result, domain, os.path.join(out_dir, "magnitude.png"), critical)]
 

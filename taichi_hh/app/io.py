@@ -115,20 +115,26 @@ def atomic_savefig(fig, path: str, **kwargs) -> None:
 
 FIELD_FORMATS = (".npz", ".csv")
 CSV_COLUMNS = ("x", "y", "u", "v")
+#: the values of a CSV ``valid`` column
+VALID_WORDS = {"1": True, "0": False, "true": True, "false": False, "1.0": True, "0.0": False}
 
 
 def read_field(path):
     """Read a sampled 2D vector field: ``(points, vectors)``, two (N, 2) float64 arrays.
 
-    ``.npz``: arrays ``points`` (N, 2) and ``vectors`` (N, 2).
+    ``.npz``: arrays ``points`` (N, 2) and ``vectors`` (N, 2), and optionally
+    ``valid`` (N,) (False or 0: an invalid vector).
     ``.csv``: a header naming the columns ``x, y, u, v`` (any order, any case,
-    extra columns ignored), or no header and exactly four numeric columns in
-    that order.  Blank lines and lines starting with ``#`` are skipped.
+    extra columns ignored; an optional ``valid`` column of 1/0 or true/false),
+    or no header and exactly four numeric columns in that order.  Blank lines
+    and lines starting with ``#`` are skipped.
+
+    Missing vectors (NaN, an empty ``u`` or ``v`` cell, or ``valid`` false)
+    come back as NaN rows of ``vectors``: the decomposition leaves them out.
 
     Raises :class:`~taichi_hh.errors.InputError` naming the problem (and the
     line of a CSV file) for a missing or unreadable file, an unknown format,
-    missing arrays or columns, wrong shapes, and non-numeric or non-finite
-    values.
+    missing arrays or columns, wrong shapes, non-numeric or infinite values.
     """
     from ..errors import InputError
     path = os.fspath(path)
@@ -170,11 +176,13 @@ def _read_field_npz(path):
         if a.ndim != 2 or a.shape[1] != 2:
             raise InputError(f"{path}: array '{name}' must have shape (N, 2), got {a.shape}")
         a = a.astype(np.float64)
-        bad = ~np.isfinite(a).all(axis=1)
+        bad = np.isinf(a).any(axis=1) if name == "vectors" else ~np.isfinite(a).all(axis=1)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            raise InputError(f"{path}: array '{name}' has {int(bad.sum())} row(s) with NaN or "
-                             f"inf, first at index {i}: {a[i].tolist()}")
+            what = "inf" if name == "vectors" else "NaN or inf"
+            raise InputError(f"{path}: array '{name}' has {int(bad.sum())} row(s) with {what}, "
+                             f"first at index {i}: {a[i].tolist()}"
+                             + ("; missing vectors are NaN" if name == "vectors" else ""))
         out.append(a)
     points, vectors = out
     if len(points) != len(vectors):
@@ -182,6 +190,13 @@ def _read_field_npz(path):
                          f"{len(vectors)}")
     if len(points) == 0:
         raise InputError(f"{path}: the field has no points")
+    if "valid" in arrays:
+        valid = arrays["valid"]
+        if valid.shape != (len(points),) or valid.dtype.kind not in "biuf" \
+                or not np.isin(valid, (0, 1)).all():
+            raise InputError(f"{path}: array 'valid' must hold one boolean (or 0/1) per point, "
+                             f"shape ({len(points)},); got {valid.dtype} {valid.shape}")
+        vectors[~valid.astype(bool)] = np.nan
     return points, vectors
 
 
@@ -237,16 +252,26 @@ def _read_field_csv_fast(path):
             [float(c) for c in cells]
             cols, skip = None, header_rows
         except ValueError:
-            if any(cells.count(c) != 1 for c in CSV_COLUMNS):
+            if any(cells.count(c) != 1 for c in CSV_COLUMNS) or cells.count("valid") > 1:
                 return None
-            cols, skip = [cells.index(c) for c in CSV_COLUMNS], header_rows + 1
+            cols = [cells.index(c) for c in CSV_COLUMNS]
+            if "valid" in cells:
+                cols.append(cells.index("valid"))
+            skip = header_rows + 1
         data = np.loadtxt(path, delimiter=",", comments="#", skiprows=skip, usecols=cols,
                           ndmin=2, encoding="utf-8-sig", quotechar='"')
     except (OSError, ValueError, UnicodeDecodeError):
         return None
-    if data.ndim != 2 or data.shape[1] != 4 or len(data) == 0 or not np.isfinite(data).all():
+    width = 4 if cols is None else len(cols)
+    if data.ndim != 2 or data.shape[1] != width or len(data) == 0 \
+            or not np.isfinite(data[:, :2]).all() or np.isinf(data[:, 2:4]).any():
         return None
-    return np.ascontiguousarray(data[:, :2]), np.ascontiguousarray(data[:, 2:])
+    vectors = np.ascontiguousarray(data[:, 2:4])
+    if width == 5:
+        if not np.isin(data[:, 4], (0.0, 1.0)).all():
+            return None
+        vectors[data[:, 4] == 0.0] = np.nan
+    return np.ascontiguousarray(data[:, :2]), vectors
 
 
 def _read_field_csv_checked(path):
@@ -290,23 +315,41 @@ def _read_field_csv_checked(path):
             raise InputError(f"{path}, line {first_line}: column(s) {', '.join(dup)} appear "
                              f"more than once in the header")
         cols, body, width = [names.index(c) for c in CSV_COLUMNS], lines[1:], len(first)
+        if names.count("valid") > 1:
+            raise InputError(f"{path}, line {first_line}: column valid appears more than once "
+                             "in the header")
+        if "valid" in names:
+            cols.append(names.index("valid"))
         if not body:
             raise InputError(f"{path}: the file has a header but no data rows")
     data = np.empty((len(body), 4))
+    valid = np.ones(len(body), dtype=bool)
     need = max(cols) + 1
+    names_of = CSV_COLUMNS + ("valid",)
     for k, (n, row) in enumerate(body):
         if (len(row) != 4) if body is lines else (len(row) < need):
             raise InputError(f"{path}, line {n}: expected {width} columns, found {len(row)}")
         for j, c in enumerate(cols):
-            val = number(row[c])
+            name = names_of[j]
+            if name == "valid":
+                flag = row[c].lower()
+                if flag not in VALID_WORDS:
+                    raise InputError(f"{path}, line {n}: column valid is {row[c]!r}; write 1 or "
+                                     "0 (true or false)")
+                valid[k] = VALID_WORDS[flag]
+                continue
+            val = float("nan") if row[c] == "" and name in ("u", "v") else number(row[c])
             if val is None:
-                raise InputError(f"{path}, line {n}: column {CSV_COLUMNS[j]} is not a number: "
+                raise InputError(f"{path}, line {n}: column {name} is not a number: "
                                  f"{row[c]!r}")
-            if not math.isfinite(val):
-                raise InputError(f"{path}, line {n}: column {CSV_COLUMNS[j]} is {row[c]!r}; "
-                                 f"values must be finite")
+            if math.isinf(val) or (math.isnan(val) and name in ("x", "y")):
+                raise InputError(f"{path}, line {n}: column {name} is {row[c]!r}; "
+                                 + ("coordinates must be finite" if name in ("x", "y") else
+                                    "a missing vector is NaN or an empty cell, not infinite"))
             data[k, j] = val
-    return data[:, :2].copy(), data[:, 2:].copy()
+    vectors = data[:, 2:].copy()
+    vectors[~valid] = np.nan
+    return data[:, :2].copy(), vectors
 
 
 def read_domain(spec):

@@ -68,6 +68,11 @@ class Box(Polygon):
     def __hash__(self):
         return hash(("Box", self.lo, self.hi))
 
+    def rescaled(self, centre, length: float) -> "Box":
+        """The same box in the coordinates ``(p - centre) / length``."""
+        c = np.asarray(centre, dtype=np.float64)
+        return Box((np.asarray(self.lo) - c) / length, (np.asarray(self.hi) - c) / length)
+
     def sample_ghosts_mirror(self, points, width: float):
         """``(ghosts, source)``: reflections of interior points across every side
         within ``width`` (distance > 0), plus the corner image (reflection across

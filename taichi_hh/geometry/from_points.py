@@ -32,6 +32,9 @@ MARGIN = 0.25
 #: notches of the alpha shape's boundary shallower than this many local spacings
 #: are filled (the boundary zigzags between the outermost data points otherwise)
 NOTCH_DEPTH = 1.0
+# the refusal of point sets that span no area lives with the other input
+# checks (every layer runs it); re-exported here, where it was first written
+from ..checks import LINE_ROWS, NEEDS_AREA as _NEEDS_AREA, check_spread  # noqa: E402,F401
 
 
 def convex_hull(points: np.ndarray) -> np.ndarray:
@@ -39,7 +42,8 @@ def convex_hull(points: np.ndarray) -> np.ndarray:
     monotone chain, O(N log N)); collinear points on an edge are left out."""
     pts = unique_points(points)
     if len(pts) < 3:
-        raise InputError("the points span no area: no convex hull")
+        raise InputError(f"the points are {len(pts)} distinct point(s) and span no area, so "
+                         f"they have no convex hull: {_NEEDS_AREA}")
 
     def half(seq):
         chain = []
@@ -56,7 +60,8 @@ def convex_hull(points: np.ndarray) -> np.ndarray:
     upper = half(pts[::-1])
     hull = np.array(lower[:-1] + upper[:-1])
     if len(hull) < 3:
-        raise InputError("the points span no area (all on one line): no convex hull")
+        raise InputError(f"the points lie on a line and span no area, so they have no convex "
+                         f"hull: {_NEEDS_AREA}")
     return hull
 
 
@@ -99,8 +104,8 @@ def delaunay_triangulation(points: np.ndarray):
         # neighbors[t, j]: across the edge of the vertices j, j + 1
         nbr = np.asarray(qhull.neighbors, dtype=np.int64)
     except (ValueError, RuntimeError) as exc:
-        raise InputError(f"the points cannot be triangulated ({exc}): do they span an area?") \
-            from None
+        raise InputError(f"the points cannot be triangulated ({exc}): they span no area, or "
+                         f"nearly none; {_NEEDS_AREA}") from None
     a, b, c = (pts[tri[:, k]] for k in range(3))
     cw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
     # (a, c, b): its edges (a, c), (c, b), (b, a) are the old edges 2, 1, 0
@@ -249,7 +254,8 @@ def alpha_shape(points, alpha: float = ALPHA, margin: float = MARGIN):
         raise InputError(f"alpha must be a positive number of local spacings, got {alpha!r}")
     pts = unique_points(points)
     if len(pts) < 3:
-        raise InputError("the points span no area: no alpha shape")
+        raise InputError(f"the points are {len(pts)} distinct point(s) and span no area, so "
+                         f"they have no alpha shape: {_NEEDS_AREA}")
     n = len(pts)
     tri, across = delaunay_triangulation(pts)
     t = len(tri)
@@ -309,21 +315,26 @@ def alpha_shape(points, alpha: float = ALPHA, margin: float = MARGIN):
 def domain_from_points(points, kind: str):
     """The Box (``"bbox"``), convex-hull Polygon (``"hull"``, moved
     :data:`MARGIN` mean spacings out) or alpha shape (``"alpha"``,
-    :func:`alpha_shape` at its defaults) of ``points``."""
+    :func:`alpha_shape` at its defaults) of ``points``.  Points that span no
+    area (:func:`check_spread`: one point, a line, a single row) are refused
+    first, whatever the kind: their bounding box, hull or alpha shape has no
+    area, or one so thin that sampling its boundary at their spacing would
+    never end."""
     from .box import Box
     from .polygon import Polygon
+    if kind not in DOMAINS_FROM_POINTS:
+        raise InputError(f"cannot make a domain from {kind!r}: give a Box, a Polygon, "
+                         f"(x0, y0, x1, y1), an (M, 2) array of vertices, or one of "
+                         f"{DOMAINS_FROM_POINTS} (a domain from the points)")
     pts = np.asarray(points, dtype=np.float64)
+    check_spread(pts)
     if kind == "bbox":
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         if not np.all(hi > lo):
-            raise InputError("the points span no area (all on one line or one point)")
+            raise InputError(f"the points' bounding box has no area: {_NEEDS_AREA}")
         return Box(lo, hi)
     if kind == "hull":
         hull = convex_hull(pts)
         spacing = math.sqrt(_signed_area(hull) / len(pts))
         return _moved_out([hull], [MARGIN * spacing], lambda rs: Polygon(rs[0]))
-    if kind == "alpha":
-        return alpha_shape(pts)
-    raise InputError(f"cannot make a domain from {kind!r}: give a Box, a Polygon, "
-                     f"(x0, y0, x1, y1), an (M, 2) array of vertices, or one of "
-                     f"{DOMAINS_FROM_POINTS} (a domain from the points)")
+    return alpha_shape(pts)

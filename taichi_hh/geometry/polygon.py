@@ -138,6 +138,12 @@ class Polygon:
         return (f"Polygon(<{len(self._rings[0])} vertices>, holes=[{holes}]; "
                 f"area={self._area:.6g}, bounds={self.bounds})")
 
+    def rescaled(self, centre, length: float) -> "Polygon":
+        """The same domain in the coordinates ``(p - centre) / length`` (a change of
+        units and origin, as :class:`~taichi_hh.hhd.units.Frame` makes)."""
+        c = np.asarray(centre, dtype=np.float64)
+        return Polygon((self._rings[0] - c) / length, [(h - c) / length for h in self._rings[1:]])
+
     # ---- geometry ----------------------------------------------------------------------
     @property
     def outer(self) -> np.ndarray:

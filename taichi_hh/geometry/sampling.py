@@ -39,6 +39,12 @@ POISSON_ALPHA = 0.633
 POISSON_BETA = 0.18
 #: refuse samples larger than this many points
 MAX_POINTS = 5e7
+#: a local spacing (``spacing_at`` of :func:`sample_boundary`) is evaluated at
+#: most this many times along a boundary: every quarter spacing up to 2^18
+#: samples at the mean spacing (a square holding 4e9 points), coarser beyond.
+#: A boundary far longer than the spacing (a domain as thin as a line) once
+#: asked for 2.6e7 evaluations, each a k-nearest search: minutes to hours
+MAX_SPACING_EVALUATIONS = 2 ** 20
 
 
 # --------------------------------------------------------------------------- boundary
@@ -48,15 +54,18 @@ def sample_boundary(domain, spacing: float, corner_angle: float = DEFAULT_CORNER
     :meth:`Polygon.sample_boundary <taichi_hh.geometry.polygon.Polygon.sample_boundary>`).
     spacing_at: optional ``f(points) -> spacings`` (M, 2) -> (M,): the samples
     follow that local spacing instead, evaluated every ``spacing / 4`` along
-    the boundary (so ``spacing`` is the finest resolved)."""
+    the boundary (so ``spacing`` is the finest resolved), or at most
+    :data:`MAX_SPACING_EVALUATIONS` times (evenly) along all of it."""
     spacing = check_real(spacing, "spacing")
     corner_angle = check_real(corner_angle, "corner_angle", allow_zero=True)
     if corner_angle >= 180.0:
         raise InputError(f"corner_angle must be below 180 degrees, got {corner_angle}")
-    fine = spacing / 4 if spacing_at is not None else spacing
+    fine = spacing
+    if spacing_at is not None:
+        fine = max(spacing / 4, domain.perimeter / MAX_SPACING_EVALUATIONS)
     if domain.perimeter / fine > MAX_POINTS:
-        raise InputError(f"spacing {spacing:g} is too small: it would give more than "
-                         f"5e7 boundary points")
+        raise InputError(f"spacing {spacing:g} is too small for a boundary {domain.perimeter:g} "
+                         f"long: it would give more than 5e7 boundary points")
     segs = domain.segment_table
     pts, nrm, pieces = [], [], []
     thresh = math.radians(corner_angle)
@@ -97,7 +106,11 @@ def sample_boundary(domain, spacing: float, corner_angle: float = DEFAULT_CORNER
             arc_f = a_start[owner_f] + a_len[owner_f] * i_f / nfine[owner_f]
             local = np.asarray(spacing_at(on_ring(arc_f)[0]), dtype=np.float64)
             if local.shape != arc_f.shape or not (np.isfinite(local) & (local > 0)).all():
-                raise InputError("spacing_at must give a positive finite spacing per point")
+                # (the decomposition's spacing_at refuses copies of a point, where
+                # the data's local spacing is zero, itself: hhd.boundary)
+                raise InputError(f"spacing_at must give one positive finite spacing per "
+                                 f"position along the boundary: {arc_f.shape} wanted, got "
+                                 f"shape {local.shape}, smallest {np.min(local, initial=np.inf):g}")
             rate = 1.0 / np.maximum(local, fine)
             # the count cumulated along the whole ring (no increment across an
             # arc's end, where the next arc starts at the same position): one

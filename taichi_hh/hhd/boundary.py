@@ -7,7 +7,10 @@ import math
 
 import numpy as np
 
+from ..errors import InputError
+from ..checks import check_spread
 from ..sph.knn import KNearest
+from ..sph.pointset import check_distinct
 
 #: the data's local spacing at a boundary sample is measured from its this
 #: many nearest data points (k = 8 left the spacing noisy on uniformly random
@@ -15,6 +18,11 @@ from ..sph.knn import KNearest
 SPACING_NEIGHBOURS = 16
 #: ... of each of the sample's this many nearest data points, averaged
 NEAREST_AVERAGED = 4
+#: a boundary longer than this many mean spacings per data point is refused:
+#: the domain is far narrower than the points' spacing (mean width
+#: 2 area / perimeter below 1/32 of it), and sampling it once took hours
+#: (a square's boundary takes 4 sqrt(N) samples, a 1000:1 strip's 63 sqrt(N))
+MAX_SAMPLES_PER_POINT = 64
 
 
 def collocation_particles(domain, points, spacing: float, local: bool = False):
@@ -26,11 +34,17 @@ def collocation_particles(domain, points, spacing: float, local: bool = False):
     average (a density gradient, clusters), samples at the mean spacing leave
     Neumann rows over lopsided neighbourhoods, and the solver's iterations
     grew with N (1:10 gradient, 500k points: 36/28 iterations, 11/12 with
-    local spacing; docs/notes/scattered.md)."""
+    local spacing; docs/notes/scattered.md).
+
+    Points that span no area (:func:`~taichi_hh.checks.check_spread`)
+    and domains too narrow for the points are refused before any sample is
+    made, copies of a point before the local spacing (zero there) is used."""
+    check_spread(points)
+    check_not_too_narrow(domain, len(points), spacing)
     if not local:
         bpts, bnrm, _ = domain.sample_boundary(spacing)
         keep = far_from(bpts, points, 0.25 * spacing, domain)
-        return bpts[keep], bnrm[keep]
+        return _kept(bpts, bnrm, keep, len(points))
     pts = np.asarray(points, dtype=np.float64)
     k = min(SPACING_NEIGHBOURS, len(pts) - 1)
     search = KNearest(pts)
@@ -44,11 +58,38 @@ def collocation_particles(domain, points, spacing: float, local: bool = False):
         m = min(NEAREST_AVERAGED, len(pts))
         nearest = search.query(q, m)[1]
         own = search.query(pts[nearest.ravel()], k + 1)[0][:, -1].reshape(nearest.shape)
-        return own.mean(axis=1) * math.sqrt(math.pi / (2 * k))
+        local = own.mean(axis=1) * math.sqrt(math.pi / (2 * k))
+        if not (local > 0).all():       # k + 1 copies of a point: name them
+            check_distinct(pts)
+        return local
 
     bpts, bnrm, _ = domain.sample_boundary(spacing, spacing_at=data_spacing)
     nearest = search.query(bpts, 1)[0][:, 0]
     keep = nearest >= 0.25 * data_spacing(bpts)
+    return _kept(bpts, bnrm, keep, len(points))
+
+
+def check_not_too_narrow(domain, n: int, spacing: float) -> None:
+    """Refuse a domain whose boundary takes more than
+    :data:`MAX_SAMPLES_PER_POINT` samples per data point at ``spacing``."""
+    samples = domain.perimeter / spacing
+    if samples > MAX_SAMPLES_PER_POINT * max(n, 1):
+        raise InputError(
+            f"the domain is too narrow for the points: its boundary, {domain.perimeter:.3g} "
+            f"long around an area of {domain.area:.3g}, is {samples:.3g} times the points' "
+            f"mean spacing ({spacing:.3g}) long, more than {MAX_SAMPLES_PER_POINT} per point "
+            f"({n} points); a domain thinner than the spacing between the points holds no 2D "
+            "field: give a domain the points fill (domain='bbox', 'hull' or 'alpha')")
+
+
+def _kept(bpts, bnrm, keep, n: int):
+    """The boundary samples ``keep`` selects, refused when none is left."""
+    if not keep.any():
+        raise InputError(
+            f"the domain's boundary is covered by the points: each of its {len(bpts)} samples "
+            f"lies within a quarter spacing of one of the {n} points, so no boundary condition "
+            "can be placed; the points crowd the boundary, or the domain is as narrow as the "
+            "points' spacing: give a domain the points fill with room inside")
     return bpts[keep], bnrm[keep]
 
 

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -47,11 +47,13 @@ from ..sph.pointset import PointSet
 from ..sph.positive import make_rows_positive
 from ..linalg.poisson import PoissonMatrix
 from .boundary import collocation_particles, far_from
-from .inputs import check_data_reach_boundary, check_point_count, refuse_too_few, validate_input
+from .inputs import (INVALID_MODES, Data, check_data_reach_boundary, check_point_count,
+                     prepare_data, refuse_too_few, validate_input)
 from .natural import natural_potentials
 from .options import (BOUNDARY_CONDITIONS, BOUNDARY_METHODS, METHODS, PRECONDITIONERS,
                       HHDOptions, options_for)
 from .rotation import J
+from .units import Frame
 
 # re-exported: importers of the options, the input checks and J from here
 __all__ = ["decompose", "poisson_problems", "PoissonProblems", "HHDResult", "ENERGY_LIMIT",
@@ -62,6 +64,13 @@ __all__ = ["decompose", "poisson_problems", "PoissonProblems", "HHDResult", "ENE
 
 @dataclass
 class HHDResult:
+    """A decomposition, in the caller's units and row order.
+
+    ``curl_free`` (d), ``div_free`` (r), ``harmonic`` (h): (N, 2); ``phi``,
+    ``psi``, ``divergence``, ``curl``: (N,); NaN on the rows ``valid`` marks
+    missing.  ``frame``: the unit frame the numerics ran in
+    (:mod:`taichi_hh.hhd.units`); ``pointset`` and ``unit`` (the same
+    decomposition of the valid rows in that frame) are there for diagnostics."""
     points: np.ndarray
     vectors: np.ndarray
     curl_free: np.ndarray      # d = grad phi
@@ -74,14 +83,40 @@ class HHDResult:
     stats: dict
     options: HHDOptions
     pointset: PointSet = field(repr=False, default=None)
+    valid: np.ndarray = field(repr=False, default=None)
+    frame: Frame = field(repr=False, default=None)
+    unit: "HHDResult" = field(repr=False, default=None)
+    domain: object = field(repr=False, default=None)   # the Box or Polygon it ran on
+
+    def valid_rows(self) -> "HHDResult":
+        """The same result on the valid rows only (no NaN rows): for plots and
+        statistics that do not take NaN."""
+        if self.valid is None or self.valid.all():
+            return self
+        keep = self.valid
+        return replace(self, points=self.points[keep], vectors=self.vectors[keep],
+                       curl_free=self.curl_free[keep], div_free=self.div_free[keep],
+                       harmonic=self.harmonic[keep], phi=self.phi[keep], psi=self.psi[keep],
+                       divergence=self.divergence[keep], curl=self.curl[keep],
+                       valid=np.ones(int(keep.sum()), dtype=bool))
 
     def critical_points(self, threshold: float = 0.1, radius: float | None = None):
         """Sources, sinks and vortices (Petronetto Sec. 6c), strongest first:
         ``[CriticalPoint(x, y, kind, strength)]``, which unpack as ``(x, y, kind)``.
+        ``radius`` in the points' units.
 
         See :func:`taichi_hh.hhd.critical.find_critical_points`."""
-        from .critical import find_critical_points
-        return find_critical_points(self, threshold=threshold, radius=radius)
+        from .critical import CriticalPoint, find_critical_points
+        if self.unit is None:
+            return find_critical_points(self, threshold=threshold, radius=radius)
+        frame = self.frame
+        found = find_critical_points(self.unit, threshold=threshold,
+                                     radius=None if radius is None else radius / frame.length)
+        out = []
+        for c in found:
+            x, y = frame.points_from_unit([c.x, c.y])
+            out.append(CriticalPoint(float(x), float(y), c.kind, c.strength))
+        return out
 
 
 # ---------------------------------------------------------------------------
@@ -118,15 +153,27 @@ class PoissonProblems:
     stats: dict
     domain: object = None
     divergence_stencil: object = None    # of div v and curl v, over the data points
+    frame: Frame = None                  # the unit frame the problems are in
+    data: Data = None                    # the caller's input (poisson_problems)
 
 
 def poisson_problems(points, vectors, domain=None, *, method: str = "default", progress=None,
-                     **options) -> PoissonProblems:
+                     invalid: str = "missing", valid=None, **options) -> PoissonProblems:
     """Steps (a)-(d) of :func:`decompose` (arguments alike): particles, boundary
-    or fake particles, div v and curl v, the assembled Poisson matrix."""
+    or fake particles, div v and curl v, the assembled Poisson matrix, in the
+    unit frame (``problems.frame``; :mod:`taichi_hh.hhd.units`) over the valid
+    rows (``problems.data``)."""
     opts = options_for(method, **options)
     runtime.ensure_init()
-    pts, vec, domain = validate_input(points, vectors, domain)
+    data = prepare_data(points, vectors, domain, invalid=invalid, valid=valid)
+    problems = _unit_problems(data.unit_points, data.unit_vectors, data.unit_domain, opts,
+                              progress)
+    problems.frame, problems.data = data.frame, data
+    return problems
+
+
+def _unit_problems(pts, vec, domain, opts: HHDOptions, progress) -> PoissonProblems:
+    """:func:`poisson_problems` on checked input in the unit frame."""
     say = progress or (lambda stage: None)
     seconds = {}
     n = len(pts)
@@ -232,7 +279,7 @@ def _default_stencils(opts: HHDOptions) -> bool:
 
 
 def decompose(points, vectors, domain=None, *, method: str = "default", progress=None,
-              **options) -> HHDResult:
+              invalid: str = "missing", valid=None, **options) -> HHDResult:
     """Helmholtz-Hodge decomposition of ``vectors`` sampled at ``points``.
 
     points, vectors: (N, 2) arrays.  domain: :class:`~taichi_hh.geometry.domain.Box` or
@@ -245,6 +292,18 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     ``boundary_condition="normal-parallel"`` or ``"natural"`` (module doc).
     progress: optional ``callable(stage: str)`` told as each stage starts.
 
+    Missing data: a row whose point or vector holds a NaN, that a numpy mask
+    hides, or where ``valid`` (a boolean array, one per row) is False is left
+    out of the operators; its rows of the result are NaN, and
+    ``stats["n_invalid"]`` counts them.  ``invalid="error"`` refuses them
+    instead.  Exactly zero vectors in many rows are named in a warning (PIV
+    software writes invalid vectors as zeros).
+
+    Units: the numerics run in a frame where the domain and the field are of
+    order one (:mod:`taichi_hh.hhd.units`; ``result.frame``): the answer does
+    not depend on the units or the origin of the coordinates, nor on the
+    field's magnitude.
+
     ``stats["h_divergence"]`` and ``stats["h_curl"]``: mean |div h| and |curl h|
     over the mean of sqrt(div v^2 + curl v^2) (the decomposition's divergence
     operator); above :data:`HARMONIC_LIMIT` h is not harmonic and the result is
@@ -255,10 +314,47 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     how many kept (:mod:`taichi_hh.sph.positive`).
     """
     t_start = time.perf_counter()
+    opts = options_for(method, **options)
+    runtime.ensure_init()
+    data = prepare_data(points, vectors, domain, invalid=invalid, valid=valid)
+    unit = _decompose_unit(data, opts, progress)
+    unit.stats["seconds"]["total"] = time.perf_counter() - t_start
+    return _in_caller_units(unit, data)
+
+
+def _in_caller_units(unit: HHDResult, data: Data) -> HHDResult:
+    """The unit-frame decomposition of the valid rows mapped back to every row
+    of the caller's input, in the caller's units."""
+    f = data.frame
+    stats = dict(unit.stats)
+    stats["spacing"] = unit.stats["spacing"] * f.length
+    stats["support"] = unit.stats["support"] * f.length
+    for name in ("phi", "psi"):
+        if stats.get(f"compatibility_{name}") is not None:
+            stats[f"compatibility_{name}"] = stats[f"compatibility_{name}"] * f.derivative
+    stats["n_invalid"] = data.n_invalid
+    stats["frame"] = f.as_dict()
+    stats["flags"] = data.flags + list(unit.stats.get("flags", []))
+    return HHDResult(points=data.points, vectors=data.vectors,
+                     curl_free=data.rows(unit.curl_free, f.speed),
+                     div_free=data.rows(unit.div_free, f.speed),
+                     harmonic=data.rows(unit.harmonic, f.speed),
+                     phi=data.rows(unit.phi, f.potential), psi=data.rows(unit.psi, f.potential),
+                     divergence=data.rows(unit.divergence, f.derivative),
+                     curl=data.rows(unit.curl, f.derivative), stats=stats, options=unit.options,
+                     pointset=unit.pointset, valid=data.valid, frame=f, unit=unit,
+                     domain=data.domain if data.domain is not None
+                     else f.domain_from_unit(unit.domain))
+
+
+def _decompose_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
+    """Steps (a)-(e) on the valid rows in the unit frame."""
+    t_start = time.perf_counter()
     say = progress or (lambda stage: None)
-    problems = poisson_problems(points, vectors, domain, method=method, progress=progress,
-                                **options)
-    check_point_count(len(problems.points), problems.stats)    # refused or flagged: few points
+    problems = _unit_problems(data.unit_points, data.unit_vectors, data.unit_domain, opts,
+                              progress)
+    problems.frame, problems.data = data.frame, data
+    check_point_count(len(problems.points), problems.stats, stacklevel=4)  # refused or flagged
     opts, ps, vec = problems.opts, problems.ps, problems.vectors
     pts, div_slots, curl_slots = problems.points, problems.rhs["phi"], -problems.rhs["psi"]
     seconds, stats = problems.seconds, problems.stats
@@ -293,7 +389,8 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     runtime.release_launch_arguments(ps.n_total)
     return HHDResult(points=pts, vectors=vec, curl_free=d, div_free=r, harmonic=h,
                      phi=phi, psi=psi, divergence=div_slots[ps.slot_of],
-                     curl=curl_slots[ps.slot_of], stats=stats, options=opts, pointset=ps)
+                     curl=curl_slots[ps.slot_of], stats=stats, options=opts, pointset=ps,
+                     domain=problems.domain)
 
 
 def _solve_potentials(problems, say) -> dict:
@@ -393,7 +490,7 @@ def _check_harmonic(stats, problems, h) -> None:
                     "Neumann condition cannot put into d or r (boundary_condition="
                     "'normal-parallel' or 'natural' can)")
         stats["flags"].append(msg)
-        warnings.warn(msg, AccuracyWarning, stacklevel=3)
+        warnings.warn(msg, AccuracyWarning, stacklevel=4)
 
 
 #: components with more than this many times the field's energy are flagged
@@ -425,7 +522,7 @@ def _check_energy(stats, v, d, r, h, vol, opts) -> None:
                f"Laplacian {opts.laplacian!r}) are not consistent on these points; the "
                "components are unreliable (the default method is consistent)")
         stats["flags"].append(msg)
-        warnings.warn(msg, AccuracyWarning, stacklevel=3)
+        warnings.warn(msg, AccuracyWarning, stacklevel=4)
 
 
 def _ghosts_with_data(ps, reach: float = 0.8) -> np.ndarray:

@@ -2,6 +2,7 @@
 and :func:`~taichi_hh.hhd.project.project`."""
 
 import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 import taichi as ti
@@ -9,6 +10,15 @@ import taichi as ti
 from .. import runtime
 from ..errors import AccuracyWarning, InputError
 from ..sph.pointset import check_points, check_values
+from .units import Frame
+
+#: how decompose() treats rows whose point or vector is NaN or masked
+INVALID_MODES = ("missing", "error")
+#: exactly zero vectors in at least this many rows and this fraction of them
+#: are named in a warning: DaVis text and Insight .vec files write invalid
+#: vectors as zeros, which the decomposition would take for still fluid
+ZERO_ROWS = 4
+ZERO_FRACTION = 0.002
 
 #: fewer points than this are refused by decompose: the components are noise
 #: (median error 100-200% on the smoothest test field, docs/notes/app.md)
@@ -104,3 +114,167 @@ def check_data_reach_boundary(ps, boundary_kind: int, fluid_kind: int) -> None:
         "domain='bbox' (the points' bounding box), domain='hull' (their convex hull), "
         "domain='alpha' (their alpha shape: concave outlines and gaps followed), or a "
         "Box/Polygon that fits them")
+
+
+# --------------------------------------------------------------------------- measured data
+@dataclass
+class Data:
+    """A field as the caller gave it and as the numerical core sees it.
+
+    ``points``, ``vectors``: every row as given (float64; NaN where missing);
+    ``valid``: the rows the decomposition uses; ``frame``: the unit frame
+    (:mod:`taichi_hh.hhd.units`); ``unit_points``, ``unit_vectors``,
+    ``unit_domain``: the valid rows and the domain in it.  ``flags``: what the
+    checks found (warned already)."""
+    points: np.ndarray
+    vectors: np.ndarray
+    valid: np.ndarray
+    frame: Frame
+    unit_points: np.ndarray
+    unit_vectors: np.ndarray
+    unit_domain: object
+    flags: list = field(default_factory=list)
+    domain: object = None        # the caller's Box or Polygon; None: made from the points
+
+    @property
+    def n_invalid(self) -> int:
+        return int(self.valid.size - np.count_nonzero(self.valid))
+
+    def rows(self, values, scale: float = 1.0) -> np.ndarray:
+        """Per-valid-row ``values`` (unit frame) times ``scale`` on every row of
+        the input, NaN on the missing ones."""
+        values = np.asarray(values, dtype=np.float64)
+        if self.valid.all():
+            return values * scale
+        out = np.full((self.valid.size,) + values.shape[1:], np.nan)
+        out[self.valid] = values * scale
+        return out
+
+
+def _real_rows(values, name: str, n: int | None):
+    """``(array, masked_rows)``: ``values`` as an (n, 2) float64 array, and the
+    rows a numpy mask hides (None without a mask).  Complex, boolean, object
+    and string arrays are refused: a cast would drop an imaginary part or
+    invent numbers."""
+    masked = None
+    if np.ma.isMaskedArray(values):
+        mask = np.ma.getmaskarray(values)
+        masked = mask.reshape(mask.shape[0], -1).any(axis=1) if mask.ndim else None
+        values = np.ma.getdata(values)
+    arr = np.asarray(values)
+    if arr.dtype.kind == "c":
+        raise InputError(f"{name} are complex: give real (N, 2) arrays (x and y, or u and v, "
+                         "as two columns)")
+    if arr.dtype.kind == "O":           # lists of numbers and None, Decimals, ...
+        try:
+            arr = arr.astype(np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"{name} must be a numeric (N, 2) array; its entries are not "
+                             "all real numbers") from None
+    elif arr.dtype.kind not in "iuf":
+        raise InputError(f"{name} must be a numeric (N, 2) array, got an array of "
+                         f"{arr.dtype}")
+    arr = arr.astype(np.float64, copy=False)
+    want = (n, 2) if n is not None else None
+    if arr.ndim != 2 or arr.shape[1] != 2 or (want is not None and arr.shape != want):
+        expect = f"({n}, 2), one row per point" if n is not None else "(N, 2)"
+        raise InputError(f"{name} must have shape {expect}, got {arr.shape}")
+    if arr.shape[0] == 0:
+        raise InputError(f"{name} is empty: at least one point is needed")
+    if np.isinf(arr).any():
+        i = int(np.flatnonzero(np.isinf(arr).any(axis=1))[0])
+        raise InputError(f"{name} contain infinite values, first in row {i}: "
+                         f"{arr[i].tolist()} (missing values are NaN)")
+    return arr, masked
+
+
+def prepare_data(points, vectors, domain, *, invalid: str = "missing", valid=None,
+                 caller: str = "decompose") -> Data:
+    """The caller's ``(points, vectors, domain)`` checked and moved into the unit
+    frame (:class:`Data`).
+
+    A row is missing when its point or vector holds a NaN, a numpy mask hides
+    it, or ``valid`` (a boolean array, one per row) is False there.  With
+    ``invalid="missing"`` (the default) missing rows are left out and the
+    results are NaN there; with ``invalid="error"`` they are refused.  The
+    domain (a Box, a Polygon, ``(x0, y0, x1, y1)``, an (M, 2) vertex array, or
+    ``"bbox"``, ``"hull"``, ``"alpha"``: one made from the valid points) must
+    hold every valid point.  ``caller``: ``"decompose"``, or ``"project"``,
+    which needs a velocity on every particle (missing rows refused) and whose
+    zero vectors are fluid at rest.  Raises :class:`~taichi_hh.errors.InputError`."""
+    if invalid not in INVALID_MODES:
+        raise InputError(f"invalid must be one of {INVALID_MODES}, got {invalid!r}")
+    pts, masked_p = _real_rows(points, "points", None)
+    vec, masked_v = _real_rows(vectors, "vectors", len(pts))
+    missing = np.isnan(pts).any(axis=1) | np.isnan(vec).any(axis=1)
+    for m in (masked_p, masked_v):
+        if m is not None:
+            missing |= m
+    if valid is not None:
+        flags = np.asarray(valid)
+        if flags.shape != (len(pts),) or flags.dtype.kind not in "bui":
+            raise InputError(f"valid must be a boolean array of shape ({len(pts)},), one per "
+                             f"row, got {flags.dtype} {flags.shape}")
+        if flags.dtype.kind != "b" and not np.isin(flags, (0, 1)).all():
+            raise InputError("valid must hold booleans (or 0 and 1)")
+        missing |= ~flags.astype(bool)
+    if missing.any() and (invalid == "error" or caller == "project"):
+        first = int(np.flatnonzero(missing)[0])
+        remedy = ("invalid='missing' (the default) leaves them out and returns NaN there"
+                  if caller == "decompose" else "a projection needs a velocity on every "
+                  "particle")
+        raise InputError(f"{int(missing.sum())} of {len(pts)} rows are missing (NaN, masked or "
+                         f"marked invalid), first row {first}; {remedy}")
+    ok = ~missing
+    n_valid = int(ok.sum())
+    if n_valid == 0:
+        raise InputError(f"all {len(pts)} rows are missing (NaN, masked or marked invalid): "
+                         "there is no field to decompose")
+    pts_ok, vec_ok = pts[ok], vec[ok]
+    # in the caller's coordinates and row numbers, before any re-centring
+    from ..checks import check_spread
+    from ..sph.pointset import check_distinct
+    check_spread(pts_ok)
+    check_distinct(pts_ok, rows=np.flatnonzero(ok))
+    if domain is None or isinstance(domain, str):
+        lo, hi = pts_ok.min(axis=0), pts_ok.max(axis=0)
+        frame = Frame.of((lo, hi), vec_ok)
+        unit_domain = "bbox" if domain is None else domain
+    else:
+        from ..geometry.domain import as_domain
+        user_domain = as_domain(domain)
+        scale = float(np.max(np.abs(np.asarray(user_domain.bounds)))) or 1.0
+        inside = user_domain.contains(pts_ok, tol=1e-9 * scale)
+        if not inside.all():
+            bad = np.flatnonzero(ok)[~inside]
+            raise InputError(f"{bad.size} point(s) lie outside the domain {user_domain!r}, "
+                             f"first row {bad[0]} at {pts[bad[0]].tolist()}")
+        frame = Frame.of(user_domain.bounds, vec_ok)
+        unit_domain = frame.domain_to_unit(user_domain)
+    unit_pts, unit_vec, unit_domain = validate_input(frame.points_to_unit(pts_ok),
+                                                     vec_ok / frame.speed, unit_domain)
+    vec_out = vec.copy()
+    vec_out[missing] = np.nan
+    data = Data(pts, vec_out, ok, frame, unit_pts, unit_vec, unit_domain,
+                domain=None if domain is None or isinstance(domain, str) else user_domain)
+    if caller == "decompose":
+        _check_zero_rows(data)
+    return data
+
+
+def _check_zero_rows(data: Data, *, stacklevel: int = 4) -> None:
+    """Name exactly zero vectors when there are enough of them to be an
+    instrument's mark for invalid ones rather than still fluid."""
+    zero = (data.unit_vectors == 0.0).all(axis=1)
+    count = int(zero.sum())
+    if count < max(ZERO_ROWS, ZERO_FRACTION * zero.size) or count == zero.size:
+        return
+    where = np.flatnonzero(data.valid)[zero]
+    lo, hi = data.points[where].min(axis=0), data.points[where].max(axis=0)
+    msg = (f"{count} of {zero.size} vectors are exactly zero (rows {where[0]}"
+           f"{', ' + str(where[1]) if count > 1 else ''}, ...; within x {lo[0]:.6g}..{hi[0]:.6g},"
+           f" y {lo[1]:.6g}..{hi[1]:.6g}): they are decomposed as still fluid. PIV software "
+           "(DaVis text, Insight .vec) writes invalid vectors as zeros; if these are invalid, "
+           "mark them missing (NaN, or False in valid)")
+    data.flags.append(msg)
+    warnings.warn(msg, AccuracyWarning, stacklevel=stacklevel)

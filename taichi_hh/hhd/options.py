@@ -42,7 +42,10 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
+
+from ..checks import OptionSpec, check_names, check_option, did_you_mean
+from ..errors import InputError
 
 BOUNDARY_METHODS = ("collocation", "petronetto", "colin", "none")
 #: boundary conditions of the decomposition (:func:`~taichi_hh.hhd.decompose.decompose`)
@@ -50,11 +53,78 @@ BOUNDARY_CONDITIONS = ("neumann", "normal-parallel", "natural")
 #: evaluations of the natural decomposition's convolution (:mod:`taichi_hh.hhd.natural`)
 NATURAL_EVALUATIONS = ("fft", "direct")
 PRECONDITIONERS = ("auto", "multilevel", "jacobi")
+#: linear solvers of the Poisson systems (:mod:`taichi_hh.linalg.krylov`)
+SOLVERS = ("bicgstab", "cgnr")
+
+
+# the kernels' and operator variants' names live with their Taichi code: read on use
+def _kernels() -> tuple:
+    from ..sph.kernels import KERNELS
+    return KERNELS
+
+
+def _gradient_variants() -> tuple:
+    from ..sph.operators import GRADIENT_VARIANTS
+    return GRADIENT_VARIANTS
+
+
+def _laplacian_variants() -> tuple:
+    from ..sph.operators import LAPLACIAN_VARIANTS
+    return LAPLACIAN_VARIANTS
+
+
+def _real(low=None, high=None, *, low_open=False, high_open=False, none=False) -> OptionSpec:
+    return OptionSpec("real", low=low, high=high, low_open=low_open, high_open=high_open,
+                      none=none)
+
+
+#: the keywords of :class:`~taichi_hh.linalg.multilevel.MultilevelPreconditioner`
+#: that ``multilevel_options`` may set, with the ranges it accepts (None: the
+#: cycle's own default)
+MULTILEVEL_OPTION_SPECS = {
+    "cycle": OptionSpec("choice", choices=("V", "W")),
+    "post": OptionSpec("int", low=1, high=3, none=True),
+    "omega": _real(0, 2, low_open=True, high_open=True, none=True),
+    "correction": _real(0, low_open=True, none=True),
+    "l1": OptionSpec("bool"),
+    "cells": _real(0, low_open=True, none=True),
+    "weak": _real(0),
+}
+
+#: how each field of :class:`HHDOptions` is checked (one spec per field; every
+#: value passes :func:`~taichi_hh.checks.check_option` in ``__post_init__``)
+OPTION_SPECS = {
+    "kernel": OptionSpec("choice", choices=_kernels),
+    "support_ratio": _real(0, low_open=True),
+    "adaptive_support": OptionSpec("bool"),
+    "support_neighbours": OptionSpec("int", low=1, high=24),
+    "divergence": OptionSpec("choice", choices=_gradient_variants),
+    "gradient": OptionSpec("choice", choices=_gradient_variants),
+    "laplacian": OptionSpec("choice", choices=_laplacian_variants),
+    "neumann_gradient": OptionSpec("choice", choices=_gradient_variants),
+    "positive_rows": _real(1, none=True),
+    "boundary": OptionSpec("choice", choices=BOUNDARY_METHODS),
+    "kappa": _real(0),
+    "bordered": OptionSpec("bool"),
+    "remove_mean": OptionSpec("bool"),
+    "solver": OptionSpec("choice", choices=SOLVERS),
+    "preconditioner": OptionSpec("choice", choices=PRECONDITIONERS),
+    "multilevel_options": OptionSpec("options", fields=MULTILEVEL_OPTION_SPECS),
+    "tol": _real(0, low_open=True),
+    "max_iterations": OptionSpec("int", low=1, none=True),
+    "seed": OptionSpec("int", low=0, none=True),
+    "boundary_condition": OptionSpec("choice", choices=BOUNDARY_CONDITIONS),
+    "natural_evaluation": OptionSpec("choice", choices=NATURAL_EVALUATIONS),
+}
 
 
 @dataclass(frozen=True)
 class HHDOptions:
-    """Numerical choices of :func:`~taichi_hh.hhd.decompose.decompose` (bundles: :data:`METHODS`)."""
+    """Numerical choices of :func:`~taichi_hh.hhd.decompose.decompose` (bundles: :data:`METHODS`).
+
+    Every field is checked on construction by its entry of :data:`OPTION_SPECS`
+    (:class:`~taichi_hh.errors.InputError` naming the field and the problem) and
+    stored in canonical form: reals as float, integers as int, flags as bool."""
     kernel: str = "wendland"
     support_ratio: float = 3.5          # kernel support / (local) mean spacing
     # per-point support from the local spacing (sph.support); the boundary
@@ -75,7 +145,8 @@ class HHDOptions:
     remove_mean: bool = False           # subtract the volume-weighted mean of div v, curl v
     solver: str = "bicgstab"            # bicgstab | cgnr
     preconditioner: str = "auto"        # auto | multilevel | jacobi (see PoissonMatrix.solve)
-    # MultilevelPreconditioner options, as (name, value) pairs (a dict is accepted):
+    # MultilevelPreconditioner options, as (name, value) pairs sorted by name (a dict is
+    # accepted; names and values checked by MULTILEVEL_OPTION_SPECS):
     # first-level cells of a quarter of the median support, rows with |a_ii| < 0.1 sum |a_ij|
     # aggregated with their strongest neighbour, l1 smoothing, two post-sweeps, omega 0.85
     # for the default's rows (docs/notes/linalg.md, docs/notes/scattered.md)
@@ -88,35 +159,21 @@ class HHDOptions:
     natural_evaluation: str = "fft"     # fft | direct: the natural HHD's convolution
 
     def __post_init__(self):
-        if isinstance(self.multilevel_options, dict):
-            object.__setattr__(self, "multilevel_options",
-                               tuple(sorted(self.multilevel_options.items())))
-        if self.boundary not in BOUNDARY_METHODS:
-            raise ValueError(f"boundary must be one of {BOUNDARY_METHODS}, got {self.boundary!r}")
-        if not (self.support_ratio > 0):
-            raise ValueError(f"support_ratio must be positive, got {self.support_ratio}")
-        if not 1 <= self.support_neighbours <= 24:
-            raise ValueError(f"support_neighbours must be 1..24, got {self.support_neighbours}")
-        if self.positive_rows is not None and not self.positive_rows >= 1:
-            raise ValueError(f"positive_rows must be None or a number >= 1, got "
-                             f"{self.positive_rows!r}")
-        if not (self.tol > 0):
-            raise ValueError(f"tol must be positive, got {self.tol}")
-        if self.boundary_condition not in BOUNDARY_CONDITIONS:
-            raise ValueError(f"boundary_condition must be one of {BOUNDARY_CONDITIONS}, "
-                             f"got {self.boundary_condition!r}")
-        if self.natural_evaluation not in NATURAL_EVALUATIONS:
-            raise ValueError(f"natural_evaluation must be one of {NATURAL_EVALUATIONS}, "
-                             f"got {self.natural_evaluation!r}")
+        # every field by its spec (OPTION_SPECS), stored in canonical form (float,
+        # int, bool, str; multilevel_options as (name, value) pairs sorted by name)
+        for f in fields(self):
+            spec = OPTION_SPECS.get(f.name)
+            if spec is None:
+                raise TypeError(f"HHDOptions.{f.name} has no entry in OPTION_SPECS")
+            object.__setattr__(self, f.name, check_option(getattr(self, f.name), f.name, spec))
+        # combinations
         if self.boundary_condition == "normal-parallel" and self.boundary != "collocation":
-            raise ValueError("boundary_condition='normal-parallel' puts its Dirichlet rows on "
+            raise InputError("boundary_condition='normal-parallel' puts its Dirichlet rows on "
                              "the boundary particles of boundary='collocation', got "
                              f"boundary={self.boundary!r}")
-        if self.preconditioner not in PRECONDITIONERS:
-            raise ValueError(f"preconditioner must be one of {PRECONDITIONERS}, "
-                             f"got {self.preconditioner!r}")
         if self.preconditioner == "multilevel" and self.solver != "bicgstab":
-            raise ValueError("the multilevel preconditioner works with solver='bicgstab'")
+            raise InputError("the multilevel preconditioner works with solver='bicgstab', got "
+                             f"solver={self.solver!r}")
 
 
 METHODS = {
@@ -148,7 +205,13 @@ PROJECT_OVERRIDES = {"colin2006": {"bordered": False, "tol": 1e-4, "max_iteratio
 
 
 def options_for(method: str = "default", **overrides) -> HHDOptions:
-    """The bundle ``method`` of :data:`METHODS` with single fields ``overrides``."""
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; choose one of {tuple(METHODS)}")
+    """The bundle ``method`` of :data:`METHODS` with single fields ``overrides``.
+
+    Raises :class:`~taichi_hh.errors.InputError` for an unknown method, an
+    unknown option name (with the close spellings and the valid names) or a
+    bad value (:data:`OPTION_SPECS`)."""
+    if not isinstance(method, str) or method not in METHODS:
+        raise InputError(f"unknown method {method!r}; choose one of {tuple(METHODS)}"
+                         + did_you_mean(method, METHODS))
+    check_names(overrides, OPTION_SPECS, what="option")
     return replace(METHODS[method], **overrides)

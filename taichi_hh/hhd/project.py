@@ -94,7 +94,7 @@ from .. import runtime
 from ..linalg import krylov as solvers
 from ..errors import AccuracyWarning, InputError, NeighbourError, SolverError
 from .boundary import collocation_particles
-from .inputs import validate_input
+from .inputs import prepare_data
 from .options import METHODS, PROJECT_OVERRIDES, options_for
 from ..sph.particles import BOUNDARY, FLUID
 from ..geometry.walls import box_wall_lattice
@@ -408,7 +408,12 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
                          "does not take Colin's wall particles (boundary='colin'); use "
                          "boundary='collocation'")
     runtime.ensure_init()
-    pts, vec, domain = validate_input(points, vectors, domain)
+    # the numerics run in the unit frame (hhd.units): any units, any magnitude
+    data = prepare_data(points, vectors, domain, caller="project")
+    frame = data.frame
+    pts, vec, domain = data.unit_points, data.unit_vectors, data.unit_domain
+    if wall_velocity is not None:
+        wall_velocity = np.asarray(wall_velocity, dtype=np.float64) / frame.speed
     say = progress or (lambda stage: None)
     t0 = time.perf_counter()
     try:
@@ -446,19 +451,24 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
         sum_sq.append(q)
         if history:
             fields.append(w.copy())
-        grew = _check_pass(k + 1, w, vec, max_div, method, scheme, floor)
+        grew = _check_pass(k + 1, w, vec, max_div, method, scheme, floor, frame)
         if grew and not flags:
             flags.append(grew)
             warnings.warn(grew, AccuracyWarning, stacklevel=2)
+    per_length = frame.derivative
     stats = {"flags": flags, "iterations": iters, "stage_iterations": stage_iters,
-             "divergence_norm": residuals, "seconds": time.perf_counter() - t0,
+             "divergence_norm": [value * per_length for value in residuals],
+             "seconds": time.perf_counter() - t0,
              "scheme": scheme, "n_boundary": projection.n_boundary,
-             "support": projection.support, "spacing": projection.spacing,
-             "divergence_operator": projection.divergence_operator()}
+             "support": projection.support * frame.length,
+             "spacing": projection.spacing * frame.length,
+             "divergence_operator": projection.divergence_operator(), "frame": frame.as_dict()}
     runtime.release_launch_arguments(len(pts))
-    return ProjectionResult(points=pts, vectors=w, initial=vec,
-                            max_divergence=np.array(max_div), sum_sq_divergence=np.array(sum_sq),
-                            divergence=div, stats=stats, history=fields)
+    return ProjectionResult(points=data.points, vectors=w * frame.speed, initial=data.vectors,
+                            max_divergence=np.array(max_div) * per_length,
+                            sum_sq_divergence=_squared_in(np.array(sum_sq), per_length),
+                            divergence=div * per_length, stats=stats,
+                            history=None if fields is None else [f * frame.speed for f in fields])
 
 
 #: a pass that multiplies the smallest max |div| so far by more than this, or
@@ -471,27 +481,31 @@ SPEED_GROWTH = 100.0
 DIVERGENCE_NOISE = 1.01
 
 
-def _check_pass(k, w, vec, max_div, method, scheme, floor=0.0):
+def _check_pass(k, w, vec, max_div, method, scheme, floor=0.0, frame=None):
     """Raise SolverError('divergence') when pass k made things worse instead of
     returning the garbage: e.g. Colin's operators on disordered points, where the
     discrete Laplacian is not the divergence of the discrete gradient and
     repeated passes amplify the mismatch (stability map, benchmarks/).  Growth
     below that (max |div| above the smallest so far, and above the rounding
-    ``floor``) is returned as a message: the caller flags the result with it."""
+    ``floor``) is returned as a message: the caller flags the result with it.
+    ``frame``: the unit frame the values are in; messages quote the caller's units."""
+    per_length = 1.0 if frame is None else frame.derivative
+    shown = [m * per_length for m in max_div]
     speed_in = float(np.abs(vec).max())
     speed = float(np.abs(w).max())
     best = min(max_div[:-1])
     if not np.isfinite(w).all():
         why = "the field became non-finite"
     elif max_div[-1] > DIVERGENCE_GROWTH * max(best, 1e-300) and max_div[-1] > max_div[0]:
-        why = (f"max |div| grew to {max_div[-1]:.3e} from {best:.3e} (input: "
-               f"{max_div[0]:.3e})")
+        why = (f"max |div| grew to {shown[-1]:.3e} from {best * per_length:.3e} (input: "
+               f"{shown[0]:.3e})")
     elif speed > SPEED_GROWTH * max(speed_in, 1e-300):
-        why = f"max |w| reached {speed:.3e}, {speed / speed_in:.0f} times the input's"
+        why = (f"max |w| reached {speed * (1.0 if frame is None else frame.speed):.3e}, "
+               f"{speed / speed_in:.0f} times the input's")
     else:
         if max_div[-1] > DIVERGENCE_NOISE * best and max_div[-1] > floor:
-            return (f"projection pass {k} raised max |div| from {best:.3e} to "
-                    f"{max_div[-1]:.3e} (input: {max_div[0]:.3e}; method {method!r}, scheme "
+            return (f"projection pass {k} raised max |div| from {best * per_length:.3e} to "
+                    f"{shown[-1]:.3e} (input: {shown[0]:.3e}; method {method!r}, scheme "
                     f"{scheme!r}): these operators are not stable on these points and "
                     "further passes may diverge ("
                     + ("use method='default')" if method != "default"
@@ -500,7 +514,14 @@ def _check_pass(k, w, vec, max_div, method, scheme, floor=0.0):
     raise SolverError(f"projection diverged at pass {k} (method {method!r}, scheme "
                       f"{scheme!r}): {why}; these operators are not stable on these points "
                       "(use method='default')", reason="divergence", iteration=k,
-                      residual=float(max_div[-1]))
+                      residual=float(shown[-1]))
+
+
+def _squared_in(values: np.ndarray, unit: float) -> np.ndarray:
+    """Sums of squares in the unit frame times ``unit**2``: inf or 0 where the
+    caller's units take them beyond double precision (a field of 1e160)."""
+    with np.errstate(over="ignore", under="ignore"):
+        return values * unit * unit
 
 
 def _to_slots(ps, values):

@@ -1293,6 +1293,10 @@ def bicgstab_columns(A, B, *, tol: float = 1e-6, max_iterations: Optional[int] =
         res.applies += applies
         res.seconds += seconds
         if not res.converged:
+            if res.reason == "max_iterations":
+                # the cap of the whole solve, not of the handover's remainder
+                # (which is 0 when the joint iteration used it all up)
+                res.detail = f"iteration cap {settings.max_iterations} reached"
             res.message = _failure_message("bicgstab", res.reason, res.iterations,
                                            res.relative_residual, res.detail)
             if raise_on_failure:

@@ -27,6 +27,129 @@ DEFAULT_SUPPORT_RATIO = 3.0
 DEFAULT_KERNEL = "wendland"
 #: points closer than this fraction of the mean spacing count as duplicates
 DUPLICATE_FRACTION = 1e-6
+#: the direction along which :func:`close_pair` sorts the points: of slope the
+#: golden ratio, so that no row, column or diagonal of a lattice projects onto
+#: one value (every pair of a 1000 x 1000 lattice stays ~1e-3 steps apart)
+_GOLDEN = (1.0 + 5.0 ** 0.5) / 2.0
+_SORT_DIRECTION = np.array([1.0, _GOLDEN]) / math.hypot(1.0, _GOLDEN)
+
+
+def close_pair(points, tolerance: float = 0.0):
+    """``(i, j)``, ``i < j``: a pair of ``points`` at most ``tolerance`` apart
+    (0: exact copies), the one with the lowest first index among those found
+    first, or None when there is none.  Float64 and numpy whatever the Taichi
+    precision: two points distinct in float64 are never taken for copies
+    because single precision rounds them together.
+
+    The points are sorted by their projection on :data:`_SORT_DIRECTION`; a
+    pair within ``tolerance`` lies in one run of that order whose consecutive
+    projections are within ``tolerance``.  The points of such runs (none or a
+    few, but for copies) are sorted by run, then across the direction, and
+    the pairs k apart in that order tested for k = 1, 2, ... while any is in
+    one run and that close across (O(N log N); a lattice whose rows lie
+    across the direction costs one more sort)."""
+    pts = np.asarray(points, dtype=np.float64)
+    n = len(pts)
+    if n < 2:
+        return None
+    proj = pts @ _SORT_DIRECTION
+    order = np.argsort(proj)                  # (a third of a stable sort's time)
+    sp = proj[order]
+    # the projections' rounding: a pair tolerance apart may differ a little more
+    reach = float(tolerance) + 4e-16 * float(np.abs(pts).max())
+    close = sp[1:] - sp[:-1] <= reach
+    if not close.any():
+        return None
+    in_run = np.zeros(n, dtype=bool)
+    in_run[:-1] |= close
+    in_run[1:] |= close
+    run = np.concatenate([[0], np.cumsum(~close)])[in_run]
+    idx = order[in_run]
+    across = pts[idx] @ np.array([-_SORT_DIRECTION[1], _SORT_DIRECTION[0]])
+    by = np.lexsort((across, run))
+    idx, run, across = idx[by], run[by], across[by]
+    tol2 = float(tolerance) ** 2
+    m = len(idx)
+    cand = np.arange(m - 1)
+    k = 1
+    while True:
+        cand = cand[cand + k < m]
+        cand = cand[(run[cand + k] == run[cand]) & (across[cand + k] - across[cand] <= reach)]
+        if not cand.size:
+            return None
+        a, b = idx[cand], idx[cand + k]
+        d = pts[a] - pts[b]
+        hit = np.flatnonzero(np.einsum("ij,ij->i", d, d) <= tol2)
+        if hit.size:
+            lo, hi = np.minimum(a[hit], b[hit]), np.maximum(a[hit], b[hit])
+            first = int(np.argmin(lo))
+            return int(lo[first]), int(hi[first])
+        k += 1
+
+
+def _listed(idx) -> str:
+    """'points 3 and 7', 'points 3, 7, 9, 12, 15, 20 and 44 more'."""
+    idx = [int(i) for i in idx]
+    if len(idx) == 2:
+        return f"points {idx[0]} and {idx[1]}"
+    if len(idx) <= 6:
+        return "points " + ", ".join(map(str, idx[:-1])) + f" and {idx[-1]}"
+    return "points " + ", ".join(map(str, idx[:6])) + f" and {len(idx) - 6} more"
+
+
+def check_distinct(points, tolerance: float | None = None, *, rows=None,
+                   n_data: int | None = None) -> None:
+    """Refuse (:class:`~taichi_hh.errors.InputError`) points given more than once:
+    any two at most ``tolerance`` apart (default :data:`DUPLICATE_FRACTION` of
+    the mean spacing sqrt(bounding-box area / N); exact copies only where the
+    box has no area).  The message names the point's coordinates, how many
+    copies of it there are and their indices (``rows[i]`` for index i when
+    ``rows`` is given: the caller's row numbers).  Points from ``n_data`` on
+    are boundary or fake particles (named as such).  Float64 (:func:`close_pair`).
+
+    Any number of copies counts: every SPH operator is singular on them (and
+    a local spacing from the k nearest neighbours is zero from k + 1 copies)."""
+    pts = np.asarray(points, dtype=np.float64)
+    n = len(pts)
+    if n < 2:
+        return
+    if tolerance is None:
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        box = float(np.prod(hi - lo))
+        tolerance = DUPLICATE_FRACTION * math.sqrt(box / n) if box > 0 else 0.0
+    pair = close_pair(pts, tolerance)
+    if pair is None:
+        return
+    i, j = pair
+    d2 = ((pts - pts[i]) ** 2).sum(axis=1)
+    members = np.flatnonzero(d2 <= float(tolerance) ** 2)
+    count = members.size
+    n_data = n if n_data is None else int(n_data)
+    name = (lambda k: int(k)) if rows is None else (lambda k: int(np.asarray(rows)[k]))
+    x, y = pts[i]
+    at = f"({x:.9g}, {y:.9g})"
+    if members[-1] >= n_data:
+        # boundary or fake particles (made by the package, never the caller's)
+        if members[0] < n_data:
+            raise InputError(
+                f"point {name(members[0])} at {at} lies on a boundary or fake particle "
+                f"({count} within {tolerance:.3g}): a point sits where the domain's boundary "
+                "is sampled; move it inside the domain")
+        raise InputError(
+            f"{count} boundary or fake particles lie within {tolerance:.3g} of {at}: the "
+            "domain's boundary has vertices or pieces closer than 1e-6 of the points' "
+            "spacing; remove the repeated vertex")
+    listed = _listed([name(k) for k in members])
+    if (pts[members] == pts[i]).all():
+        raise InputError(
+            f"duplicate points: {listed} are {count} copies of the point {at}: give every "
+            "point once (drop the copies, or merge them into one point with the mean of "
+            "their vectors)")
+    raise InputError(
+        f"duplicate points: {listed} are {count} points within {tolerance:.3g} of {at} "
+        f"({math.sqrt(d2[members].max()):.3g} apart at most), closer than "
+        f"{DUPLICATE_FRACTION:g} of the points' mean spacing: the SPH operators cannot tell "
+        "them apart, as if one point were given several times; drop or merge them")
 
 
 class PointSet:
@@ -64,11 +187,18 @@ class PointSet:
         runtime.ensure_init()
         n = pts.shape[0]
         lo, hi = pts.min(axis=0), pts.max(axis=0)
+        if area is None or boundary is not None or ghosts is not None:
+            # one point, a line or a single row: no area for the mass and spacing,
+            # nor a 2D domain for boundary or fake particles to close (alone,
+            # with an area given, a line is left to the operators, which refuse
+            # their corrected variants on it)
+            from ..checks import check_spread
+            check_spread(pts)
         if area is None:
             area = float(np.prod(hi - lo))
         if not (area > 0 and math.isfinite(area)):
-            raise InputError("the points span no area (all on one line or one point); "
-                             "give the domain's area explicitly")
+            raise InputError(f"area must be a positive finite number (the domain's area), got "
+                             f"{area!r}")
         self.n = n
         self.area = float(area)
         self.spacing = math.sqrt(self.area / n)
@@ -79,6 +209,9 @@ class PointSet:
         # every quantity's whole array)
         parts, normals, kinds = [pts], [np.zeros_like(pts)], [np.full(n, FLUID, np.int32)]
         if boundary is not None:
+            if len(boundary[0]) == 0:
+                raise InputError("boundary=(points, normals) holds no boundary particle: pass "
+                                 "boundary=None for none")
             bpts = check_points(boundary[0], "boundary points")
             parts.append(bpts)
             normals.append(check_values(boundary[1], len(bpts), 2, "boundary normals"))
@@ -89,6 +222,11 @@ class PointSet:
             normals.append(np.zeros_like(gpts))
             kinds.append(np.full(len(gpts), GHOST, np.int32))
         allpts = np.concatenate(parts) if len(parts) > 1 else pts
+        # copies (any number: k + 1 of them would make the adaptive supports
+        # zero), in float64 here rather than by the pair search in the runtime's
+        # precision, where float32 would merge points distinct in float64
+        tolerance = DUPLICATE_FRACTION * self.spacing
+        check_distinct(allpts, tolerance, n_data=n)
         p = self.particles = Particles(len(allpts))
         p.append(allpts, mass=mass, kind=np.concatenate(kinds), normal=np.concatenate(normals))
         self.n_total = p.n
@@ -112,18 +250,11 @@ class PointSet:
             hs.from_numpy(np.resize(supports[p.get("original_index")],
                                     max(p.n, 1)).astype(runtime.np_real()))
         self.supports = supports[:n] if supports is not None else np.full(n, self.support)
-        tolerance = DUPLICATE_FRACTION * self.spacing
-        try:
-            if hs is None:
-                self.pairs.build(p.position, p.n, p.position, self.grid, self.support,
-                                 duplicate_tolerance=tolerance)
-            else:
-                from .support import adaptive_pairs
-                adaptive_pairs(self.pairs, p, self.grid, hs, duplicate_tolerance=tolerance)
-        except InputError as exc:
-            if getattr(self.pairs, "duplicate_query", None) is None:
-                raise
-            raise self._duplicate_error() from exc
+        if hs is None:
+            self.pairs.build(p.position, p.n, p.position, self.grid, self.support)
+        else:
+            from .support import adaptive_pairs
+            adaptive_pairs(self.pairs, p, self.grid, hs)
         # slot -> input index over all particles (data points first, then boundary, ghosts)
         self.order = p.get("original_index").astype(np.int64)
         self.slot_of_all = np.empty(p.n, dtype=np.int64)
@@ -141,16 +272,6 @@ class PointSet:
         self.ops = Operators(p, self.pairs, self.support, kernel, supports=hs)
         self.ops.compute_density()
         self._stencils: dict = {}
-
-    def _duplicate_error(self) -> InputError:
-        pts = self.particles.get("position")
-        orig = self.particles.get("original_index")
-        q = self.pairs.duplicate_query
-        d = np.linalg.norm(pts - pts[q], axis=1)
-        d[q] = np.inf
-        j = int(np.argmin(d))
-        return InputError(f"duplicate points: points {int(orig[q])} and {int(orig[j])} are "
-                          f"{d[j]:.3g} apart (at {pts[q].tolist()}); remove duplicates")
 
     # ---- slot <-> caller order ---------------------------------------------------
     def new_array(self, ncomp: int = 1, *, zeroed: bool = True):

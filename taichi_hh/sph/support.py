@@ -75,6 +75,11 @@ def adaptive_supports(points: np.ndarray, support_ratio: float, neighbours: int,
     the points ``boundary`` (an index or mask: boundary samples) get
     ``BOUNDARY_SUPPORT_SCALE`` times that."""
     d_k = kth_neighbour_distance(points, neighbours, area)
+    if not (d_k > 0).all():
+        # k + 1 copies of a point: its k-th neighbour is itself, its support zero
+        # (and its pairs none: the copies would pass unseen); name them
+        from .pointset import check_distinct
+        check_distinct(points, 0.0)
     h = support_ratio * d_k * math.sqrt(math.pi / neighbours)
     if boundary is not None:
         h[boundary] *= BOUNDARY_SUPPORT_SCALE
