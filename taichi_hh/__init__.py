@@ -19,6 +19,9 @@ def __getattr__(name):
     elif name in ("decompose", "HHDResult", "METHODS"):
         from .hhd import decompose as hhd
         value = getattr(hhd, name)
+    elif name in ("decompose_grid", "GridResult"):
+        from .hhd import grid
+        value = getattr(grid, name)
     elif name in ("project", "ProjectionResult"):
         from .hhd import project as projection
         value = getattr(projection, name)
@@ -28,4 +31,4 @@ def __getattr__(name):
     return value
 
 
-__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError", "AccuracyWarning"]
+__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "decompose_grid", "GridResult", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError", "AccuracyWarning"]

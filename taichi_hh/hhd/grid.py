@@ -1,0 +1,183 @@
+"""The decomposition of gridded data (PIV, model output): :func:`decompose_grid`.
+
+A PIV or model field comes on a rectilinear grid with invalid vectors (NaN,
+or a mask): dropouts scattered through the field, masked obstacles, unlit
+corners.  The domain comes from the valid nodes, not from an alpha shape:
+
+* an invalid region that holds a block of ``hole_size`` x ``hole_size``
+  nodes (the grid's outside counts as invalid) is cut out: an obstacle
+  becomes a hole, an unlit corner or edge is cut off;
+* smaller gaps (dropouts, thin lines) stay inside the domain: their nodes are
+  left out of the operators, which bridge them (a gap of a node or two is
+  well inside the kernel support);
+* the outline runs half way between the nodes kept and those cut out,
+  corners cut at 45 degrees (:mod:`taichi_hh.geometry.raster`).
+
+If the nodes kept fall into several pieces, the piece with the most valid
+nodes is decomposed and the others are left out (counted and warned).
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import AccuracyWarning, InputError
+from ..geometry.polygon import Polygon
+from ..geometry.raster import cell_outlines, check_axis
+
+__all__ = ["decompose_grid", "GridResult", "HOLE_SIZE"]
+
+#: invalid regions holding a block of this many x this many nodes are cut out
+#: of the domain (holes, cut-off corners); smaller gaps are bridged
+HOLE_SIZE = 3
+
+
+@dataclass
+class GridResult:
+    """A decomposition of gridded data: arrays on the input's grid.
+
+    ``curl_free`` (d), ``div_free`` (r), ``harmonic`` (h): (ny, nx, 2);
+    ``phi``, ``psi``, ``divergence``, ``curl``: (ny, nx); NaN where no vector
+    was decomposed.  ``used``: the nodes decomposed; ``inside``: the nodes
+    inside ``domain`` (used nodes and bridged gaps).  ``scattered``: the
+    decomposition of the used nodes (:class:`~taichi_hh.hhd.decompose.HHDResult`)."""
+    x: np.ndarray
+    y: np.ndarray
+    curl_free: np.ndarray
+    div_free: np.ndarray
+    harmonic: np.ndarray
+    phi: np.ndarray
+    psi: np.ndarray
+    divergence: np.ndarray
+    curl: np.ndarray
+    used: np.ndarray
+    inside: np.ndarray
+    domain: Polygon
+    stats: dict
+    scattered: object = field(repr=False, default=None)
+
+    def critical_points(self, threshold: float = 0.1, radius: float | None = None):
+        """Sources, sinks and vortices: see
+        :meth:`~taichi_hh.hhd.decompose.HHDResult.critical_points`."""
+        return self.scattered.critical_points(threshold=threshold, radius=radius)
+
+
+def _component(values, name: str, shape) -> tuple:
+    """``(array, masked)``: a (ny, nx) float64 array and the nodes a numpy mask
+    hides (or None)."""
+    masked = None
+    if np.ma.isMaskedArray(values):
+        masked = np.ma.getmaskarray(values)
+        values = np.ma.getdata(values)
+    arr = np.asarray(values)
+    if arr.dtype.kind == "c":
+        raise InputError(f"{name} is complex: give the two real components as u and v")
+    if arr.dtype.kind not in "iuf":
+        raise InputError(f"{name} must be a numeric array, got {arr.dtype}")
+    arr = arr.astype(np.float64)
+    if arr.shape != shape:
+        raise InputError(f"{name} must have shape (ny, nx) = {shape} (y along the rows, x "
+                         f"along the columns), got {arr.shape}")
+    if np.isinf(arr).any():
+        j, i = np.argwhere(np.isinf(arr))[0]
+        raise InputError(f"{name} has infinite values, first at row {j}, column {i} (missing "
+                         f"values are NaN or masked)")
+    return arr, masked
+
+
+def cut_out(invalid: np.ndarray, hole_size: int = HOLE_SIZE) -> np.ndarray:
+    """The invalid nodes cut out of the domain: the morphological opening of
+    ``invalid`` by a ``hole_size`` square, the grid's outside counted invalid,
+    i.e. every invalid node that lies in some all-invalid ``hole_size`` x
+    ``hole_size`` block."""
+    k = hole_size - 1
+    core = np.pad(invalid, k, constant_values=True)
+    for _ in range(k):           # erosion: (j, i) stays if its 2 x 2 block upwards is all set
+        core = core[:-1, :-1] & core[1:, :-1] & core[:-1, 1:] & core[1:, 1:]
+        core = np.pad(core, ((0, 1), (0, 1)), constant_values=False)
+    grown = core
+    for _ in range(k):           # dilation back: the blocks those corners anchor
+        grown = np.pad(grown, ((1, 0), (1, 0)), constant_values=False)
+        grown = grown[1:, 1:] | grown[:-1, 1:] | grown[1:, :-1] | grown[:-1, :-1]
+    return grown[k:-k, k:-k] & invalid
+
+
+def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE, method: str = "default",
+                   progress=None, **options) -> GridResult:
+    """Helmholtz-Hodge decomposition of a field on a rectilinear grid.
+
+    x: (nx,) and y: (ny,) node coordinates (strictly monotonic, any spacing);
+    u, v: (ny, nx) components (rows along y, columns along x), NaN or masked
+    where invalid; mask: optional (ny, nx) booleans, True where invalid (the
+    numpy.ma convention).  hole_size: invalid regions holding a block of
+    ``hole_size`` x ``hole_size`` nodes are cut out of the domain (module
+    doc); smaller gaps are bridged.  Other arguments as
+    :func:`~taichi_hh.hhd.decompose.decompose` (``domain`` is made here).
+
+    Returns a :class:`GridResult`; ``stats`` adds ``n_invalid`` (nodes
+    without a vector), ``n_cut_out`` (invalid nodes outside the domain),
+    ``n_left_out`` (valid nodes of smaller pieces, not decomposed)."""
+    from .decompose import decompose
+    if "domain" in options:
+        raise InputError("decompose_grid makes its domain from the valid nodes: give "
+                         "mask= (True where invalid) to cut regions out, or use "
+                         "decompose() with a domain")
+    x_in, y_in = check_axis(x, "x"), check_axis(y, "y")
+    shape = (len(y_in), len(x_in))
+    u_arr, u_mask = _component(u, "u", shape)
+    v_arr, v_mask = _component(v, "v", shape)
+    invalid = np.isnan(u_arr) | np.isnan(v_arr)
+    for m in (u_mask, v_mask):
+        if m is not None:
+            invalid |= m
+    if mask is not None:
+        m = np.asarray(mask)
+        if m.shape != shape or m.dtype.kind not in "bui":
+            raise InputError(f"mask must be booleans of shape (ny, nx) = {shape}, True where "
+                             f"invalid; got {m.dtype} {m.shape}")
+        invalid |= m.astype(bool)
+    if isinstance(hole_size, bool) or not isinstance(hole_size, (int, np.integer)) \
+            or hole_size < 2:
+        raise InputError(f"hole_size must be an integer >= 2 (nodes), got {hole_size!r}")
+    # work on increasing axes; the results go back to the input's order
+    flip_x, flip_y = x_in[1] < x_in[0], y_in[1] < y_in[0]
+    sl = (slice(None, None, -1 if flip_y else 1), slice(None, None, -1 if flip_x else 1))
+    xs, ys = x_in[sl[1]], y_in[sl[0]]
+    invalid_s, u_s, v_s = invalid[sl], u_arr[sl], v_arr[sl]
+    if invalid_s.all():
+        raise InputError(f"all {invalid.size} nodes are invalid: there is no field to "
+                         "decompose")
+    outside = cut_out(invalid_s, int(hole_size))
+    pieces = cell_outlines(xs, ys, ~outside)
+    outer, holes = pieces[0]
+    domain = Polygon(outer, holes)
+    X, Y = np.meshgrid(xs, ys)
+    nodes = np.c_[X.ravel(), Y.ravel()]
+    inside = domain.contains(nodes).reshape(shape) & ~outside
+    used = inside & ~invalid_s
+    left_out = int((~invalid_s & ~inside).sum())
+    res = decompose(nodes[used.ravel()], np.c_[u_s[used], v_s[used]], domain, method=method,
+                    progress=progress, **options)
+    stats = dict(res.stats)
+    stats.update(n_invalid=int(invalid.sum()), n_cut_out=int((outside & invalid_s).sum()),
+                 n_left_out=left_out, n_holes=len(holes), hole_size=int(hole_size))
+    if left_out:
+        msg = (f"{left_out} valid vectors lie in {len(pieces) - 1} separate piece(s) of the "
+               f"grid, cut off from the largest by invalid regions of {hole_size} x "
+               f"{hole_size} nodes or more: left out (NaN); a larger hole_size bridges the gaps")
+        stats["flags"] = list(stats.get("flags", [])) + [msg]
+        warnings.warn(msg, AccuracyWarning, stacklevel=2)
+
+    def on_grid(values):
+        values = np.asarray(values)
+        out = np.full(shape + values.shape[1:], np.nan)
+        out[used] = values
+        return out[sl]                      # the input's order again
+    return GridResult(x=x_in, y=y_in, curl_free=on_grid(res.curl_free),
+                      div_free=on_grid(res.div_free), harmonic=on_grid(res.harmonic),
+                      phi=on_grid(res.phi), psi=on_grid(res.psi),
+                      divergence=on_grid(res.divergence), curl=on_grid(res.curl),
+                      used=used[sl], inside=inside[sl], domain=domain, stats=stats,
+                      scattered=res)
