@@ -161,8 +161,20 @@ def test_scene_writes_particle_data_per_frame_for_paraview(tmp_path):
     assert sorted(p.suffix for p in (plain / "particles").iterdir()) == [".npz", ".npz"]
 
 
+#: relative differences the same code shows between CPU families (their
+#: compilers contract and vectorise the kernels' sums differently), measured
+#: on the droplet below: the recording machine, an AVX-512 Xeon and an AMD
+#: EPYC differ by up to 1.8e-8 in max_div (the divergence left by a solve
+#: stopped at tolerance 1e-4: its last digits follow the iteration's path)
+#: and 2.2e-9 elsewhere; counts (steps, iterations) are equal.  Five times
+#: that: a change of the numerics moves them by far more
+CPU_SPREAD = {"max_div": 1e-7}
+CPU_SPREAD_OTHER = 1e-8
+
+
 def _matches(got, want) -> str:
-    """An empty string when the diagnostics ``got`` equal ``want`` to 1e-9 relative, else the first difference."""
+    """An empty string when the diagnostics ``got`` equal ``want`` to the CPU
+    families' spread (:data:`CPU_SPREAD`), else the first difference."""
     if [r["step"] for r in got] != [r["step"] for r in want]:
         return "the steps differ"
     for g, w in zip(got, want):
@@ -170,15 +182,17 @@ def _matches(got, want) -> str:
             if value == "":
                 if g[key] != "":
                     return f"step {w['step']}: {key} {g[key]!r} where none was recorded"
-            elif float(g[key]) != pytest.approx(float(value), rel=1e-9, abs=1e-14):
+                continue
+            rel = CPU_SPREAD.get(key, CPU_SPREAD_OTHER)
+            if key.endswith("iterations"):
+                rel = 0.0
+            if float(g[key]) != pytest.approx(float(value), rel=rel, abs=1e-14):
                 return f"step {w['step']}: {key} {g[key]} against {value}"
     return ""
 
 
-#: the droplet's diagnostics as recorded, one file per CPU family whose
-#: compiled kernels round differently: the redesign's machine, and one with
-#: AVX-512 (Xeon; the same code there differs by up to 1e-8 relative in max
-#: |div|, a solve stopped at tolerance 1e-4, and 1.5e-9 elsewhere)
+#: the droplet's diagnostics as recorded on the redesign's machine, and again
+#: on an AVX-512 Xeon (kept: both must stay within the CPU spread of each other)
 DROPLET_RECORDINGS = ("droplet_2500_t1_diagnostics.csv",
                       "droplet_2500_t1_diagnostics_avx512.csv")
 
@@ -187,11 +201,9 @@ DROPLET_RECORDINGS = ("droplet_2500_t1_diagnostics.csv",
 def test_droplet_reproduces_its_recorded_diagnostics(tmp_path):
     """The droplet at 2.5k particles to t = 1 against the diagnostics recorded
     before the subpackage redesign (tests/data): refactoring must not change
-    the numbers.  Equal to the bit on a machine like the one that recorded
-    them; to 1e-9 relative, since a machine of the same family may still round
-    a fused kernel differently.  The recordings are one per CPU family
-    (:data:`DROPLET_RECORDINGS`); the run must match one of them.  A change
-    meant to alter the numerics records the files again and says why."""
+    the numbers beyond what rounding on another CPU changes
+    (:data:`CPU_SPREAD`).  A change meant to alter the numerics records the
+    files again and says why."""
     mod = load("rising_droplet")
     out = tmp_path / "run"
     assert mod.main(mod.SCENE, ["--particles", "2500", "--end-time", "1", "--quiet",
@@ -199,7 +211,7 @@ def test_droplet_reproduces_its_recorded_diagnostics(tmp_path):
     got = rows(out / "diagnostics.csv")
     data = pathlib.Path(__file__).parent / "data"
     mismatch = {name: _matches(got, rows(data / name)) for name in DROPLET_RECORDINGS}
-    assert not all(mismatch.values()), mismatch
+    assert not any(mismatch.values()), mismatch
 
 
 def test_docs_option_writes_the_montage_into_the_checkout(tmp_path, monkeypatch):

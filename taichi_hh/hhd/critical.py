@@ -69,6 +69,7 @@ def find_critical_points(res, threshold: float = 0.1, radius: float | None = Non
     """
     pts = res.points
     ps = res.pointset
+    domain = getattr(res, "domain", None)
     radius = 2.0 * ps.support if radius is None else float(radius)
     variant = res.options.divergence
     speed = float(np.linalg.norm(res.vectors, axis=1).max()) if len(pts) else 0.0
@@ -90,8 +91,10 @@ def find_critical_points(res, threshold: float = 0.1, radius: float | None = Non
         if not strong.any():
             continue
         strong &= np.abs(component) >= SIGNIFICANCE * noise
-        if rows is None and strong.any():
-            rows = _rows_within(pts, radius)
+        if not strong.any():
+            continue
+        if rows is None:
+            rows = _NeighbourRows(pts, radius)
         for i in np.flatnonzero(strong):
             nb = rows[i]
             if nb.size < 3:
@@ -107,6 +110,8 @@ def find_critical_points(res, threshold: float = 0.1, radius: float | None = Non
             else:
                 continue
             x, y = _refine(pts, pot, i, nb, radius)
+            if domain is not None and not domain.contains(np.array([[x, y]]))[0]:
+                x, y = pts[i]            # the fit's stationary point left the domain
             out.append(CriticalPoint(float(x), float(y), kind, strength[i]))
     out.sort(key=lambda c: -c.strength)
     return out
@@ -139,26 +144,29 @@ def derivative_noise(res) -> np.ndarray:
     return sigma * np.sqrt(gain2[ps.slot_of])
 
 
-def _rows_within(pts, radius):
-    """Neighbour index lists within radius (grid hashing, vectorised by cell)."""
-    key = np.floor(pts / radius).astype(np.int64)
-    key -= key.min(axis=0)
-    nx = key[:, 0].max() + 1
-    cell = key[:, 1] * nx + key[:, 0]
-    order = np.argsort(cell, kind="stable")
-    sorted_cells = cell[order]
-    rows = []
-    for i in range(len(pts)):
+class _NeighbourRows:
+    """The indices of the points within ``radius`` of point i, ``rows[i]``,
+    computed on demand (the candidates are few) from a grid hash."""
+
+    def __init__(self, pts, radius):
+        key = np.floor(pts / radius).astype(np.int64)
+        key -= key.min(axis=0)
+        self.nx = int(key[:, 0].max()) + 1
+        cell = key[:, 1] * self.nx + key[:, 0]
+        self.order = np.argsort(cell, kind="stable")
+        self.sorted_cells = cell[self.order]
+        self.pts, self.key, self.radius = pts, key, radius
+
+    def __getitem__(self, i):
         cand = []
         for dy in (-1, 0, 1):
             for dx in (-1, 0, 1):
-                c = (key[i, 1] + dy) * nx + key[i, 0] + dx
-                lo, hi = np.searchsorted(sorted_cells, [c, c + 1])
-                cand.append(order[lo:hi])
+                c = (self.key[i, 1] + dy) * self.nx + self.key[i, 0] + dx
+                lo, hi = np.searchsorted(self.sorted_cells, [c, c + 1])
+                cand.append(self.order[lo:hi])
         cand = np.concatenate(cand)
-        d2 = ((pts[cand] - pts[i]) ** 2).sum(axis=1)
-        rows.append(cand[d2 < radius * radius])
-    return rows
+        d2 = ((self.pts[cand] - self.pts[i]) ** 2).sum(axis=1)
+        return cand[d2 < self.radius * self.radius]
 
 
 def _refine(pts, pot, i, nb, radius):

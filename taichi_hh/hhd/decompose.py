@@ -516,11 +516,20 @@ def _check_energy(stats, v, d, r, h, vol, opts) -> None:
     stats["energy_ratio"] = ratio
     stats.setdefault("flags", [])
     if not np.isfinite(ratio) or ratio > ENERGY_LIMIT:
+        default = METHODS["default"]
+        if (opts.gradient, opts.divergence, opts.laplacian) != \
+                (default.gradient, default.divergence, default.laplacian):
+            why = (f"the operators (gradient {opts.gradient!r}, divergence "
+                   f"{opts.divergence!r}, Laplacian {opts.laplacian!r}) are not consistent "
+                   "on these points; the default method's are")
+        else:
+            why = ("the components cancel each other: the data are too few or too noisy "
+                   "for the operators at this resolution, or the boundary condition "
+                   f"({opts.boundary_condition!r}) forces large opposite parts near the "
+                   "boundary (boundary_condition='natural' imposes none)")
         msg = (f"decomposition components carry {ratio:.3g} times the field's energy "
-               f"(|d|^2 + |r|^2 + |h|^2 over |v|^2; 1 for an exact decomposition): the "
-               f"operators (gradient {opts.gradient!r}, divergence {opts.divergence!r}, "
-               f"Laplacian {opts.laplacian!r}) are not consistent on these points; the "
-               "components are unreliable (the default method is consistent)")
+               f"(|d|^2 + |r|^2 + |h|^2 over |v|^2; 1 for an exact decomposition): {why}; "
+               "the components are unreliable")
         stats["flags"].append(msg)
         warnings.warn(msg, AccuracyWarning, stacklevel=4)
 

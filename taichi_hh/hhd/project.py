@@ -512,8 +512,10 @@ def _check_pass(k, w, vec, max_div, method, scheme, floor=0.0, frame=None):
                        else "use the default scheme)"))
         return None
     raise SolverError(f"projection diverged at pass {k} (method {method!r}, scheme "
-                      f"{scheme!r}): {why}; these operators are not stable on these points "
-                      "(use method='default')", reason="divergence", iteration=k,
+                      f"{scheme!r}): {why}; these operators are not stable on these points"
+                      + (" (use method='default')" if method != "default" else
+                         " (use the default scheme)" if scheme != "neumann" else ""),
+                      reason="divergence", iteration=k,
                       residual=float(shown[-1]))
 
 
