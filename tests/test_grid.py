@@ -53,15 +53,23 @@ def test_masked_obstacle_is_a_hole_and_dropouts_are_bridged(obstacle_and_dropout
         assert np.isnan(comp[invalid]).all() and np.isfinite(comp[~invalid]).all()
     assert res.phi.shape == ex["v"].shape[:2] and np.isnan(res.phi[invalid]).all()
     ok = ~invalid
-    # the field is negligible at the hole, so the analytic split holds there too:
-    # the obstacle and 4% dropouts cost little against the full grid (64 x 64,
-    # Gaussians 4.5 nodes wide: measured d 1.22% against 0.93%, r 1.24% against
-    # 0.93%; at 100 x 100 0.46% against 0.37%)
-    for got, want in ((res.curl_free, ex["d"]), (res.div_free, ex["r"])):
-        e_clean = _error(clean.curl_free if want is ex["d"] else clean.div_free, want, ex["v"],
-                         clean.used)
-        e = _error(got, want, ex["v"], ok)
-        assert e < 1.5 * e_clean and e < 0.015, (e, e_clean)
+    # the field is negligible at the hole, so the analytic split holds there too
+    # (the default on a grid: the natural condition).  64 x 64, Gaussians 4.5
+    # nodes wide: measured d 0.73%, r 0.47% (the full grid: 0.32%, 0.32%)
+    assert res.scattered.options.boundary_condition == "natural"
+    assert _error(res.curl_free, ex["d"], ex["v"], ok) < 0.01
+    assert _error(res.div_free, ex["r"], ex["v"], ok) < 0.01
+
+
+def test_a_masked_obstacle_costs_no_accuracy(obstacle_and_dropouts):
+    """The hole alone (no dropouts): the same error as the full grid (measured
+    0.3234% against 0.3235% for d)."""
+    x, ex, dropout, obstacle, res, clean = obstacle_and_dropouts
+    holed = thh.decompose_grid(x, x, ex["v"][..., 0], ex["v"][..., 1], mask=obstacle)
+    for name, want in (("curl_free", ex["d"]), ("div_free", ex["r"])):
+        e = _error(getattr(holed, name), want, ex["v"], holed.used)
+        e_clean = _error(getattr(clean, name), want, ex["v"], clean.used)
+        assert e <= 1.05 * e_clean, (name, e, e_clean)
 
 
 def test_grid_critical_points_are_the_fields(obstacle_and_dropouts):

@@ -27,11 +27,13 @@ from ..errors import AccuracyWarning, InputError
 from ..geometry.polygon import Polygon
 from ..geometry.raster import cell_outlines, check_axis
 
-__all__ = ["decompose_grid", "GridResult", "HOLE_SIZE"]
+__all__ = ["decompose_grid", "GridResult", "HOLE_SIZE", "GRID_BOUNDARY_CONDITION"]
 
 #: invalid regions holding a block of this many x this many nodes are cut out
 #: of the domain (holes, cut-off corners); smaller gaps are bridged
 HOLE_SIZE = 3
+#: the default method's boundary condition on a grid: a window of a larger flow
+GRID_BOUNDARY_CONDITION = "natural"
 
 
 @dataclass
@@ -114,7 +116,12 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE, method:
     numpy.ma convention).  hole_size: invalid regions holding a block of
     ``hole_size`` x ``hole_size`` nodes are cut out of the domain (module
     doc); smaller gaps are bridged.  Other arguments as
-    :func:`~taichi_hh.hhd.decompose.decompose` (``domain`` is made here).
+    :func:`~taichi_hh.hhd.decompose.decompose` (``domain`` is made here),
+    but for the boundary condition: a grid of measurements is a window of a
+    larger flow, so with ``method="default"`` it is ``"natural"`` unless
+    given (d, r: what the sources and vortices inside induce; h: the rest;
+    on windows it errs 10 to 500 times less than ``"neumann"``:
+    benchmarks/windows.py, docs/notes/hhd.md).
 
     Returns a :class:`GridResult`; ``stats`` adds ``n_invalid`` (nodes
     without a vector), ``n_cut_out`` (invalid nodes outside the domain),
@@ -158,6 +165,8 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE, method:
     inside = domain.contains(nodes).reshape(shape) & ~outside
     used = inside & ~invalid_s
     left_out = int((~invalid_s & ~inside).sum())
+    if method == "default":
+        options.setdefault("boundary_condition", GRID_BOUNDARY_CONDITION)
     res = decompose(nodes[used.ravel()], np.c_[u_s[used], v_s[used]], domain, method=method,
                     progress=progress, **options)
     stats = dict(res.stats)
