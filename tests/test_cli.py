@@ -448,3 +448,33 @@ def test_decompose_leaves_out_missing_rows(gaussian_files, tmp_path):
     rc, stdout, err = run(["decompose", path, "-o", tmp_path / "alpha", "--quiet",
                            "--domain", "alpha", "--no-figures", *RUNTIME])
     assert rc == 0, err
+
+
+def test_a_grid_listed_node_by_node_is_decomposed_as_a_grid(tmp_path):
+    """PIV text exports list every node, invalid ones as NaN: the CLI finds the
+    grid, cuts the masked block out of the domain and uses the natural
+    condition; with --domain it decomposes the points as given."""
+    f = fields.get("gaussian")
+    x = np.linspace(0.01, 0.99, 40)
+    X, Y = np.meshgrid(x, x)
+    pts = np.c_[X.ravel(), Y.ravel()]
+    vec = f.evaluate(pts).v
+    block = (np.abs(pts[:, 0] - 0.5) < 0.1) & (np.abs(pts[:, 1] - 0.5) < 0.1)
+    vec[block] = np.nan
+    path = tmp_path / "piv.csv"
+    write_csv(path, pts, vec, header="x,y,u,v")
+    out = tmp_path / "out"
+    rc, stdout, err = run(["decompose", path, "-o", out, "--quiet", "--no-figures", *RUNTIME])
+    assert rc == 0, err
+    stdout = " ".join(stdout.split())                        # the summary is wrapped
+    assert "(a 40 x 40 grid: its domain from the valid nodes)" in stdout
+    assert f"Decomposed {len(pts) - block.sum()} points" in stdout
+    assert "free-space potentials" in stdout                 # the natural condition
+    with np.load(out / "components.npz") as z:
+        assert np.isnan(z["d"][block]).all() and np.isfinite(z["d"][~block]).all()
+        np.testing.assert_array_equal(z["points"], pts)
+    rc, stdout, err = run(["decompose", path, "-o", tmp_path / "box", "--quiet", "--no-figures",
+                           "--domain", "0,0,1,1", *RUNTIME])
+    assert rc == 0, err
+    stdout = " ".join(stdout.split())
+    assert "x 40 grid" not in stdout and "phi and psi solves" in stdout

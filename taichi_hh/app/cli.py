@@ -114,7 +114,10 @@ def _add_common(p, command):
                          "\"holes\": [[[x,y],...],...]}, or from the points: bbox (their "
                          "bounding box, the default), hull (their convex hull) or alpha "
                          "(their alpha shape: a concave outline, with the gaps in the data "
-                         "as holes); every point must lie inside")
+                         "as holes); every point must lie inside.  Without --domain, points "
+                         "that are the nodes of a rectilinear grid (PIV, model output) are "
+                         "decomposed as a grid: the domain from the valid nodes (masked "
+                         "regions cut out), the natural boundary condition by default")
     io.add_argument("-o", "--out", metavar="DIR",
                     help=f"output directory, created if needed (default: "
                          f"outputs/<FIELD stem>_{command})")
@@ -427,7 +430,15 @@ def _cmd_decompose(args) -> int:
     _prepare_out(out)
     points, vectors, domain = _read_inputs(args, say, domain_kind_as_name=True)
     st = _init(args, say)
-    res = decompose(points, vectors, domain, method=args.method, progress=say, **overrides)
+    res = None
+    if args.domain is None:
+        # a field listed node by node on a rectilinear grid (PIV, model output):
+        # the domain from its valid nodes, the natural condition by default
+        from ..hhd.grid import decompose_grid_rows
+        res = decompose_grid_rows(points, vectors, method=args.method, progress=say,
+                                  **overrides)
+    if res is None:
+        res = decompose(points, vectors, domain, method=args.method, progress=say, **overrides)
     domain = res.domain
     say("critical points")
     critical = res.critical_points(threshold=args.critical_threshold)
@@ -465,6 +476,7 @@ def _cmd_decompose(args) -> int:
     flags = "".join(f" Warning: {f}" for f in s.get("flags", []))
     print(_paragraph(
         f"Decomposed {len(res.points) - s['n_invalid']} points of {args.field}"
+        f"{' (a {1} x {0} grid: its domain from the valid nodes)'.format(*s['grid']) if 'grid' in s else ''}"
         f"{' (' + str(s['n_invalid']) + ' rows missing: NaN or marked invalid, left out)' if s['n_invalid'] else ''}"
         f" (method {args.method}"
         f"{', ' + ', '.join(f'{k}={v}' for k, v in overrides.items()) if overrides else ''}; "

@@ -190,3 +190,50 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE, method:
                       divergence=on_grid(res.divergence), curl=on_grid(res.curl),
                       used=used[sl], inside=inside[sl], domain=domain, stats=stats,
                       scattered=res)
+
+
+def grid_of(points) -> tuple | None:
+    """``(x, y, rows, cols)`` when ``points`` (N, 2) are the nodes of a
+    rectilinear grid, each once (``points[k] == (x[cols[k]], y[rows[k]])``,
+    ``x``, ``y`` increasing, at least 4 nodes each way): how PIV software and
+    gridded model output list a field.  None otherwise."""
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2 or not np.isfinite(pts).all():
+        return None
+    x, cols = np.unique(pts[:, 0], return_inverse=True)
+    y, rows = np.unique(pts[:, 1], return_inverse=True)
+    if len(x) < 4 or len(y) < 4 or len(x) * len(y) != len(pts):
+        return None
+    flat = rows * len(x) + cols
+    if np.unique(flat).size != len(pts):
+        return None
+    return x, y, rows.ravel(), cols.ravel()
+
+
+def decompose_grid_rows(points, vectors, *, method: str = "default", progress=None,
+                        **options):
+    """:func:`decompose_grid` of a field listed row by row (``points`` (N, 2)
+    the nodes of a rectilinear grid, :func:`grid_of`; ``vectors`` (N, 2), NaN
+    where invalid), returned as :func:`~taichi_hh.hhd.decompose.decompose`
+    returns it: an :class:`~taichi_hh.hhd.decompose.HHDResult` in the rows'
+    order (NaN on the rows not decomposed), ``stats["grid"]`` the grid's shape.
+    None when the points are not such a grid."""
+    from dataclasses import replace
+    found = grid_of(points)
+    if found is None:
+        return None
+    x, y, rows, cols = found
+    vec = np.asarray(vectors, dtype=np.float64)
+    u = np.full((len(y), len(x)), np.nan)
+    v = np.full((len(y), len(x)), np.nan)
+    u[rows, cols], v[rows, cols] = vec[:, 0], vec[:, 1]
+    g = decompose_grid(x, y, u, v, method=method, progress=progress, **options)
+    stats = dict(g.stats, grid=(len(y), len(x)))
+    used = g.used[rows, cols]
+    stats["n_invalid"] = int((~used).sum())
+    return replace(g.scattered, points=np.asarray(points, dtype=np.float64),
+                   vectors=np.where(used[:, None], vec, np.nan),
+                   curl_free=g.curl_free[rows, cols], div_free=g.div_free[rows, cols],
+                   harmonic=g.harmonic[rows, cols], phi=g.phi[rows, cols],
+                   psi=g.psi[rows, cols], divergence=g.divergence[rows, cols],
+                   curl=g.curl[rows, cols], stats=stats, valid=used, domain=g.domain)
