@@ -478,3 +478,27 @@ def test_a_grid_listed_node_by_node_is_decomposed_as_a_grid(tmp_path):
     assert rc == 0, err
     stdout = " ".join(stdout.split())
     assert "x 40 grid" not in stdout and "phi and psi solves" in stdout
+
+
+def test_figures_scales_are_robust_and_say_so(tmp_path):
+    """One spike does not set the arrow or colour scale; axes carry the unit;
+    a flagged h is titled so."""
+    rng = np.random.default_rng(0)
+    values = rng.random(5000)
+    spiked = values.copy()
+    spiked[7] = 1e6
+    assert figures.robust_top(spiked) == pytest.approx(figures.robust_top(values), rel=1e-3)
+    assert figures.robust_top([np.nan, np.inf]) == 0.0
+    f = fields.get("trig")
+    pts = f.sample(600, seed=1)
+    v = f.evaluate(pts).v
+    res = thh.decompose(pts, v, f.domain)
+    res.stats["flags"] = ["h is not harmonic: test"]
+    assert "NOT harmonic" in figures._titles(res)["h"]
+    box = thh.Box((0, 0), (1, 1))
+    fig = figures._figure(3, 3)
+    ax = fig.subplots()
+    figures._setup_axes(ax, box, "t", "mm")
+    assert ax.get_xlabel() == "x [mm]" and ax.get_ylabel() == "y [mm]"
+    paths = figures.decomposition_figures(res, f.domain, tmp_path, units="mm")
+    assert all(open(p, "rb").read(8) == PNG_MAGIC for p in paths)

@@ -118,6 +118,9 @@ def _add_common(p, command):
                          "that are the nodes of a rectilinear grid (PIV, model output) are "
                          "decomposed as a grid: the domain from the valid nodes (masked "
                          "regions cut out), the natural boundary condition by default")
+    io.add_argument("--units", metavar="UNIT", default=None,
+                    help="the coordinates' unit for the figures' axis labels (e.g. mm, m, "
+                         "km, deg)")
     io.add_argument("-o", "--out", metavar="DIR",
                     help=f"output directory, created if needed (default: "
                          f"outputs/<FIELD stem>_{command})")
@@ -455,7 +458,8 @@ def _cmd_decompose(args) -> int:
         if not args.no_figures:
             from .figures import decomposition_figures
             say("drawing figures")
-            written += decomposition_figures(res, domain, out, critical=critical)
+            written += decomposition_figures(res, domain, out, critical=critical,
+                                             units=args.units)
     s = res.stats
     mean = {k: float(np.nanmean(np.linalg.norm(a, axis=1))) for k, a in
             (("v", res.vectors), ("d", res.curl_free), ("r", res.div_free),

@@ -18,7 +18,15 @@ Decomposition (:func:`decomposition_figures`):
 
 Critical points are marked on the d and r panels of both figures in
 Petronetto et al.'s colours (2010, Fig. 15): sources green, sinks purple,
-clockwise vortices blue, counter-clockwise vortices red.
+clockwise vortices blue, counter-clockwise vortices red; the marker's size
+grows with the point's strength.
+
+Scales are robust to outliers: the arrow scale and the colour scale stop at
+the :data:`SCALE_PERCENTILE` th percentile of the magnitudes (a single spike
+does not darken every panel; longer arrows and brighter values are clipped,
+which the figure's note says).  Axes carry the coordinates' unit
+(``units``, ``--units`` on the command line); a flagged h (not harmonic) is
+titled so.
 
 Projection (:func:`projection_figures`): ``projection_arrows.png`` (the field
 before and after) and ``projection_measures.png`` (Colin et al.'s measures
@@ -47,6 +55,25 @@ COMPONENT_TITLES = {
     "h": "h (harmonic)",
 }
 DPI = 110
+#: arrow and colour scales stop at this percentile of the magnitudes shown
+SCALE_PERCENTILE = 99.0
+
+
+def robust_top(values) -> float:
+    """The :data:`SCALE_PERCENTILE` th percentile of the finite ``values``
+    (0 when there are none)."""
+    v = np.asarray(values, dtype=np.float64).ravel()
+    v = v[np.isfinite(v)]
+    return float(np.percentile(v, SCALE_PERCENTILE)) if v.size else 0.0
+
+
+def _titles(result) -> dict:
+    """The panel titles, h's saying so when the decomposition flagged it."""
+    titles = dict(COMPONENT_TITLES)
+    flags = (getattr(result, "stats", None) or {}).get("flags", [])
+    if any("h is not harmonic" in f for f in flags):
+        titles["h"] = "h (NOT harmonic: flagged, see the summary)"
+    return titles
 
 
 def _figure(width, height):
@@ -55,6 +82,16 @@ def _figure(width, height):
     fig = Figure(figsize=(width, height), dpi=DPI)
     FigureCanvasAgg(fig)
     return fig
+
+
+def _panels_figure(domain, width: float = 11.0):
+    """A figure for 2 x 2 panels of ``domain``, as tall as its aspect needs
+    (a 2 x 1 window gets half the height of a square), with room for titles
+    and the legend."""
+    (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=np.float64)
+    aspect = min(max((y1 - y0) / max(x1 - x0, 1e-300), 0.25), 4.0)
+    panel = (width - 1.2) / 2 * aspect                  # each panel's drawing height
+    return _figure(width, 2 * panel + 2.8)
 
 
 def _save(fig, path):
@@ -102,7 +139,7 @@ def _draw_domain(ax, domain):
         ax.plot(closed[:, 0], closed[:, 1], color="0.25", lw=0.8, zorder=3)
 
 
-def _setup_axes(ax, domain, title):
+def _setup_axes(ax, domain, title, units=None):
     (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=np.float64)
     pad = 0.02 * max(x1 - x0, y1 - y0)
     ax.set_xlim(x0 - pad, x1 + pad)
@@ -110,28 +147,35 @@ def _setup_axes(ax, domain, title):
     ax.set_aspect("equal")
     ax.set_title(title, fontsize=10)
     ax.tick_params(labelsize=8)
+    suffix = f" [{units}]" if units else ""
+    ax.set_xlabel(f"x{suffix}", fontsize=8)
+    ax.set_ylabel(f"y{suffix}", fontsize=8)
     _draw_domain(ax, domain)
 
 
 def _mark_critical(ax, critical, kinds):
-    for x, y, kind in critical:
+    for c in critical:
+        x, y, kind = c[:3]
         if kind in kinds:
             st = CRITICAL_STYLE[kind]
-            ax.scatter([x], [y], s=70, c=st["color"], marker=st["marker"],
+            strength = getattr(c, "strength", float("nan"))
+            # strengths are relative to the field's largest derivative (<= ~1)
+            size = 40 + 80 * min(strength, 1.5) if math.isfinite(strength) else 70
+            ax.scatter([x], [y], s=size, c=st["color"], marker=st["marker"],
                        edgecolors="white", linewidths=1.2, zorder=5)
 
 
 def _critical_legend(fig, critical):
     from matplotlib.lines import Line2D
     counts = {k: 0 for k in CRITICAL_STYLE}
-    for _, _, kind in critical:
-        if kind in counts:
-            counts[kind] += 1
+    for c in critical:
+        if c[2] in counts:
+            counts[c[2]] += 1
     handles = [Line2D([], [], ls="", marker=st["marker"], color=st["color"], markersize=8,
                       markeredgecolor="white", label=f"{st['label']} ({counts[k]})")
                for k, st in CRITICAL_STYLE.items()]
     fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=9, frameon=False,
-               title="critical points (marked on d and r)", title_fontsize=9)
+               title="critical points (marked on d and r; size: strength)", title_fontsize=9)
 
 
 def _components(result):
@@ -146,36 +190,46 @@ def _quiver(ax, pts, vec, scale, color="k"):
 
 
 def _arrow_scale(vectors_list, domain, n_arrows):
-    """Quiver ``scale`` (vector units per data unit) so that the longest arrow
-    of all panels spans about 1.5 sampling cells."""
-    top = max((float(np.nanmax(np.linalg.norm(v, axis=1))) if len(v) else 0.0)
-              for v in vectors_list)
+    """Quiver ``scale`` (vector units per data unit) so that an arrow at the
+    :data:`SCALE_PERCENTILE` th percentile of all panels' lengths spans about
+    1.5 sampling cells (longer ones are drawn longer: a spike does not
+    shrink every other arrow to a dot)."""
+    top = robust_top(np.concatenate([np.linalg.norm(v, axis=1) for v in vectors_list]))
     cell = math.sqrt(domain.area / max(n_arrows, 1))
     return top / (1.5 * cell) if top > 0 and math.isfinite(top) else 1.0
 
 
-def arrows_figure(result, domain, path, critical=(), target: int = 600) -> str:
+def arrows_figure(result, domain, path, critical=(), target: int = 600, units=None) -> str:
     """2x2 quiver panels of v, d, r, h (one arrow scale); returns ``path``."""
     pts = result.points
     domain = _domain_of(pts, domain)
     idx = even_subsample(pts, domain, target)
     comps = _components(result)
     scale = _arrow_scale([c[idx] for c in comps.values()], domain, len(idx))
-    fig = _figure(11, 11.6)
+    fig = _panels_figure(domain)
     axes = fig.subplots(2, 2).ravel()
+    titles = _titles(result)
     for ax, (name, vec) in zip(axes, comps.items()):
-        _setup_axes(ax, domain, COMPONENT_TITLES[name])
+        _setup_axes(ax, domain, titles[name], units)
         _quiver(ax, pts[idx], vec[idx], scale)
         if name == "d":
             _mark_critical(ax, critical, ("source", "sink"))
         elif name == "r":
             _mark_critical(ax, critical, ("cw_vortex", "ccw_vortex"))
     fig.suptitle(f"Helmholtz-Hodge decomposition: {len(idx)} of {len(pts)} points shown, "
-                 f"common arrow scale", fontsize=11)
+                 f"common arrow scale (1.5 cells at the {SCALE_PERCENTILE:g}th percentile of "
+                 f"|v|, |d|, |r|, |h|)", fontsize=11)
     _critical_legend(fig, critical)
-    fig.subplots_adjust(left=0.06, right=0.98, top=0.93, bottom=0.1, wspace=0.15, hspace=0.15)
+    _adjust(fig, right=0.98)
     _save(fig, path)
     return path
+
+
+def _adjust(fig, right):
+    """Margins in inches (titles, labels, the legend) whatever the figure's height."""
+    h = fig.get_figheight()
+    fig.subplots_adjust(left=0.07, right=right, top=1 - 0.6 / h, bottom=1.1 / h, wspace=0.18,
+                        hspace=0.45 / (0.5 * h - 0.85))
 
 
 def masked_triangulation(points, domain):
@@ -202,7 +256,7 @@ def _grid(domain, n: int = 90):
     return np.linspace(x0, x1, nx), np.linspace(y0, y1, ny)
 
 
-def magnitude_figure(result, domain, path, critical=()) -> str:
+def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
     """2x2 panels of |v|, |d|, |r|, |h| (tripcolor, one colour scale) with
     streamlines; returns ``path``."""
     from matplotlib.tri import LinearTriInterpolator
@@ -214,12 +268,13 @@ def magnitude_figure(result, domain, path, critical=()) -> str:
     outside = ~domain.contains(np.c_[X.ravel(), Y.ravel()]).reshape(X.shape)
     comps = _components(result)
     mags = {k: np.linalg.norm(v, axis=1) for k, v in comps.items()}
-    vmax = max(float(m.max()) for m in mags.values()) or 1.0
-    fig = _figure(11, 11.6)
+    vmax = robust_top(np.concatenate(list(mags.values()))) or 1.0
+    fig = _panels_figure(domain)
     axes = fig.subplots(2, 2).ravel()
     image = None
+    titles = _titles(result)
     for ax, (name, vec) in zip(axes, comps.items()):
-        _setup_axes(ax, domain, f"|{name}|, {COMPONENT_TITLES[name]}")
+        _setup_axes(ax, domain, f"|{name}|, {titles[name]}", units)
         image = ax.tripcolor(tri, mags[name], shading="gouraud", cmap="viridis", vmin=0.0,
                              vmax=vmax, zorder=1)
         U = LinearTriInterpolator(tri, vec[:, 0])(X, Y)
@@ -234,9 +289,10 @@ def magnitude_figure(result, domain, path, critical=()) -> str:
             _mark_critical(ax, critical, ("source", "sink"))
         elif name == "r":
             _mark_critical(ax, critical, ("cw_vortex", "ccw_vortex"))
-    fig.subplots_adjust(left=0.06, right=0.88, top=0.93, bottom=0.1, wspace=0.15, hspace=0.15)
+    _adjust(fig, right=0.88)
     cax = fig.add_axes([0.9, 0.2, 0.02, 0.6])
-    fig.colorbar(image, cax=cax, label="magnitude")
+    fig.colorbar(image, cax=cax, extend="max",
+                 label=f"magnitude (clipped at the {SCALE_PERCENTILE:g}th percentile)")
     fig.suptitle("Magnitudes and streamlines", fontsize=11)
     _critical_legend(fig, critical)
     _save(fig, path)
@@ -244,15 +300,18 @@ def magnitude_figure(result, domain, path, critical=()) -> str:
 
 
 def decomposition_figures(result, domain, out_dir, critical=None,
-                          threshold: float = 0.1) -> list[str]:
+                          threshold: float = 0.1, units=None) -> list[str]:
     """Write ``arrows.png`` and ``magnitude.png`` into ``out_dir``; returns the paths.
-    critical: ``[(x, y, kind)]``; default ``result.critical_points(threshold)``."""
+    critical: ``[(x, y, kind)]``; default ``result.critical_points(threshold)``.
+    units: the coordinates' unit, for the axis labels (e.g. ``"mm"``)."""
     if critical is None:
         critical = result.critical_points(threshold=threshold)
     if hasattr(result, "valid_rows"):
         result = result.valid_rows()          # missing rows (NaN) are not drawn
-    return [arrows_figure(result, domain, os.path.join(out_dir, "arrows.png"), critical),
-            magnitude_figure(result, domain, os.path.join(out_dir, "magnitude.png"), critical)]
+    return [arrows_figure(result, domain, os.path.join(out_dir, "arrows.png"), critical,
+                          units=units),
+            magnitude_figure(result, domain, os.path.join(out_dir, "magnitude.png"), critical,
+                             units=units)]
 
 
 def projection_figures(result, domain, out_dir, target: int = 600) -> list[str]:
