@@ -198,8 +198,9 @@ METHODS = {
 #: (tighter tolerances stall: docs/notes/hhd.md)
 PROJECT_OVERRIDES = {"colin2006": {"bordered": False, "tol": 1e-4, "max_iterations": 20000},
                      # the projection keeps the fixed support and quadratic fits it was
-                     # measured with (Colin Table 1 on lattices); on scattered points
-                     # it takes the decomposition's (project.SCATTERED_OPTIONS)
+                     # measured with (Colin Table 1 on lattices) on regular layouts; on
+                     # irregular ones project() takes the decomposition's adaptive support
+                     # by itself (project.SCATTERED_OPTIONS, project.choose_support)
                      "default": {"support_ratio": 2.5, "adaptive_support": False,
                                  "divergence": "quadratic", "gradient": "quadratic"}}
 

@@ -57,7 +57,11 @@ own default).  Measurements of each: docs/notes/hhd.md.
     Poisson step repeated alone is not).
 
     Measured divergence: ``D``, the quadratic (MLS) divergence over the data
-    points, i.e. ``PointSet(points, kernel, support).divergence(v, "quadratic")``.
+    points, i.e. ``PointSet(points, kernel, support).divergence(v, "quadratic")``,
+    on regular layouts (lattices, blue noise); on irregular ones (uniformly
+    random, clustered, graded, strongly jittered) the default takes the
+    decomposition's adaptive support and cubic divergence instead
+    (:func:`choose_support`; ``stats["divergence_operator"]`` names it).
     Colin's examples 3 and 4 carry a net flux through the walls, so no field
     keeping their normal flux is divergence-free: there the orthogonal step
     changes the flux as little as it can.
@@ -200,9 +204,63 @@ class PoissonStep:
         return w - ps.download(self.gradient_nd), res.iterations
 
 
-#: the decomposition's options for scattered points, which project() takes too
+#: the decomposition's options for scattered points: the default projection
+#: takes them where the layout is irregular (:func:`choose_support`)
 SCATTERED_OPTIONS = {name: getattr(METHODS["default"], name)
                      for name in ("adaptive_support", "support_ratio", "divergence")}
+
+#: The default projection keeps its fixed support (``PROJECT_OVERRIDES["default"]``)
+#: on layouts whose :func:`layout_irregularity` is at most this, and takes
+#: :data:`SCATTERED_OPTIONS` above it.  Measured (benchmarks/projection_defaults.py,
+#: gaussian field, unit square; irregularity in brackets): the fixed support
+#: projects lattices (0) and blue noise (0.07) up to 64k points in 7-26
+#: Poisson-step iterations, and a lattice jittered by +-0.15 spacings
+#: (``jitter0.3``, 0.082) in 99 at 64k; but a lattice jittered by +-0.25 spacings
+#: (``jitter0.5``, 0.147) takes 437 at 64k and by +-0.35 (0.22) stagnates there;
+#: uniformly random points (0.51-0.54) stagnate from 4k (and at 1k return a
+#: field 61% away from r + h), clustered (0.72-0.83) and 1:10 graded (0.60-0.62)
+#: points have singular quadratic fits from 1k.  The adaptive support projects
+#: every one of them (7-17 Poisson-step iterations).  0.12 lies between blue
+#: noise and jitter0.5 (the statistic varies by under 0.01 over sizes and seeds).
+IRREGULARITY_THRESHOLD = 0.12
+
+
+def layout_irregularity(points) -> float:
+    """The coefficient of variation (standard deviation / mean) of the
+    points' nearest-neighbour distances: 0 on a lattice, about 0.07 on blue
+    noise, 0.52 on uniformly random points (a Poisson process: sqrt(4/pi - 1)),
+    above that on clustered ones.  Scale-free; one k-nearest search
+    (:mod:`taichi_hh.sph.knn`).  0 for fewer than 3 points."""
+    from ..sph.knn import KNearest
+    pts = np.asarray(points, dtype=np.float64)
+    if len(pts) < 3:
+        return 0.0
+    d = KNearest(pts).kth_distance_among(1)
+    mean = float(d.mean())
+    return float(d.std() / mean) if mean > 0 else 0.0
+
+
+def choose_support(points, method: str, options: dict):
+    """``(overrides, choice)``: the options the default projection adds for
+    these points, and how it chose (``choice["by"]``: ``"layout"``,
+    ``"caller"`` or ``"method"``; ``choice["irregularity"]``: the measure, None
+    where not taken).  With ``method="default"`` and no
+    ``adaptive_support`` from the caller, points whose
+    :func:`layout_irregularity` exceeds :data:`IRREGULARITY_THRESHOLD` get
+    :data:`SCATTERED_OPTIONS` (those the caller did not set); other methods
+    and explicit choices are left as they are."""
+    if method != "default":
+        return {}, {"support": None, "by": "method", "irregularity": None}
+    if "adaptive_support" in options:
+        given = "adaptive" if options["adaptive_support"] else "fixed"
+        return {}, {"support": given, "by": "caller", "irregularity": None}
+    irregularity = layout_irregularity(points)
+    # the adaptive support needs more points than its neighbour count
+    neighbours = options.get("support_neighbours", METHODS["default"].support_neighbours)
+    if irregularity > IRREGULARITY_THRESHOLD and len(points) > neighbours:
+        return ({k: v for k, v in SCATTERED_OPTIONS.items() if k not in options},
+                {"support": "adaptive", "by": "layout", "irregularity": irregularity})
+    return {}, {"support": "fixed", "by": "layout", "irregularity": irregularity}
 
 
 def _scattered_remedy(opts) -> str:
@@ -374,10 +432,21 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
     ``"poisson"`` (module doc; default: neumann for ``default``, poisson for
     any other method).  wall_velocity: velocity of the ``colin2006`` wall
     particles (default 0: walls at rest).  progress: ``callable(stage)``.
-    The default's fixed support was measured on lattices and blue noise; for
-    uniformly random, clustered or graded points pass the decomposition's
-    adaptive support, ``**SCATTERED_OPTIONS`` (a failure of the fixed support
-    says so).
+    The default's support follows the layout (:func:`choose_support`): the
+    fixed support of ``PROJECT_OVERRIDES["default"]`` (2.5 spacings, quadratic
+    divergence, as measured on Colin's lattices) where the points are about as
+    regular as a lattice or blue noise, and the decomposition's adaptive
+    support, :data:`SCATTERED_OPTIONS` (3.5 local spacings, cubic divergence),
+    where :func:`layout_irregularity` (the spread of the nearest-neighbour
+    distances) exceeds :data:`IRREGULARITY_THRESHOLD` (jittered lattices
+    beyond +-0.2 spacings, uniformly random, clustered, graded points), or
+    where the fixed support's fits fail at set-up.  Passing
+    ``adaptive_support`` decides it instead (``False``: the fixed support
+    whatever the layout; ``True``: with ``support_ratio`` and ``divergence``
+    from the caller or ``PROJECT_OVERRIDES``).  ``stats["support_choice"]``
+    says which was used, ``stats["support_chosen_by"]`` why (``"layout"``,
+    ``"fallback"``, ``"caller"`` or ``"method"``) and ``stats["irregularity"]``
+    the measure.
 
     Returns a :class:`ProjectionResult`: ``max_divergence`` and
     ``sum_sq_divergence`` per pass (index 0 = the input), measured with the
@@ -416,10 +485,29 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
         wall_velocity = np.asarray(wall_velocity, dtype=np.float64) / frame.speed
     say = progress or (lambda stage: None)
     t0 = time.perf_counter()
+    # the default's support from the layout: fixed on lattices and blue noise,
+    # adaptive on irregular points (choose_support)
+    extra, choice = choose_support(pts, method, options)
+    if extra:
+        opts = options_for(method, **{**PROJECT_OVERRIDES.get(method, {}), **extra, **options})
     try:
         projection = PROJECTIONS[scheme](pts, domain, opts, wall_velocity)
     except NeighbourError as exc:
-        raise NeighbourError(str(exc) + _scattered_remedy(opts)) from None
+        if not (choice["by"] == "layout" and not opts.adaptive_support):
+            raise NeighbourError(str(exc) + _scattered_remedy(opts)) from None
+        # a regular-looking layout with a sparse patch: the adaptive support
+        # (the fixed support's fits fail while the point set is built, at once);
+        # should it fail too, the fixed support's error is the one reported
+        fixed_opts, fixed_error = opts, str(exc)
+        opts = options_for(method, **{**PROJECT_OVERRIDES.get(method, {}),
+                                      **{k: v for k, v in SCATTERED_OPTIONS.items()
+                                         if k not in options}, **options})
+        choice = {**choice, "support": "adaptive", "by": "fallback",
+                  "fixed_support_error": " ".join(fixed_error.split())}
+        try:
+            projection = PROJECTIONS[scheme](pts, domain, opts, wall_velocity)
+        except NeighbourError:
+            raise NeighbourError(fixed_error + _scattered_remedy(fixed_opts)) from None
 
     w = vec.copy()
     div = projection.divergence(w)
@@ -462,7 +550,11 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
              "scheme": scheme, "n_boundary": projection.n_boundary,
              "support": projection.support * frame.length,
              "spacing": projection.spacing * frame.length,
-             "divergence_operator": projection.divergence_operator(), "frame": frame.as_dict()}
+             "divergence_operator": projection.divergence_operator(), "frame": frame.as_dict(),
+             "support_choice": "adaptive" if opts.adaptive_support else "fixed",
+             "support_chosen_by": choice["by"], "irregularity": choice["irregularity"]}
+    if "fixed_support_error" in choice:
+        stats["fixed_support_error"] = choice["fixed_support_error"]
     runtime.release_launch_arguments(len(pts))
     return ProjectionResult(points=data.points, vectors=w * frame.speed, initial=data.vectors,
                             max_divergence=np.array(max_div) * per_length,
