@@ -181,14 +181,19 @@ def _unit_problems(pts, vec, domain, opts: HHDOptions, progress) -> PoissonProbl
     spacing = math.sqrt(domain.area / n)
     support = opts.support_ratio * spacing
 
+    natural = opts.boundary_condition == "natural"
     say("setup")
     t = time.perf_counter()
-    boundary, ghosts = _extra_particles(domain, pts, opts, spacing, support)
+    # the natural decomposition has no boundary rows: the boundary samples of
+    # collocation would only be read by stencils it does not build
+    rows_on_boundary = not (natural and opts.boundary == "collocation")
+    boundary, ghosts = (_extra_particles(domain, pts, opts, spacing, support)
+                        if rows_on_boundary else (None, None))
     ps = PointSet(pts, kernel=opts.kernel, support_ratio=opts.support_ratio,
                   support=None if opts.adaptive_support else support, area=domain.area,
                   boundary=boundary, ghosts=ghosts,
                   support_neighbours=opts.support_neighbours if opts.adaptive_support else None)
-    if opts.boundary == "collocation":
+    if opts.boundary == "collocation" and rows_on_boundary:
         check_data_reach_boundary(ps, BOUNDARY, FLUID)
     ops = ps.ops
     p = ps.particles
@@ -218,7 +223,7 @@ def _unit_problems(pts, vec, domain, opts: HHDOptions, progress) -> PoissonProbl
     else:
         div_sources = (FLUID,)
     st_neumann = st_lap = None
-    if _default_stencils(opts):
+    if _default_stencils(opts) and not natural:
         # the three stencils of the default from one kernel (two passes over the pairs)
         st_div, st_neumann, st_lap = ops.decomposition_coefficients()
     else:
