@@ -502,3 +502,20 @@ def test_figures_scales_are_robust_and_say_so(tmp_path):
     assert ax.get_xlabel() == "x [mm]" and ax.get_ylabel() == "y [mm]"
     paths = figures.decomposition_figures(res, f.domain, tmp_path, units="mm")
     assert all(open(p, "rb").read(8) == PNG_MAGIC for p in paths)
+
+
+def test_messages_name_the_remedy_in_command_line_syntax(gaussian_files, tmp_path):
+    """The library's advice (``invalid='missing'``, ``boundary_condition='natural'``)
+    reaches the command line as ``--invalid missing``, ``--boundary-condition
+    natural``; names that are no option stay as they are."""
+    from taichi_hh.app.errors_report import option_rewriter
+    rewrite = option_rewriter(cli.build_parser())
+    assert rewrite("use boundary_condition='natural' or tol=1e-6; valid=False rows") == \
+        "use --boundary-condition natural or --tol 1e-6; valid=False rows"
+    pts, vec = gaussian_files["points"][:300], gaussian_files["vectors"][:300].copy()
+    vec[3] = np.nan
+    path = tmp_path / "gap.csv"
+    write_csv(path, pts, vec, header="x,y,u,v")
+    rc, out, err = run(["decompose", path, "-o", tmp_path / "o", "--quiet", "--no-figures",
+                        "--invalid", "error", *RUNTIME])
+    assert rc == 2 and "--invalid missing (the default)" in err and "invalid='" not in err

@@ -209,6 +209,11 @@ def build_parser() -> argparse.ArgumentParser:
                           "psi where d or r vanishes) are kept when their |div d| or |curl r| "
                           "is at least T times the field's largest |div v| or |curl v| and "
                           "well above the data's noise there (default: 0.1)")
+    dec.add_argument_group("missing data").add_argument(
+        "--invalid", choices=("missing", "error"), default="missing",
+        help="rows with NaN vectors (or points), an empty u or v cell, or a false "
+             "'valid' column: missing (the default: left out, NaN in the outputs) or "
+             "error (refused)")
     dec.set_defaults(func=_cmd_decompose)
 
     pro = sub.add_parser(
@@ -438,10 +443,14 @@ def _cmd_decompose(args) -> int:
         # a field listed node by node on a rectilinear grid (PIV, model output):
         # the domain from its valid nodes, the natural condition by default
         from ..hhd.grid import decompose_grid_rows
-        res = decompose_grid_rows(points, vectors, method=args.method, progress=say,
-                                  **overrides)
+        if args.invalid == "error" and np.isnan(vectors).any():
+            res = None                       # the scattered path refuses them, by row
+        else:
+            res = decompose_grid_rows(points, vectors, method=args.method, progress=say,
+                                      **overrides)
     if res is None:
-        res = decompose(points, vectors, domain, method=args.method, progress=say, **overrides)
+        res = decompose(points, vectors, domain, method=args.method, progress=say,
+                        invalid=args.invalid, **overrides)
     domain = res.domain
     say("critical points")
     critical = res.critical_points(threshold=args.critical_threshold)
@@ -549,9 +558,9 @@ def main(argv=None) -> int:
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
     parser = build_parser()
     args = parser.parse_args(argv)
-    from .errors_report import run_reporting
+    from .errors_report import option_rewriter, run_reporting
     return run_reporting(f"taichi-hh {args.command}", lambda: args.func(args),
-                         error_hint=_solver_hint)
+                         error_hint=_solver_hint, rewrite=option_rewriter(parser))
 
 
 if __name__ == "__main__":

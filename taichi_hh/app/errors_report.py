@@ -42,12 +42,45 @@ def write_report(prog: str, exc: BaseException) -> str:
     return path
 
 
+def option_rewriter(parser):
+    """A function that rewrites the library's ``name='value'`` advice in a
+    message into the command line's ``--name value`` for every option
+    ``parser`` (an argparse parser, its subcommands included) knows, so that a
+    message names the remedy in the caller's syntax."""
+    import argparse
+    import re
+    flags = {}
+
+    def collect(p):
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub in action.choices.values():
+                    collect(sub)
+            elif action.option_strings:
+                long = [o for o in action.option_strings if o.startswith("--")]
+                if long:
+                    flags.setdefault(action.dest, long[0])
+    collect(parser)
+    pattern = re.compile(r"\b([a-z][a-z_]*)=(?:'([^']*)'|\"([^\"]*)\"|([\w.+-]+))")
+
+    def rewrite(text: str) -> str:
+        def one(m):
+            flag = flags.get(m.group(1))
+            if flag is None:
+                return m.group(0)
+            value = next(g for g in m.groups()[1:] if g is not None)
+            return f"{flag} {value}"
+        return pattern.sub(one, text)
+    return rewrite
+
+
 @contextmanager
-def _one_line_warnings(prog: str):
+def _one_line_warnings(prog: str, rewrite=None):
     old = warnings.showwarning
+    rewrite = rewrite or (lambda text: text)
 
     def show(message, category, filename, lineno, file=None, line=None):
-        print(f"{prog}: warning: {' '.join(str(message).split())}", file=sys.stderr)
+        print(f"{prog}: warning: {rewrite(' '.join(str(message).split()))}", file=sys.stderr)
 
     warnings.showwarning = show
     try:
@@ -72,13 +105,16 @@ def _sigterm_exits():
         signal.signal(signal.SIGTERM, old)
 
 
-def run_reporting(prog: str, job, *, error_hint=None) -> int:
+def run_reporting(prog: str, job, *, error_hint=None, rewrite=None) -> int:
     """``job()`` -> its exit status, with the module doc's endings.
-    ``error_hint(exc)``: optional advice appended to an expected error's line."""
+    ``error_hint(exc)``: optional advice appended to an expected error's line;
+    ``rewrite(text)``: applied to every error and warning line (e.g.
+    :func:`option_rewriter`: the library's advice in command-line syntax)."""
     from ..errors import TaichiHHError
     debug = bool(os.environ.get("TAICHI_HH_DEBUG"))
+    rewrite_line = rewrite or (lambda text: text)
     try:
-        with _one_line_warnings(prog), _sigterm_exits():
+        with _one_line_warnings(prog, rewrite), _sigterm_exits():
             return job()
     except KeyboardInterrupt:
         if debug:
@@ -88,7 +124,7 @@ def run_reporting(prog: str, job, *, error_hint=None) -> int:
     except (TaichiHHError, ValueError, OSError) as exc:
         if debug:
             raise
-        msg = one_line(exc)
+        msg = rewrite_line(one_line(exc))
         if isinstance(exc, OSError) and not isinstance(exc, TaichiHHError):
             msg = f"{type(exc).__name__}: {msg}"
         hint = error_hint(exc) if error_hint else None
