@@ -139,3 +139,28 @@ def test_grid_input_errors():
         thh.decompose_grid(x, x, u * np.nan, v)
     with pytest.raises(InputError, match="hole_size"):
         thh.decompose_grid(x, x, u, v, hole_size=1)
+
+
+def test_isolated_valid_nodes_are_left_out():
+    """A valid node with fewer than 4 valid neighbours (of 8) in a region the
+    instrument rejected is left out; a full grid's corners and edges are not
+    isolated."""
+    from taichi_hh.hhd.grid import isolated_nodes
+    invalid = np.zeros((8, 8), dtype=bool)
+    assert not isolated_nodes(invalid).any()                 # corners: 3 neighbours, all valid
+    invalid[2:7, 2:7] = True
+    invalid[4, 4] = False                                    # an island in a rejected block
+    invalid[2, 2] = False                  # the block's corner: 5 valid neighbours outside it
+    iso = isolated_nodes(invalid)
+    assert iso[4, 4] and not iso[2, 2] and iso.sum() == 1
+    x, X, Y, ex = _grid(40)
+    u, v = ex["v"][..., 0].copy(), ex["v"][..., 1]
+    rejected = (np.abs(X - 0.5) < 0.1) & (np.abs(Y - 0.5) < 0.1)
+    u[rejected] = np.nan
+    j, i = np.argwhere(rejected)[len(np.argwhere(rejected)) // 2]
+    u[j, i] = ex["v"][j, i, 0]                               # one vector survives in the block
+    res = thh.decompose_grid(x, x, u, v)
+    assert res.stats["n_isolated"] == 1 and not res.used[j, i]
+    assert np.isnan(res.curl_free[j, i]).all()
+    kept = thh.decompose_grid(x, x, u, v, min_neighbours=0)
+    assert kept.stats["n_isolated"] == 0 and kept.used[j, i]

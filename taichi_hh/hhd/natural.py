@@ -444,6 +444,8 @@ CUT_SUBSAMPLES = 16
 ONE_SIDED_CELLS = 3.0
 #: the fit's stencil: the nodes within this many cells (a square block)
 ONE_SIDED_REACH = 3
+#: fewer inside nodes than this in the stencil: no fit (the spline's gradient)
+ONE_SIDED_MIN_NODES = 16
 
 
 def one_sided_gradient(grid: Grid, u: np.ndarray, inside: np.ndarray, points) -> np.ndarray:
@@ -486,6 +488,9 @@ def one_sided_gradient(grid: Grid, u: np.ndarray, inside: np.ndarray, points) ->
         rhs = np.einsum("mki,mk->mi", BW, u[ii, jj])
         coef = np.linalg.solve(M, rhs[..., None])[..., 0]
         out[s:s + 8192] = coef[:, 1:3] / h
+        # too few nodes inside (a corner, a thin strip, a ragged outline): the
+        # fit extrapolates; such points keep the spline's gradient (NaN here)
+        out[s:s + 8192][(w > 0).sum(axis=1) < ONE_SIDED_MIN_NODES] = np.nan
     return out
 
 
@@ -522,7 +527,9 @@ def natural_potentials(points, domain, sources: dict, spacing: float, *,
                    + np.gradient(P[..., 1], grid.hy, axis=1))
         u = convolve(grid, dens + dipole)
         gradient = at_points(grid, grid_gradient(grid, u), points)
-        gradient[near] = one_sided_gradient(grid, u, inside, points[near])
+        fitted = one_sided_gradient(grid, u, inside, points[near])
+        ok = np.isfinite(fitted).all(axis=1)
+        gradient[near[ok]] = fitted[ok]
         out[name] = (at_points(grid, u, points), gradient)
     out["grid"] = grid
     return out
