@@ -146,13 +146,19 @@ def test_isolated_valid_nodes_are_left_out():
     instrument rejected is left out; a full grid's corners and edges are not
     isolated."""
     from taichi_hh.hhd.grid import isolated_nodes
-    invalid = np.zeros((8, 8), dtype=bool)
+    invalid = np.zeros((10, 10), dtype=bool)
     assert not isolated_nodes(invalid).any()                 # corners: 3 neighbours, all valid
     invalid[2:7, 2:7] = True
     invalid[4, 4] = False                                    # an island in a rejected block
     invalid[2, 2] = False                  # the block's corner: 5 valid neighbours outside it
     iso = isolated_nodes(invalid)
     assert iso[4, 4] and not iso[2, 2] and iso.sum() == 1
+    edge = np.zeros((6, 6), dtype=bool)
+    edge[3:5, 1:5] = True                  # a rejected band one node above the grid's edge
+    edge[0, 0] = edge[0, 2] = True         # two dropouts on the top edge
+    iso = isolated_nodes(edge)
+    assert iso[5, 2:4].all() and iso.sum() == 2              # the one-node strip below the band
+    assert not iso[0].any()                                  # 3 of 5 neighbours: kept
     x, X, Y, ex = _grid(40)
     u, v = ex["v"][..., 0].copy(), ex["v"][..., 1]
     rejected = (np.abs(X - 0.5) < 0.1) & (np.abs(Y - 0.5) < 0.1)

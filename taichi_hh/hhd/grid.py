@@ -11,7 +11,8 @@ corners.  The domain comes from the valid nodes, not from an alpha shape:
   left out of the operators, which bridge them (a gap of a node or two is
   well inside the kernel support);
 * a valid node with fewer than ``min_neighbours`` valid nodes among its 8
-  neighbours (off the grid counts valid) is left out too: islands and
+  neighbours (on an edge or corner: the same share of its 5 or 3) is left
+  out too: islands and
   one-node strips in a region the instrument mostly rejected are the least
   reliable vectors of a field (measured on an Insight cavity flow whose
   bottom rows lost 80-90% of their vectors: the nodes with the largest
@@ -41,8 +42,8 @@ __all__ = ["decompose_grid", "GridResult", "HOLE_SIZE", "GRID_BOUNDARY_CONDITION
 HOLE_SIZE = 3
 #: the default method's boundary condition on a grid: a window of a larger flow
 GRID_BOUNDARY_CONDITION = "natural"
-#: valid nodes with fewer valid neighbours (of 8; off the grid counts valid)
-#: are left out as isolated
+#: valid nodes with fewer valid neighbours (of 8; the same share of 5 or 3 on
+#: edges and corners) are left out as isolated
 MIN_NEIGHBOURS = 4
 
 
@@ -118,13 +119,20 @@ def cut_out(invalid: np.ndarray, hole_size: int = HOLE_SIZE) -> np.ndarray:
 
 def isolated_nodes(invalid: np.ndarray, min_neighbours: int = MIN_NEIGHBOURS) -> np.ndarray:
     """The valid nodes with fewer than ``min_neighbours`` valid nodes among
-    their 8 neighbours (positions off the grid count as valid: a grid's own
-    edges and corners are not isolation)."""
+    their 8 neighbours, or on the grid's edges and corners (5 and 3
+    neighbours) fewer than the same share of them (4 of 8: 3 of 5, 2 of 3): a
+    full grid's corner is no island, an edge node amid rejected ones is."""
     ny, nx = invalid.shape
-    pad = np.pad(~invalid, 1, constant_values=True)
-    count = sum(pad[1 + dj:1 + dj + ny, 1 + di:1 + di + nx].astype(int)
-                for dj in (-1, 0, 1) for di in (-1, 0, 1) if dj or di)
-    return ~invalid & (count < min_neighbours)
+
+    def neighbours(a):
+        pad = np.pad(a, 1, constant_values=False)
+        return sum(pad[1 + dj:1 + dj + ny, 1 + di:1 + di + nx].astype(int)
+                   for dj in (-1, 0, 1) for di in (-1, 0, 1) if dj or di)
+    valid = neighbours(~invalid)
+    on_grid = neighbours(np.ones_like(invalid))
+    # the same share of the neighbours the node has: 4 of 8, 3 of 5, 2 of 3
+    need = np.ceil(min_neighbours * on_grid / 8.0)
+    return ~invalid & (valid < need)
 
 
 def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE,
