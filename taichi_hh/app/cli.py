@@ -470,7 +470,7 @@ def _cmd_decompose(args) -> int:
             written += decomposition_figures(res, domain, out, critical=critical,
                                              units=args.units)
     s = res.stats
-    mean = {k: float(np.nanmean(np.linalg.norm(a, axis=1))) for k, a in
+    mean = {k: float(np.nanmean(np.hypot(a[:, 0], a[:, 1]))) for k, a in
             (("v", res.vectors), ("d", res.curl_free), ("r", res.div_free),
              ("h", res.harmonic))}
     counts = {}

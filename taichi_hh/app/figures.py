@@ -194,7 +194,7 @@ def _arrow_scale(vectors_list, domain, n_arrows):
     :data:`SCALE_PERCENTILE` th percentile of all panels' lengths spans about
     1.5 sampling cells (longer ones are drawn longer: a spike does not
     shrink every other arrow to a dot)."""
-    top = robust_top(np.concatenate([np.linalg.norm(v, axis=1) for v in vectors_list]))
+    top = robust_top(np.concatenate([np.hypot(v[:, 0], v[:, 1]) for v in vectors_list]))
     cell = math.sqrt(domain.area / max(n_arrows, 1))
     return top / (1.5 * cell) if top > 0 and math.isfinite(top) else 1.0
 
@@ -267,7 +267,7 @@ def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
     X, Y = np.meshgrid(gx, gy)
     outside = ~domain.contains(np.c_[X.ravel(), Y.ravel()]).reshape(X.shape)
     comps = _components(result)
-    mags = {k: np.linalg.norm(v, axis=1) for k, v in comps.items()}
+    mags = {k: np.hypot(v[:, 0], v[:, 1]) for k, v in comps.items()}
     vmax = robust_top(np.concatenate(list(mags.values()))) or 1.0
     fig = _panels_figure(domain)
     axes = fig.subplots(2, 2).ravel()
@@ -277,12 +277,14 @@ def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
         _setup_axes(ax, domain, f"|{name}|, {titles[name]}", units)
         image = ax.tripcolor(tri, mags[name], shading="gouraud", cmap="viridis", vmin=0.0,
                              vmax=vmax, zorder=1)
-        U = LinearTriInterpolator(tri, vec[:, 0])(X, Y)
-        V = LinearTriInterpolator(tri, vec[:, 1])(X, Y)
+        # streamlines need directions only: in units of vmax, nothing squares
+        # a field of 1e200 into overflow inside matplotlib
+        U = LinearTriInterpolator(tri, vec[:, 0] / vmax)(X, Y)
+        V = LinearTriInterpolator(tri, vec[:, 1] / vmax)(X, Y)
         U = np.ma.masked_array(U, mask=np.ma.getmaskarray(U) | outside)
         V = np.ma.masked_array(V, mask=np.ma.getmaskarray(V) | outside)
-        speed = np.ma.sqrt(U * U + V * V)
-        if speed.count() and float(speed.max()) > 1e-12 * vmax:
+        speed = np.ma.masked_array(np.hypot(np.ma.getdata(U), np.ma.getdata(V)), mask=np.ma.getmaskarray(U))
+        if speed.count() and float(speed.max()) > 1e-12:
             ax.streamplot(gx, gy, U, V, density=1.0, color="white", linewidth=0.6,
                           arrowsize=0.7, broken_streamlines=True, zorder=2)
         if name == "d":

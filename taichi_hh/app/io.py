@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import os
 import tempfile
+import warnings
 from contextlib import contextmanager
 
 
@@ -258,8 +259,12 @@ def _read_field_csv_fast(path):
             if "valid" in cells:
                 cols.append(cells.index("valid"))
             skip = header_rows + 1
-        data = np.loadtxt(path, delimiter=",", comments="#", skiprows=skip, usecols=cols,
-                          ndmin=2, encoding="utf-8-sig", quotechar='"')
+        with warnings.catch_warnings():
+            # a file without data rows: the line-by-line reader names that
+            # (numpy would also warn "input contained no data")
+            warnings.simplefilter("ignore", UserWarning)
+            data = np.loadtxt(path, delimiter=",", comments="#", skiprows=skip, usecols=cols,
+                              ndmin=2, encoding="utf-8-sig", quotechar='"')
     except (OSError, ValueError, UnicodeDecodeError):
         return None
     width = 4 if cols is None else len(cols)
@@ -297,7 +302,9 @@ def _read_field_csv_checked(path):
             return None
 
     first_line, first = lines[0]
-    if all(number(c) is not None for c in first):          # no header: x, y, u, v
+    # no header: x, y, u, v (numbers; an empty cell is a missing value, which a
+    # first data row may hold as well as any other)
+    if all(number(c) is not None or c == "" for c in first):
         if len(first) != 4:
             raise InputError(f"{path}, line {first_line}: without a header the file must have "
                              f"exactly 4 columns (x, y, u, v), found {len(first)}; or add a "
@@ -307,9 +314,9 @@ def _read_field_csv_checked(path):
         names = [c.lower() for c in first]
         missing = [c for c in CSV_COLUMNS if c not in names]
         if missing:
+            found = ", ".join(c if c.isprintable() else repr(c) for c in first)
             raise InputError(f"{path}, line {first_line}: header lacks column(s) "
-                             f"{', '.join(missing)}; need x, y, u, v (found: "
-                             f"{', '.join(first)})")
+                             f"{', '.join(missing)}; need x, y, u, v (found: {found})")
         dup = [c for c in CSV_COLUMNS if names.count(c) > 1]
         if dup:
             raise InputError(f"{path}, line {first_line}: column(s) {', '.join(dup)} appear "

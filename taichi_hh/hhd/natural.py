@@ -442,8 +442,9 @@ CUT_SUBSAMPLES = 16
 #: points within this many cells of the boundary take their gradient from a
 #: one-sided fit (:func:`one_sided_gradient`)
 ONE_SIDED_CELLS = 3.0
-#: the fit's stencil: the nodes within this many cells (a square block)
-ONE_SIDED_REACH = 3
+#: the fit's stencil: the nodes of the square block this many cells around the
+#: nearest node, weighted within ONE_SIDED_REACH - 1/2 cells of the point
+ONE_SIDED_REACH = 4
 #: fewer inside nodes than this in the stencil: no fit (the spline's gradient)
 ONE_SIDED_MIN_NODES = 16
 
@@ -478,7 +479,9 @@ def one_sided_gradient(grid: Grid, u: np.ndarray, inside: np.ndarray, points) ->
         jj = np.clip(c[:, 1:] + oj[None], 0, grid.ny - 1)
         node = np.stack([grid.origin[0] + ii * grid.hx, grid.origin[1] + jj * grid.hy], -1)
         d = (node - p[:, None, :]) / h                                     # in cells
-        q = np.hypot(d[..., 0], d[..., 1]) / (1.5 * R)
+        # the weights vanish within R - 1/2 cells: the block around the nearest
+        # node always holds that disc, so the fit moves continuously with p
+        q = np.hypot(d[..., 0], d[..., 1]) / (R - 0.5)
         w = np.where(inside[ii, jj] & (q < 1.0), (1 - q) ** 4 * (1 + 4 * q), 0.0)
         B = np.stack([np.ones_like(q), d[..., 0], d[..., 1], d[..., 0] ** 2,
                       d[..., 0] * d[..., 1], d[..., 1] ** 2], axis=-1)     # (m, K, 6)

@@ -482,7 +482,7 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
     frame = data.frame
     pts, vec, domain = data.unit_points, data.unit_vectors, data.unit_domain
     if wall_velocity is not None:
-        wall_velocity = np.asarray(wall_velocity, dtype=np.float64) / frame.speed
+        wall_velocity = _wall_velocity(wall_velocity, opts) / frame.speed
     say = progress or (lambda stage: None)
     t0 = time.perf_counter()
     # the default's support from the layout: fixed on lattices and blue noise,
@@ -609,6 +609,24 @@ def _check_pass(k, w, vec, max_div, method, scheme, floor=0.0, frame=None):
                          " (use the default scheme)" if scheme != "neumann" else ""),
                       reason="divergence", iteration=k,
                       residual=float(shown[-1]))
+
+
+def _wall_velocity(value, opts) -> np.ndarray:
+    """``wall_velocity`` checked: a finite (2,) velocity (or one number for
+    both components) of Colin's wall particles, which only ``boundary="colin"``
+    has; raises :class:`~taichi_hh.errors.InputError`."""
+    if opts.boundary != "colin":
+        raise InputError("wall_velocity is the velocity of Colin's wall particles: it applies "
+                         f"with method='colin2006' (boundary='colin'), not boundary="
+                         f"{opts.boundary!r}")
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "iuf" or arr.shape not in ((), (2,)):
+        raise InputError(f"wall_velocity must be two real numbers (u, v) or one, got "
+                         f"{value!r}")
+    arr = np.broadcast_to(arr.astype(np.float64), (2,)).copy()
+    if not np.isfinite(arr).all():
+        raise InputError(f"wall_velocity must be finite, got {arr.tolist()}")
+    return arr
 
 
 def _squared_in(values: np.ndarray, unit: float) -> np.ndarray:

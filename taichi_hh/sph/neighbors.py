@@ -232,6 +232,33 @@ def _pair_support2(adaptive: ti.template(), hq: ti.template(), hs: ti.template()
 
 
 @ti.kernel
+def _candidate_pairs(qpos: ti.types.ndarray(), nq: ti.i32, cell_start: ti.types.ndarray(),
+                     lo_x: float, lo_y: float, inv_cell: float, nx: ti.i32,
+                     ny: ti.i32) -> ti.i64:
+    """How many (query, source) candidates the pair passes examine: the sources
+    in the 3 x 3 cells around every query (one cheap pass over the queries)."""
+    total = ti.i64(0)
+    for i in range(nq):
+        x0, x1, y0, y1 = _row_ranges(qpos[i], lo_x, lo_y, inv_cell, nx, ny)
+        k = ti.i64(0)
+        for gy in range(y0, y1 + 1):
+            row = gy * nx
+            k += ti.i64(cell_start[row + x1 + 1] - cell_start[row + x0])
+        total += k
+    return total
+
+
+#: the pair passes examine every source in the 3 x 3 cells around each query;
+#: more candidates than this are refused before the search.  Uniform points
+#: give about 9/pi candidates per pair, so this is far beyond the 2^31 pairs a
+#: pair list holds.  A support much larger than the points' spacing with a
+#: band of fake particles as wide as it (petronetto2010, support_ratio=1e3, 150
+#: points: 2e6 fake particles) once asked for 3e12 candidates: the count pass
+#: ran for hours
+MAX_CANDIDATES = 16 * 2 ** 31
+
+
+@ti.kernel
 def _count_pairs(qpos: ti.types.ndarray(), nq: ti.i32, spos: ti.types.ndarray(),
                  cell_start: ti.types.ndarray(), lo_x: float, lo_y: float, inv_cell: float,
                  nx: ti.i32, ny: ti.i32, support2: float, exclude_self: ti.i32,
@@ -354,6 +381,14 @@ class PairList:
             (hq, hs), adaptive = supports, 1
         args = (s.lo_x, s.lo_y, s.inv_cell, s.nx, s.ny, support * support, int(exclude_self),
                 adaptive, hq, hs)
+        candidates = _candidate_pairs(qpos, nq, grid.cell_start, *s.args())
+        if candidates > MAX_CANDIDATES:
+            raise InputError(
+                f"the kernel support ({support:.3g}) is too large for these points: it holds "
+                f"about {candidates / max(nq, 1):.3g} points around each of the {nq} "
+                f"particles ({candidates:.3g} pairs to examine, more than "
+                f"{MAX_CANDIDATES:.3g}); an SPH operator needs a few tens. Reduce the kernel "
+                "support (support_ratio)")
         self._dup.fill(-1)
         tol2 = duplicate_tolerance ** 2 if duplicate_tolerance > 0 else -1.0
         _count_pairs(qpos, nq, spos, grid.cell_start, *args, self._count, tol2, self._dup)
