@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["check_spread", "check_points", "check_values", "check_real", "check_int", "check_bool",
+__all__ = ["as_real_array", "check_spread", "check_points", "check_values", "check_real", "check_int", "check_bool",
            "check_choice", "check_names", "check_option", "did_you_mean", "OptionSpec",
            "check_seed",
            "positive_float", "nonnegative_float", "positive_int", "nonnegative_int"]
@@ -36,7 +36,7 @@ _NOT_REAL_KINDS = {"c": "complex", "O": "object", "U": "string", "S": "bytes",
                    "V": "record", "M": "datetime", "m": "timedelta"}
 
 
-def _as_float64(data, name: str, what: str) -> np.ndarray:
+def as_real_array(data, name: str, what: str) -> np.ndarray:
     """``data`` as a float64 array, or InputError '{name} must be {what}: ...'.
     Complex, object and string arrays are refused by their dtype, not converted."""
     try:
@@ -61,7 +61,7 @@ def check_points(points, name: str = "points", *, allow_empty: bool = False) -> 
 
     ``allow_empty``: accept N = 0 (queries on no points); by default an empty
     array is refused, since a point set needs at least one point."""
-    arr = _as_float64(points, name, "a numeric (N, 2) array")
+    arr = as_real_array(points, name, "a numeric (N, 2) array")
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise InputError(f"{name} must have shape (N, 2), got {arr.shape}")
     if arr.shape[0] == 0 and not allow_empty:
@@ -76,7 +76,7 @@ def check_points(points, name: str = "points", *, allow_empty: bool = False) -> 
 
 def check_values(values, n: int, ncomp: int, name: str = "values") -> np.ndarray:
     """Validate per-point values: shape (n,) for ncomp = 1 or (n, ncomp); finite."""
-    arr = _as_float64(values, name, "numeric")
+    arr = as_real_array(values, name, "numeric")
     want = (n,) if ncomp == 1 else (n, ncomp)
     if arr.shape != want:
         raise InputError(f"{name} must have shape {want} (one per point), got {arr.shape}")

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..checks import as_real_array
 from ..errors import AccuracyWarning, InputError
 from ..geometry.polygon import Polygon
 from ..geometry.raster import cell_outlines, check_axis
@@ -84,12 +85,7 @@ def _component(values, name: str, shape) -> tuple:
     if np.ma.isMaskedArray(values):
         masked = np.ma.getmaskarray(values)
         values = np.ma.getdata(values)
-    arr = np.asarray(values)
-    if arr.dtype.kind == "c":
-        raise InputError(f"{name} is complex: give the two real components as u and v")
-    if arr.dtype.kind not in "iuf":
-        raise InputError(f"{name} must be a numeric array, got {arr.dtype}")
-    arr = arr.astype(np.float64)
+    arr = as_real_array(values, name, "a numeric (ny, nx) array")
     if arr.shape != shape:
         raise InputError(f"{name} must have shape (ny, nx) = {shape} (y along the rows, x "
                          f"along the columns), got {arr.shape}")

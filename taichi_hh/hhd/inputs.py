@@ -8,6 +8,7 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
+from ..checks import as_real_array
 from ..errors import AccuracyWarning, InputError
 from ..sph.pointset import check_points, check_values
 from .units import Frame
@@ -153,28 +154,15 @@ class Data:
 
 def _real_rows(values, name: str, n: int | None):
     """``(array, masked_rows)``: ``values`` as an (n, 2) float64 array, and the
-    rows a numpy mask hides (None without a mask).  Complex, boolean, object
-    and string arrays are refused: a cast would drop an imaginary part or
-    invent numbers."""
+    rows a numpy mask hides (None without a mask).  Complex, object and string
+    arrays are refused (:func:`~taichi_hh.checks.as_real_array`): a cast would
+    drop an imaginary part or invent numbers."""
     masked = None
     if np.ma.isMaskedArray(values):
         mask = np.ma.getmaskarray(values)
         masked = mask.reshape(mask.shape[0], -1).any(axis=1) if mask.ndim else None
         values = np.ma.getdata(values)
-    arr = np.asarray(values)
-    if arr.dtype.kind == "c":
-        raise InputError(f"{name} are complex: give real (N, 2) arrays (x and y, or u and v, "
-                         "as two columns)")
-    if arr.dtype.kind == "O":           # lists of numbers and None, Decimals, ...
-        try:
-            arr = arr.astype(np.float64)
-        except (TypeError, ValueError):
-            raise InputError(f"{name} must be a numeric (N, 2) array; its entries are not "
-                             "all real numbers") from None
-    elif arr.dtype.kind not in "iuf":
-        raise InputError(f"{name} must be a numeric (N, 2) array, got an array of "
-                         f"{arr.dtype}")
-    arr = arr.astype(np.float64, copy=False)
+    arr = as_real_array(values, name, "a numeric (N, 2) array")
     want = (n, 2) if n is not None else None
     if arr.ndim != 2 or arr.shape[1] != 2 or (want is not None and arr.shape != want):
         expect = f"({n}, 2), one row per point" if n is not None else "(N, 2)"
