@@ -478,7 +478,7 @@ class PoissonMatrix:
             Y[:n, c] = y
         return Y
 
-    def _refined_columns(self, B: np.ndarray, tol: float, kwargs: dict) -> list:
+    def _refined_columns(self, B: np.ndarray, tol: float, kwargs: dict, X0=None) -> list:
         """Mixed-precision iterative refinement for single precision: each sweep
         solves ``A e = r`` in f32 to :data:`REFINEMENT_STEP` and adds ``e`` to
         ``x`` in f64, with ``r = b - A x`` computed in f64 (:meth:`host_apply`),
@@ -487,9 +487,10 @@ class PoissonMatrix:
         :class:`~taichi_hh.errors.SolverError` when a sweep no longer gains."""
         cols = B.shape[1]
         norms = np.linalg.norm(B, axis=0)
-        X = np.zeros_like(B)
-        R = B.copy()
-        rel = np.where(norms > 0, 1.0, 0.0)
+        X = np.zeros_like(B) if X0 is None else np.array(X0, dtype=np.float64)
+        R = B - self.host_apply(X) if X0 is not None else B.copy()
+        rel = np.where(norms > 0, np.linalg.norm(R, axis=0) / np.where(norms > 0, norms, 1),
+                       0.0)
         iterations = np.zeros(cols, dtype=int)
         cap = kwargs.get("max_iterations")
         last = [None] * cols
@@ -578,7 +579,13 @@ class PoissonMatrix:
             b = np.append(b, 0.0)
             if x0 is not None:
                 x0 = np.append(np.asarray(x0, dtype=np.float64), border0)
-        res = solve[method](self, b, x0, tol=tol, **kwargs)
+        if method == "bicgstab" and runtime.state().precision == "f32" \
+                and tol < SINGLE_PRECISION_TOL:
+            # the residual in double precision (solve_columns)
+            res = self._refined_columns(b[:, None], tol, kwargs,
+                                        None if x0 is None else x0[:, None])[0]
+        else:
+            res = solve[method](self, b, x0, tol=tol, **kwargs)
         res.border = float(res.x[-1]) if self.bordered else 0.0
         if self.bordered:
             res.x = res.x[: self.n_particles]
