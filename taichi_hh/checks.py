@@ -33,7 +33,10 @@ __all__ = ["as_real_array", "check_spread", "check_points", "check_values", "che
 #: drop the imaginary part with a mere warning), object, strings, bytes,
 #: records, dates and durations
 _NOT_REAL_KINDS = {"c": "complex", "O": "object", "U": "string", "S": "bytes",
-                   "V": "record", "M": "datetime", "m": "timedelta"}
+                   "V": "record", "M": "datetime", "m": "timedelta",
+                   # True and False are no coordinates or velocities (a mask
+                   # passed where the values belong)
+                   "b": "boolean"}
 
 
 def as_real_array(data, name: str, what: str) -> np.ndarray:
