@@ -35,6 +35,46 @@ class RuntimeState:
 _state = RuntimeState()
 
 
+class FloatingPointEnvironment:
+    """The calling thread's floating-point environment (C's ``fenv_t``: the
+    rounding mode and, on x86-64, the MXCSR's flush-to-zero and
+    denormals-are-zero bits), saved and put back around ``ti.init``.
+
+    Taichi's CPU runtime switches the thread that initialises it to
+    flush-to-zero; numpy runs on that thread, so without this every subnormal
+    in the process became 0 (a field of 1e-300 lost its components below
+    2.2e-308 once mapped back to its units).  Kernels keep Taichi's own mode.
+    Where the C library has no ``fegetenv`` (Windows) nothing is done.
+    """
+
+    def __init__(self):
+        self._lib = None
+        try:
+            import ctypes
+            import ctypes.util
+            name = ctypes.util.find_library("m") or ctypes.util.find_library("c")
+            lib = ctypes.CDLL(name) if name else None
+            if lib is not None and hasattr(lib, "fegetenv") and hasattr(lib, "fesetenv"):
+                self._lib = lib
+                self._saved = ctypes.create_string_buffer(1024)   # > any fenv_t
+        except OSError:
+            self._lib = None
+
+    def save(self) -> None:
+        if self._lib is not None and self._lib.fegetenv(self._saved) != 0:
+            self._lib = None
+
+    def restore(self) -> None:
+        if self._lib is not None:
+            self._lib.fesetenv(self._saved)
+
+
+def subnormals_kept() -> bool:
+    """Whether numpy on this thread keeps subnormal numbers (not flushed to 0)."""
+    tiny = np.array([np.finfo(np.float64).tiny])
+    return bool((tiny / 4.0)[0] != 0.0)
+
+
 def _taichi():
     import taichi as ti  # imported lazily: importing taichi prints a banner
     _free_vector_ndarrays()
@@ -103,6 +143,17 @@ def init(arch: str = "cpu", precision: str = "f64", *, offline_cache_dir: str | 
         if (_state.requested_arch, _state.precision) == (arch, precision):
             return _state
         ti.reset()
+    environment = FloatingPointEnvironment()
+    environment.save()
+    try:
+        _start(ti, arch, precision, offline_cache_dir, threads, debug, verbose, pin_threads)
+    finally:
+        environment.restore()
+    return _state
+
+
+def _start(ti, arch, precision, offline_cache_dir, threads, debug, verbose, pin_threads) -> None:
+    """:func:`init`'s work once the arguments are checked."""
     kwargs = dict(default_fp=ti.f64 if precision == "f64" else ti.f32, default_ip=ti.i32,
                   offline_cache=True, debug=debug, log_level=ti.WARN)
     cache = offline_cache_dir or os.environ.get("TAICHI_HH_CACHE")
@@ -137,7 +188,6 @@ def init(arch: str = "cpu", precision: str = "f64", *, offline_cache_dir: str | 
     _state.requested_arch = arch
     _state.precision = precision
     _state.generation += 1
-    return _state
 
 
 def _thread_runtimes() -> dict:

@@ -128,3 +128,22 @@ def test_single_precision_in_any_units(trig_points):
             assert row["spread"] <= 1e-4, (condition, row)      # any units, to f32 rounding
             assert row["err_d"] <= err_d + 1e-4, (condition, row, err_d)
             assert row["err_r"] <= err_r + 1e-4, (condition, row, err_r)
+
+
+def test_subnormal_components_survive(trig_points):
+    """Taichi's ti.init switches its thread to flush-to-zero; the runtime puts
+    the caller's floating-point environment back, so numpy on this thread keeps
+    subnormals and a field of 2**-1020 keeps its components down to 1e-8 of
+    the largest (below 2.2e-308 there), not zeros."""
+    from taichi_hh import runtime
+    runtime.ensure_init()
+    assert runtime.subnormals_kept()
+    assert (np.array([1e-310]) * 1.0)[0] == 1e-310
+    pts, exact = trig_points
+    ref = thh.decompose(pts, exact.v, (0, 0, 1, 1))
+    magnitude = 2.0 ** -1020
+    res = thh.decompose(pts, exact.v * magnitude, (0, 0, 1, 1))
+    for got, want in ((res.curl_free, ref.curl_free), (res.div_free, ref.div_free)):
+        small = (np.abs(want) > 1e-8 * np.abs(want).max()) & (np.abs(want * magnitude) < 2.2e-308)
+        assert small.any()
+        assert np.allclose(got[small] / magnitude, want[small], rtol=1e-6, atol=0)
