@@ -124,3 +124,86 @@ def test_cubic_gradient_is_exact_on_cubics(sampling):
     np.testing.assert_allclose(g, np.c_[gx, gy], atol=1e-8)
     # and the quadratic fit is not (the test could fail)
     assert np.abs(ps.gradient(f, "quadratic") - np.c_[gx, gy]).max() > 1e-4
+
+
+# --------------------------------------------------------------------------- ties on lattices
+def _lattice(m=16):
+    g = np.arange(m) / (m - 1.0)
+    return np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+
+
+def test_nearest_weights_are_continuous_at_rank_ties():
+    """A target midway between lattice points has its m-th and (m+1)-th
+    nearest equally far: the plain mean over the m nearest jumps with the
+    rounding of a 1e-16 move, the tapered mean of nearest_weights does not."""
+    from taichi_hh.sph.knn import KNearest
+    src = _lattice(8)
+    values = np.random.default_rng(0).random(len(src))
+    search = KNearest(src)
+    step = 1 / 7
+    # half a step outside the lattice's edge (as boundary samples are), midway
+    # between two columns: the 3rd to 6th nearest are equally far (sqrt(2.5) steps)
+    tg = np.c_[(np.arange(6) + 0.5) * step, np.full(6, -0.5 * step)]
+    rng = np.random.default_rng(1)
+    plain, tapered = [], []
+    for _ in range(8):
+        moved = tg + rng.uniform(-4e-16, 4e-16, tg.shape)
+        idx = search.query(moved, 4)[1]
+        plain.append(values[idx].mean(axis=1))
+        near, w = search.nearest_weights(moved, 4)
+        assert near.shape == w.shape == (len(tg), 4)
+        np.testing.assert_allclose(w.sum(axis=1), 1.0, rtol=1e-15)
+        tapered.append((w * values[near]).sum(axis=1))
+    assert np.ptp(plain, axis=0).max() > 1e-3          # the tie is real
+    assert np.ptp(tapered, axis=0).max() < 1e-12
+
+
+def test_nearest_weights_are_the_plain_mean_away_from_ties():
+    from taichi_hh.sph.knn import KNearest
+    rng = np.random.default_rng(2)
+    src, tg = rng.random((400, 2)), rng.random((300, 2))
+    search = KNearest(src)
+    d, idx = search.query(tg, 5)
+    clear = d[:, 3] < 0.95 * d[:, 4]
+    assert clear.sum() > 100
+    near, w = search.nearest_weights(tg, 4)
+    assert np.array_equal(near, idx[:, :4])
+    np.testing.assert_allclose(w[clear], 0.25, rtol=1e-15)
+    assert (w >= 0).all() and (w[:, 0] > 0).all()
+    # as many as the sources or more: all of them, equally
+    near, w = KNearest(src[:3]).nearest_weights(tg[:5], 4)
+    assert near.shape == (5, 3) and np.allclose(w, 1 / 3)
+
+
+def _lattice_case(domain):
+    pts = _lattice(16)
+    x, y = pts[:, 0], pts[:, 1]
+    vec = np.c_[np.sin(2 * x) * np.cos(y) + y * y, x * y - np.cos(3 * x) * np.sin(2 * y)]
+    if domain == "margin":          # the fuzz suite's box_margin: 5% of the extent
+        domain = (-0.05, -0.05, 1.05, 1.05)
+    return pts, vec, domain
+
+
+# needs the tapered mean in hhd/boundary.py's data_spacing and the fine-step
+# count's slack in geometry/sampling.py (the "adaptive-lattice" bug): remove
+# the mark with them
+@pytest.mark.xfail(strict=True, reason="adaptive-lattice: hhd/boundary.py and "
+                   "geometry/sampling.py not changed yet")
+@pytest.mark.parametrize("domain, condition, tol", [("margin", "normal-parallel", 1e-9),
+                                                    (None, "neumann", 1e-7)])
+def test_lattice_decomposition_is_continuous_with_adaptive_support(domain, condition, tol):
+    """A 16 x 16 lattice moved by 4e-16: the boundary samples at the data's
+    local spacing moved by 7e-4 (the spacing averaged over a boundary point's
+    4 nearest data points, its 4th and 5th tied), and r and d by 7e-5 of the
+    field; in the points' bounding box, where also the sampler's fine-step
+    count is 64 +- rounding, the samples numbered 36 or 35.  Now they move
+    by what the solver's tolerance allows."""
+    import taichi_hh as thh
+    pts, vec, dom = _lattice_case(domain)
+    ref = thh.decompose(pts, vec, dom, boundary_condition=condition, adaptive_support=True)
+    moved = pts + np.random.default_rng(0).uniform(-4e-16, 4e-16, pts.shape)
+    got = thh.decompose(moved, vec, dom, boundary_condition=condition, adaptive_support=True)
+    assert ref.stats["n_boundary"] == got.stats["n_boundary"]
+    scale = np.abs(vec).max()
+    for a, b in ((ref.div_free, got.div_free), (ref.curl_free, got.curl_free)):
+        assert np.abs(a - b).max() / scale < tol

@@ -28,6 +28,9 @@ POINTS_PER_CELL = 2.0
 #: the stopping radius is shrunk by this relative slack: a point placed a
 #: rounding error into the wrong cell can never be missed
 _SLACK = 1.0 - 1e-9
+#: :meth:`KNearest.nearest_weights`: a neighbour's weight falls from 1 to 0
+#: over this fraction of the distance to the first neighbour left out
+NEAREST_TAPER = 0.05
 
 
 @ti.kernel
@@ -160,6 +163,40 @@ class KNearest:
         _k_nearest(k, nq, qpos, qorder, self.pos, self.order, self.start, s.lo_x, s.lo_y, s.inv_cell,
                    s.cell_size, s.nx, s.ny, dist, idx, False)
         return dist.to_numpy(), idx.to_numpy().astype(np.int64)
+
+    def nearest_weights(self, targets, m: int,
+                        taper: float = NEAREST_TAPER) -> tuple[np.ndarray, np.ndarray]:
+        """(indices, weights), each (len(targets), m): every target's ``m``
+        nearest sources and weights summing to 1 that make ``(weights *
+        values[indices]).sum(axis=1)`` a mean of per-source values over the m
+        nearest which is continuous in the targets and the sources.
+
+        The plain mean over the m nearest is not: where the m-th and the
+        (m+1)-th nearest are equally far (a target midway between two points
+        of a lattice), rounding picks which one enters the mean, and the mean
+        jumps by the difference of their values / m under a move of one ulp.
+        Here a neighbour's weight is 1 up to ``(1 - taper)`` times the
+        distance ``R`` of the (m+1)-th nearest (the first left out) and falls
+        linearly to 0 at ``R``: two neighbours tied at a rank have the same
+        weight (whichever order the search returns them in), and the one that
+        leaves the m nearest has weight 0 as it goes.  The taper is narrowed
+        to ``R - d_1`` where the nearest is within it, so that it keeps weight
+        1; only where all m + 1 nearest are equally far (the search then
+        leaves out an arbitrary one of them) is the weight 1 for all m.  With
+        ``m`` at least the number of sources: all of them, equal weights."""
+        tg = np.ascontiguousarray(targets, dtype=np.float64).reshape(-1, 2)
+        if not 1 <= m <= MAX_K - 1:
+            raise InputError(f"nearest weights: m must be 1..{MAX_K - 1}, got {m}")
+        if m >= self.n:
+            idx = np.broadcast_to(np.arange(self.n), (len(tg), self.n)).copy()
+            return idx, np.full(idx.shape, 1.0 / self.n)
+        d, idx = self.query(tg, m + 1)
+        far = d[:, m:]                                  # the first left out
+        width = np.minimum(taper * far, far - d[:, :1])
+        w = np.ones((len(tg), m))
+        ok = width[:, 0] > 0
+        w[ok] = np.clip((far[ok] - d[ok, :m]) / width[ok], 0.0, 1.0)
+        return idx[:, :m], w / w.sum(axis=1, keepdims=True)
 
     def kth_distance_among(self, k: int) -> np.ndarray:
         """Distance from every source point to its k-th nearest other source
