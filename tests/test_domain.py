@@ -243,6 +243,47 @@ def test_closest_wall_is_nan_only_where_a_corner_is_closest():
     np.testing.assert_allclose((n * p).sum(axis=1) / 0.97, 1.0, atol=1e-3)
 
 
+
+def test_closest_wall_on_a_corner_bisector_is_the_corner_whatever_the_rounding():
+    """A point equally far from two adjacent walls (on the bisector of
+    their corner; the hull's vertices' data points are, by construction) gets
+    the corner and its averaged normal, the same when it moves by a few ulps:
+    the search's choice between the two walls was rounding's (the positive
+    rows' wall term, and d and r with it, jumped by up to 10%)."""
+    from taichi_hh.geometry.from_points import convex_hull, domain_from_points
+    b = Box((0, 0), (1, 1))
+    on = np.array([[0.1, 0.1], [0.7, 0.3]])           # the corners (0, 0) and (1, 0)
+    corner_normals = np.array([[-1.0, -1.0], [1.0, -1.0]]) * 2 ** -0.5
+    for p in (on, np.nextafter(on, 1.0), np.nextafter(on, 0.0), on * (1 + 2e-16)):
+        dist, n = b.closest_wall(p)
+        np.testing.assert_allclose(dist, [0.1 * 2 ** 0.5, 0.3 * 2 ** 0.5], rtol=1e-14)
+        np.testing.assert_allclose(n, corner_normals, atol=1e-15)
+        # closest_boundary reports the averaged normal there too
+        np.testing.assert_allclose(b.closest_boundary(p)[2], corner_normals, atol=1e-15)
+    # off the bisector (by more than the tie tolerance) a single wall, as before
+    dist, n = b.closest_wall([[0.1, 0.1 + 1e-6], [0.02, 0.5]])
+    np.testing.assert_allclose(dist, [0.1, 0.02], rtol=1e-12)
+    np.testing.assert_allclose(n, [[-1, 0], [-1, 0]], atol=1e-15)
+    # the hull of random points, moved out along its vertices' bisectors: each
+    # vertex's data point gets that corner, the same for points moved by ulps
+    rng = np.random.default_rng(5)
+    pts = rng.random((300, 2))
+    answers = []
+    for p in (pts, np.nextafter(pts, 2.0), pts * (1 + 2e-16),
+              pts + rng.uniform(-2.2e-16, 2.2e-16, pts.shape)):
+        dom = domain_from_points(p, "hull")
+        hull = convex_hull(p)
+        dist, n = dom.closest_wall(hull)
+        near = np.linalg.norm(dom.outer[:, None] - hull[None], axis=2).argmin(axis=0)
+        np.testing.assert_allclose(dist, np.linalg.norm(dom.outer[near] - hull, axis=1),
+                                   rtol=1e-9)
+        np.testing.assert_allclose(n, dom.segment_table.vertex_normal_start[near], atol=1e-12)
+        answers.append((dist, n))
+    for dist, n in answers[1:]:
+        np.testing.assert_allclose(dist, answers[0][0], rtol=1e-12)
+        np.testing.assert_allclose(n, answers[0][1], atol=1e-12)
+
+
 # ---- boundary samples -----------------------------------------------------------------
 def test_sample_boundary_follows_a_local_spacing():
     # spacing 0.01 at x = 0 rising to 0.05 at x = 2: gaps follow it to within 3%

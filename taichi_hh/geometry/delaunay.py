@@ -20,7 +20,7 @@ import taichi as ti
 
 from .. import runtime
 
-__all__ = ["sweep_hull", "valid_triangulation"]
+__all__ = ["sweep_hull", "valid_triangulation", "convex_loop"]
 
 #: the legalisation's stack of edges still to check (Delaunator's size: only
 #: extremely degenerate input reaches it, and then flips are left undone)
@@ -365,22 +365,57 @@ def sweep_hull(points: np.ndarray):
     # counter-clockwise (w0, w1, w2) = (v0, v2, v1): its edges (w0, w1), (w1, w2),
     # (w2, w0) are the sweep's halfedges 2, 1, 0 of the triangle, reversed
     tri = tri[:, [0, 2, 1]]
-    if not valid_triangulation(pts, tri, hull):
-        return None
     twin = half[:, [2, 1, 0]]
+    on_hull = twin == -1
+    boundary = np.stack([tri[on_hull], tri[:, [1, 2, 0]][on_hull]], axis=1)
+    if not valid_triangulation(pts, tri, hull, boundary):
+        return None
     across = np.where(twin >= 0, twin // 3, -1).T.ravel()
     return tri, across
 
 
-def valid_triangulation(points: np.ndarray, tri: np.ndarray, hull: int) -> bool:
+def valid_triangulation(points: np.ndarray, tri: np.ndarray, hull: int, boundary=None) -> bool:
     """Whether ``tri`` with ``hull`` edges on the convex hull is a triangulation
     of all of ``points``: every point a vertex, every triangle counter-clockwise
     with positive area, and Euler's count of triangles, 2 N - 2 - hull (a fold
     or an overlap, which floating-point predicates can make on degenerate
-    input, breaks one of them)."""
+    input, breaks one of them).  ``boundary``: optionally the (H, 2) directed
+    hull edges (interior on their left), which must then go once around a
+    convex loop (:func:`convex_loop`): on an L-shaped lattice, whose hull edges
+    run through collinear points, the sweep once folded its hull in two and
+    kept Euler's count."""
     n = len(points)
     if len(tri) == 0 or np.bincount(tri.ravel(), minlength=n).min() == 0:
         return False
     a, b, c = (points[tri[:, k]] for k in range(3))
     cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    return bool(np.all(cross > 0)) and len(tri) == 2 * n - 2 - hull
+    if not (bool(np.all(cross > 0)) and len(tri) == 2 * n - 2 - hull):
+        return False
+    return boundary is None or convex_loop(points, np.asarray(boundary))
+
+
+#: a hull vertex may turn right by this much (radians: rounding on nearly
+#: collinear hull points), and the hull's turns must add up to 2 pi within
+#: HULL_TURN_TOL * 1e3
+HULL_TURN_TOL = 1e-9
+
+
+def convex_loop(points: np.ndarray, edges: np.ndarray) -> bool:
+    """Whether the directed ``edges`` ((H, 2) vertex indices) form one loop
+    that turns left or goes straight at every vertex (to within
+    :data:`HULL_TURN_TOL`) and goes once around: a convex polygon, which
+    positively oriented triangles bounded by it cover exactly once (a folded
+    hull turns twice around, or right somewhere)."""
+    n = len(points)
+    if len(edges) < 3 or np.bincount(edges[:, 0], minlength=n).max() > 1:
+        return False
+    out = np.full(n, -1)
+    out[edges[:, 0]] = np.arange(len(edges))
+    nxt = out[edges[:, 1]]
+    if (nxt < 0).any():
+        return False
+    d = points[edges[:, 1]] - points[edges[:, 0]]
+    e = d[nxt]
+    turn = np.arctan2(d[:, 0] * e[:, 1] - d[:, 1] * e[:, 0], (d * e).sum(axis=1))
+    return bool(turn.min() >= -HULL_TURN_TOL
+                and abs(turn.sum() - 2.0 * math.pi) <= 1e3 * HULL_TURN_TOL)

@@ -32,6 +32,19 @@ MARGIN = 0.25
 #: notches of the alpha shape's boundary shallower than this many local spacings
 #: are filled (the boundary zigzags between the outermost data points otherwise)
 NOTCH_DEPTH = 1.0
+#: the alpha shape's tolerance for degenerate geometry, relative: lattices (PIV
+#: grids) are degenerate everywhere, each square's four corners on one circle
+#: and each side's points on one line, and there rounding alone (moves of
+#: 1e-16, or the 1.5e-6 spacings of a 1/3 spacing written with 6 decimals)
+#: decided which diagonal each square got, which sliver triangles lay along the
+#: rim, which rim points turned in, and with them the local spacings, the
+#: margin (0.25 or 0.37 spacings), the vertices (36 or 8) and the area (+-4%).
+#: Within it two triangles across an edge count as cocircular (their far
+#: angles sum to pi, radians), a triangle as flat (twice its area against its
+#: longest edge squared), a boundary vertex as straight (its depth below its
+#: neighbours' chord, in local spacings), and a circumradius or a hole's area
+#: as on its threshold (relative; such ties are decided the same way always)
+DEGENERATE_TOL = 1e-4
 # the refusal of point sets that span no area lives with the other input
 # checks (every layer runs it); re-exported here, where it was first written
 from ..checks import LINE_ROWS, NEEDS_AREA as _NEEDS_AREA, check_spread  # noqa: E402,F401
@@ -125,18 +138,84 @@ def _circumradii(pts: np.ndarray, tri: np.ndarray) -> np.ndarray:
         return np.where(area2 > 0, la * lb * lc / (2.0 * np.maximum(area2, 1e-300)), np.inf)
 
 
-def _local_spacing(n: int, pts: np.ndarray, edges: np.ndarray, across: np.ndarray) -> np.ndarray:
-    """Per point, the median length of its Delaunay edges (robust to the few
-    long edges a point on the rim of a gap has across it), averaged with its
-    neighbours'."""
-    once = edges[(across < 0) | (edges[:, 0] < edges[:, 1])]
-    length = np.hypot(*(pts[once[:, 0]] - pts[once[:, 1]]).T)
-    vertex = once.T.ravel()
+def _firm_edges(pts: np.ndarray, tri: np.ndarray, edges: np.ndarray, across: np.ndarray):
+    """``(firm, cocircular)``, two (3T,) bool arrays over the directed ``edges``
+    (edge e of triangle e % T).  ``cocircular``: the two triangles across the
+    edge have one circumcircle (within :data:`DEGENERATE_TOL`; a lattice
+    square's diagonal: which of the two the triangulation takes is a rounding
+    decision, its far angles sum to pi).  ``firm``: an edge every Delaunay
+    triangulation of the points, moved by rounding, has, and that a triangle
+    with area has: neither cocircular nor an edge of flat triangles only (the
+    slivers that rounding lays along a row of collinear rim points, whose long
+    edges span several spacings).  Both directions of an edge agree."""
+    t = len(tri)
+    a, b, c = (pts[tri[:, k]] for k in range(3))
+    ab, bc, ca = b - a, c - b, a - c
+    area2 = np.abs(ab[:, 0] * bc[:, 1] - ab[:, 1] * bc[:, 0])
+    # the angle at each edge's far vertex (edge k of a triangle: vertices k, k + 1)
+    angle = np.concatenate([np.arctan2(area2, -(ca * bc).sum(axis=1)),      # at c
+                            np.arctan2(area2, -(ab * ca).sum(axis=1)),      # at a
+                            np.arctan2(area2, -(bc * ab).sum(axis=1))])     # at b
+    longest2 = np.maximum.reduce([(ab ** 2).sum(axis=1), (bc ** 2).sum(axis=1),
+                                  (ca ** 2).sum(axis=1)])
+    flat = area2 <= DEGENERATE_TOL * longest2
+    owner = np.arange(3 * t) % t
+    inner = across >= 0
+    other = np.where(inner, across, 0)
+    # the same edge seen from the triangle across, where the edge's end is its start
+    end = edges[:, 1]
+    k_other = np.where(tri[other, 0] == end, 0, np.where(tri[other, 1] == end, 1, 2))
+    twin = k_other * t + other
+    cocircular = inner & (np.abs(angle + angle[twin] - np.pi) <= DEGENERATE_TOL)
+    with_area = ~flat[owner] | (inner & ~flat[other])
+    return ~cocircular & with_area, cocircular
+
+
+def _cocircular_groups(t: int, across: np.ndarray, cocircular: np.ndarray):
+    """``(group, count)``: the (T,) group id (0 .. count - 1) of every triangle,
+    triangles joined across ``cocircular`` edges sharing one: the Delaunay
+    triangles of points on one empty circle (a lattice square's two, or a
+    polygon of lattice points around a gap).  Their union is the same
+    whichever way the triangulation splits it, so the alpha shape keeps or
+    leaves out a group as a whole."""
+    label = np.arange(t)
+    e = np.flatnonzero(cocircular)
+    a, b = e % t, across[e]
+    while e.size:
+        before = label
+        label = label.copy()
+        np.minimum.at(label, a, label[b])
+        label = label[label]                  # a smaller id of the same group
+        if np.array_equal(label, before):
+            break
+    # each group labelled by its smallest triangle, which labels itself
+    root = label == np.arange(t)
+    return (np.cumsum(root) - 1)[label], int(root.sum())
+
+
+def _local_spacing(n: int, pts: np.ndarray, edges: np.ndarray, across: np.ndarray,
+                   firm: np.ndarray) -> np.ndarray:
+    """Per point, the median length of its firm Delaunay edges (robust to the
+    few long edges a point on the rim of a gap has across it; ``firm``, from
+    :func:`_firm_edges`: the edges no rounding makes or unmakes), averaged with
+    its firm neighbours'.  A point without firm edges (none on lattices and in
+    general position) takes all its edges."""
+    once = (across < 0) | (edges[:, 0] < edges[:, 1])
+    pick = edges[once & firm]
+    vertex = pick.T.ravel()
+    length = np.hypot(*(pts[pick[:, 0]] - pts[pick[:, 1]]).T)
     median = _median_by(n, np.concatenate([length, length]), vertex)
     count = np.bincount(vertex, minlength=n)
-    # averaged over the point and its Delaunay neighbours: a few close pairs in
+    bare = count == 0
+    if bare.any():
+        every = edges[once]
+        every = every[bare[every].any(axis=1)]
+        owner = every.T.ravel()
+        length = np.hypot(*(pts[every[:, 0]] - pts[every[:, 1]]).T)
+        median[bare] = _median_by(n, np.concatenate([length, length]), owner)[bare]
+    # averaged over the point and its firm neighbours: a few close pairs in
     # random data would otherwise read as a small spacing
-    total = median + np.bincount(vertex, weights=median[np.roll(vertex, len(once))], minlength=n)
+    total = median + np.bincount(vertex, weights=median[np.roll(vertex, len(pick))], minlength=n)
     return total / (1 + count)
 
 
@@ -188,7 +267,9 @@ def _fill_notches(ring: np.ndarray, pts: np.ndarray, spacing: np.ndarray,
             - (p[:, 1] - prev[:, 1]) * (nxt[:, 0] - prev[:, 0])
         chord = np.hypot(*(nxt - prev).T)
         below = -cross / np.maximum(chord, 1e-300)      # > 0: v is right of prev -> next
-        reflex = below > 0
+        # a straight vertex (a lattice's rim point: on its neighbours' chord but
+        # for rounding) is no notch, nor part of a zigzag
+        reflex = below > DEGENERATE_TOL * spacing[ring]
         zigzag = ~np.roll(reflex, 1) | ~np.roll(reflex, -1)
         drop = reflex & zigzag & (below < depth * spacing[ring])
         drop &= ~np.roll(drop, 1)                         # no two neighbours in one pass
@@ -238,7 +319,12 @@ def alpha_shape(points, alpha: float = ALPHA, margin: float = MARGIN):
     times the local spacing (the median over its vertices of their median
     Delaunay edge lengths),
     after Edelsbrunner, Kirkpatrick & Seidel (1983) with a spacing that follows
-    the data's density.  A triangle's circumcircle holds no point (the
+    the data's density.  Degenerate input (a lattice: cocircular squares,
+    collinear rows) gives the same shape whichever way rounding breaks its
+    ties (:data:`DEGENERATE_TOL`): the spacing leaves out the edges a
+    triangulation may or may not have (cocircular diagonals, slivers along
+    collinear rims), cocircular triangles are kept or left out together, and
+    straight boundary vertices are no notches.  A triangle's circumcircle holds no point (the
     Delaunay property), so a large circumradius is a gap in the data: the
     shape follows concave outlines and leaves out interior gaps (as holes).
 
@@ -262,12 +348,33 @@ def alpha_shape(points, alpha: float = ALPHA, margin: float = MARGIN):
     # the directed edges of every triangle (edge e of triangle e % T)
     edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     radius = _circumradii(pts, tri)
-    spacing = _local_spacing(n, pts, edges, across)
-    keep = radius < alpha * np.median(spacing[tri], axis=1)
+    firm, cocircular = _firm_edges(pts, tri, edges, across)
+    spacing = _local_spacing(n, pts, edges, across, firm)
+    # each group of cocircular triangles decided as one (for points in general
+    # position a group is one triangle): its radius against the median spacing
+    # of its vertices
+    group, n_groups = _cocircular_groups(t, across, cocircular)
+    group_radius = np.zeros(n_groups)
+    np.maximum.at(group_radius, group, radius)
+    # (group, vertex) pairs: a lone triangle's three vertices, a larger group's
+    # distinct ones
+    alone = np.bincount(group, minlength=n_groups)[group] == 1
+    shared = np.unique(np.repeat(group[~alone], 3) * n + tri[~alone].ravel())
+    member_group = np.concatenate([np.repeat(group[alone], 3), shared // n])
+    member_vertex = np.concatenate([tri[alone].ravel(), shared % n])
+    group_spacing = np.empty(n_groups)
+    group_spacing[group[alone]] = np.median(spacing[tri[alone]], axis=1)
+    if shared.size:
+        larger = np.unique(shared // n)
+        group_spacing[larger] = _median_by(n_groups, spacing[shared % n], shared // n)[larger]
+    # a circumradius on the threshold (a lattice's triangles have radii like
+    # 3 spacings exactly) is kept, however rounding leaves it
+    group_kept = group_radius < alpha * group_spacing * (1.0 + DEGENERATE_TOL)
     owner = np.arange(3 * t) % t
     by_vertex = first = None            # triangles around each vertex, when a pinch needs them
 
     def boundary():
+        keep = group_kept[group]
         return keep[owner] & ((across < 0) | ~keep[np.maximum(across, 0)])
 
     for _ in range(t):
@@ -279,10 +386,14 @@ def alpha_shape(points, alpha: float = ALPHA, margin: float = MARGIN):
             by_vertex = np.argsort(tri.ravel()) // 3
             first = np.concatenate([[0], np.cumsum(np.bincount(tri.ravel(), minlength=n))])
         for v in pinches:
-            around = by_vertex[first[v]:first[v + 1]]
-            left_out = around[~keep[around]]
+            around = group[by_vertex[first[v]:first[v + 1]]]
+            left_out = around[~group_kept[around]]
             if left_out.size:
-                keep[left_out[np.argmin(radius[left_out])]] = True
+                # the smallest, and any as small (of one radius on a lattice:
+                # which comes first is the triangulation's order)
+                small = group_radius[left_out]
+                group_kept[left_out[small <= small.min() * (1.0 + DEGENERATE_TOL)]] = True
+    keep = group_kept[group]
     covered = np.zeros(n, dtype=bool)
     covered[tri[keep].ravel()] = True
     if not covered.all():
@@ -301,13 +412,15 @@ def alpha_shape(points, alpha: float = ALPHA, margin: float = MARGIN):
             "domain='hull'")
     outer = int(np.argmax(areas))
     holes = [r for k, r in enumerate(rings)
-             if k != outer and -areas[k] >= (alpha * spacing[r].mean()) ** 2]
+             if k != outer
+             and -areas[k] >= (alpha * spacing[r].mean()) ** 2 * (1.0 - DEGENERATE_TOL)]
     chosen = [rings[outer]] + holes
     # the margin by the spacing of the triangles kept around each vertex (the
     # spacing that decided them): a rim point's own edges run across the gap
-    kept = np.flatnonzero(keep)
-    inside = _median_by(n, np.repeat(np.median(spacing[tri[kept]], axis=1), 3),
-                        tri[kept].ravel())
+    # (each group kept around a vertex counted once, however many of its
+    # triangles the vertex has)
+    kept = group_kept[member_group]
+    inside = _median_by(n, group_spacing[member_group[kept]], member_vertex[kept])
     return _moved_out([pts[r] for r in chosen], [margin * inside[r] for r in chosen],
                       lambda rs: Polygon(rs[0], rs[1:]))
 

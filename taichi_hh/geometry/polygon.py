@@ -37,12 +37,22 @@ from .locator import Locator
 from .rings import check_holes_placed, check_no_crossing, check_ring, orient_rings, ring_area
 from .segments import Segments
 
-__all__ = ["Polygon", "BOUNDARY_RTOL", "BOUNDARY_ATOL_COORD"]
+__all__ = ["Polygon", "BOUNDARY_RTOL", "BOUNDARY_ATOL_COORD", "WALL_TIE_RTOL"]
 
 #: points within BOUNDARY_RTOL * diameter + BOUNDARY_ATOL_COORD * max|coordinate|
 #: of the boundary are "on" it
 BOUNDARY_RTOL = 1e-12
 BOUNDARY_ATOL_COORD = 1e-14
+#: a point is equally close to two adjacent walls (on the bisector of their
+#: corner) when its distances to them differ by less than WALL_TIE_RTOL *
+#: diameter + 100 * BOUNDARY_ATOL_COORD * max|coordinate|.  Such points are
+#: made, not met by chance: the hull's data points at its vertices lie on the
+#: bisectors (the ring is moved out along them), a lattice's corner point in a
+#: box with equal margins too; which wall the closest-segment search reports
+#: for them is a rounding decision, so the tie is resolved by a rule that is
+#: not (a band of 1e-9 diameters is far wider than any rounding of the
+#: coordinates and far narrower than anything a spacing resolves)
+WALL_TIE_RTOL = 1e-9
 
 
 class Polygon:
@@ -62,7 +72,7 @@ class Polygon:
     """
 
     __slots__ = ("_rings", "_segments", "_area", "_perimeter", "_lo", "_hi", "_scale", "_eps",
-                 "_cache")
+                 "_tie", "_cache")
 
     def __init__(self, outer, holes=()):
         rings = [check_ring(outer, "outer")]
@@ -97,6 +107,8 @@ class Polygon:
         set_(self, "_hi", (float(hi[0]), float(hi[1])))
         set_(self, "_scale", scale)
         set_(self, "_eps", BOUNDARY_RTOL * diam + BOUNDARY_ATOL_COORD * float(np.abs(starts).max()))
+        set_(self, "_tie", WALL_TIE_RTOL * diam
+             + 100.0 * BOUNDARY_ATOL_COORD * float(np.abs(starts).max()))
         set_(self, "_cache", {})
 
     @classmethod
@@ -222,11 +234,54 @@ class Polygon:
         ``normal`` (N, 2) the outward unit normal there (the segment's, or the
         normalised average of the two adjacent segment normals when the closest
         point is a vertex); ``segment`` (N,) index into :meth:`segments` (at a
-        vertex either adjacent segment may be reported)."""
+        vertex either adjacent segment may be reported).  A point equally close to two
+        adjacent segments (on the bisector of their corner, within
+        :data:`WALL_TIE_RTOL`) gets their corner's averaged normal too, whichever
+        of the two the search reports with its closest point: the choice between
+        the two walls' normals would otherwise be made by rounding."""
         p = check_points(points, allow_empty=True)
         seg = self.locator().closest_segments(p)
         dist, q, n, _ = self._segments.features(p, seg)
+        tied, _, corner_normal = self._tied_corners(p, dist, seg)
+        n[tied] = corner_normal[tied]
         return dist, q, n, seg
+
+    def _tied_corners(self, p: np.ndarray, dist: np.ndarray, seg: np.ndarray):
+        """``(tied, corner, corner_normal)``: which points (N,) are as close (within
+        the tie tolerance) to their closest segment ``seg`` (at distance ``dist``)
+        as to one of its two neighbours in the ring, the closest points on both
+        inside the segments (on the shared vertex there is no choice to make), and
+        that shared vertex (N, 2) and its averaged outward normal (N, 2).  A point
+        tied with both neighbours (the incentre of a triangle) is left untied: no
+        one corner is closest there."""
+        segs = self._segments
+        n = len(p)
+        if n == 0:
+            return np.zeros(0, dtype=bool), np.zeros((0, 2)), np.zeros((0, 2))
+        piece = segs.piece[seg]
+        first = segs.ring_start[piece]
+        count = segs.ring_start[piece + 1] - first
+        px, py = np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1])
+        col = segs.columns
+
+        def within(s):
+            # the closest point strictly inside segment s (not at an end)
+            t = ((px - col["sx"][s]) * col["dx"][s] + (py - col["sy"][s]) * col["dy"][s]) \
+                * col["inv"][s]
+            return (t > 0.0) & (t < 1.0)
+
+        def tie(s):
+            return within(s) & (np.abs(np.sqrt(segs.pair_distance2(px, py, s)) - dist)
+                                <= self._tie)
+
+        inside = within(seg)
+        tie_prev = inside & tie(first + (seg - first - 1) % count)
+        tie_next = inside & tie(first + (seg - first + 1) % count)
+        tied = tie_prev != tie_next
+        at_start = tie_prev[:, None]
+        corner = np.where(at_start, segs.starts[seg], segs.ends[seg])
+        normal = np.where(at_start, segs.vertex_normal_start[seg], segs.vertex_normal_end[seg])
+        return tied, corner, normal
 
     def closest_wall(self, points, parallel: float = 0.999):
         """``(distance, normal)``: for every point, the distance (N,) to the one
@@ -234,11 +289,28 @@ class Polygon:
         where the closest boundary point is a corner, the direction to it more
         than ``acos(parallel)`` off the vertex normal, so that no single wall's
         boundary condition describes the solution between the point and the
-        boundary (vertices of a finely segmented curve pass)."""
+        boundary (vertices of a finely segmented curve pass).
+
+        A point equally close to two adjacent walls (on the bisector of their corner,
+        within :data:`WALL_TIE_RTOL`: e.g. the data point at each vertex of
+        ``domain="hull"``, whose ring is moved out along the bisectors) gets the
+        corner itself: the distance to the vertex and the vertex normal (the
+        normalised sum of the two walls' normals).  Both walls' conditions hold
+        at the corner (a homogeneous Neumann condition on both makes the gradient
+        vanish there, a Dirichlet one the value), so the averaged normal's
+        condition holds there too; and the answer no longer depends on which of
+        the two walls rounding makes the closer (the positive Laplacian rows'
+        wall term, and a decomposition's d and r with it, changed by up to 10%
+        when such points moved by 2e-16)."""
         p = check_points(points, allow_empty=True)
-        dist, foot, normal, _ = self.closest_boundary(p)
+        seg = self.locator().closest_segments(p)
+        dist, foot, normal, _ = self._segments.features(p, seg)
+        tied, corner, corner_normal = self._tied_corners(p, dist, seg)
+        foot[tied] = corner[tied]
+        normal[tied] = corner_normal[tied]
         towards = foot - p
         length = np.linalg.norm(towards, axis=1)
+        dist = np.where(tied, length, dist)
         on_wall = length <= self._eps
         along = (towards * normal).sum(axis=1) / np.where(on_wall, 1.0, length)
         single = on_wall | (along >= parallel)
