@@ -184,11 +184,6 @@ def _lattice_case(domain):
     return pts, vec, domain
 
 
-# needs the tapered mean in hhd/boundary.py's data_spacing and the fine-step
-# count's slack in geometry/sampling.py (the "adaptive-lattice" bug): remove
-# the mark with them
-@pytest.mark.xfail(strict=True, reason="adaptive-lattice: hhd/boundary.py and "
-                   "geometry/sampling.py not changed yet")
 @pytest.mark.parametrize("domain, condition, tol", [("margin", "normal-parallel", 1e-9),
                                                     (None, "neumann", 1e-7)])
 def test_lattice_decomposition_is_continuous_with_adaptive_support(domain, condition, tol):

@@ -100,7 +100,9 @@ def sample_boundary(domain, spacing: float, corner_angle: float = DEFAULT_CORNER
             # per arc: the number of local spacings it spans, cumulated at fine
             # steps (trapezoids of 1 / spacing_at); samples where it crosses
             # equal shares of its total
-            nfine = np.maximum(1, np.ceil(a_len / fine)).astype(np.int64)
+            # (1 - 1e-12): an arc a whole number of fine steps long (a lattice's
+            # bounding box) keeps its count under rounding, as nsub below does
+            nfine = np.maximum(1, np.ceil(a_len / fine * (1 - 1e-12))).astype(np.int64)
             owner_f = np.repeat(np.arange(corners.size), nfine + 1)
             i_f = np.arange(owner_f.size) - np.repeat(np.cumsum(nfine + 1) - (nfine + 1), nfine + 1)
             arc_f = a_start[owner_f] + a_len[owner_f] * i_f / nfine[owner_f]

@@ -54,11 +54,14 @@ def collocation_particles(domain, points, spacing: float, local: bool = False):
         # of radius r on the domain's side of a point at the wall, a spacing
         # of r sqrt(pi / 2k).  The nearest points', not q's own k nearest:
         # where the data stop short of the wall, the samples keep the data's
-        # spacing and the gap is found (check_data_reach_boundary)
+        # spacing and the gap is found (check_data_reach_boundary).  Their
+        # mean tapered at the m-th (KNearest.nearest_weights): a plain mean
+        # jumps where the m-th and (m+1)-th are tied (a lattice), and every
+        # sample after that place with it (r moved 1e-4 under a 4e-16 move)
         m = min(NEAREST_AVERAGED, len(pts))
-        nearest = search.query(q, m)[1]
+        nearest, weight = search.nearest_weights(q, m)
         own = search.query(pts[nearest.ravel()], k + 1)[0][:, -1].reshape(nearest.shape)
-        local = own.mean(axis=1) * math.sqrt(math.pi / (2 * k))
+        local = (weight * own).sum(axis=1) * math.sqrt(math.pi / (2 * k))
         if not (local > 0).all():       # k + 1 copies of a point: name them
             check_distinct(pts)
         return local
