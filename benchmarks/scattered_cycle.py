@@ -38,7 +38,7 @@ def main():
     opts = dict(HHDOptions().multilevel_options)
     for layout in args.layouts.split(","):
         pts = layouts.sample(F.domain, args.n, layout, seed=1)
-        P = poisson_problems(pts, F.evaluate(pts).v, F.domain)
+        P = poisson_problems(pts, F.evaluate(pts).v, F.domain, boundary_condition="neumann")
         A = P.A
         MultilevelPreconditioner(A, **opts)
         reps = max(1, min(5, args.repeat // 4))

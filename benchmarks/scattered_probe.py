@@ -39,7 +39,8 @@ def probe(layout: str, n: int, support: float) -> dict:
     ex = F.evaluate(pts)
     scale = np.linalg.norm(ex.v, axis=1).mean()
     row = {"layout": layout, "n": n, "support": support}
-    P = poisson_problems(pts, ex.v, F.domain, support_ratio=support)
+    P = poisson_problems(pts, ex.v, F.domain, support_ratio=support,
+                         boundary_condition="neumann")
     A = P.A.to_scipy().tocsr()
     kind = P.kind
     fluid = np.flatnonzero(kind == FLUID)

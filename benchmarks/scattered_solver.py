@@ -46,7 +46,8 @@ def run(layout: str, n: int, max_iterations: int) -> list[dict]:
     F = fields.get("gaussian")
     pts = layouts.sample(F.domain, n, layout, seed=1)
     ratio = SUPPORT.get(layout, 2.5)
-    P = poisson_problems(pts, F.evaluate(pts).v, F.domain, support_ratio=ratio)
+    P = poisson_problems(pts, F.evaluate(pts).v, F.domain, support_ratio=ratio,
+                         boundary_condition="neumann")
     rows = []
     for name, opts in OPTION_SETS.items():
         t = time.perf_counter()

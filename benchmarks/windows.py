@@ -7,7 +7,10 @@ inside in r, everything from outside and the stream in h;
 
 Cases: uniformly random points in the 2 x 1 window; a PIV-like grid with 2%
 noise (of max |v|, per component) and 4% NaN dropouts (``decompose_grid``);
-the same grid with a masked round obstacle away from the cores.  Per case
+the same grid with a masked round obstacle away from the cores; and, for the
+default's other branch, closed containers (15k random points in the closed
+2 x 1 box, v.n = 0 on the walls: a circulation, and one with sources,
+:func:`closed_container`; expected h = 0).  Per case
 and condition (``neumann``, ``normal-parallel``, ``natural`` and the
 default): mean errors of d, r, h over mean |v| on the decomposed points
 (against the noise-free expected split), the critical points found against
@@ -25,7 +28,7 @@ import _common
 
 _common.add_repo_to_path()
 
-CONDITIONS = ("default", "neumann", "normal-parallel", "natural")
+CONDITIONS = ("default", "neumann", "normal-parallel", "no-flux", "natural")
 
 
 def _errors(np, got, ex, where):
@@ -45,6 +48,23 @@ def _critical(np, found, wanted, core):
                 used.add(k)
                 break
     return matched, len(found) - len(used)
+
+
+def closed_container(np, pts, sources: bool):
+    """A flow in the closed 2 x 1 box (v.n = 0 on its walls) and its expected
+    split: a cavity-like circulation r = J grad psi with psi = 0 on the walls,
+    and with ``sources`` a source-sink pair d = grad phi with d.n = 0 on the
+    walls (phi's normal derivative zero); h = 0."""
+    from taichi_hh.validation.fields import Components
+    x, y = pts[:, 0], pts[:, 1]
+    a, b = np.pi / 2, np.pi
+    psi = 0.1 * np.sin(a * x) * np.sin(b * y)
+    grad_psi = 0.1 * np.c_[a * np.cos(a * x) * np.sin(b * y), b * np.sin(a * x) * np.cos(b * y)]
+    r = np.c_[grad_psi[:, 1], -grad_psi[:, 0]]             # J(a, b) = (b, -a)
+    phi = 0.05 * np.cos(2 * a * x) * np.cos(b * y) * sources
+    d = 0.05 * sources * np.c_[-2 * a * np.sin(2 * a * x) * np.cos(b * y),
+                               -b * np.cos(2 * a * x) * np.sin(b * y)]
+    return Components(v=d + r, d=d, r=r, h=np.zeros_like(r), phi=phi, psi=psi)
 
 
 def main(argv=None) -> int:
@@ -81,13 +101,17 @@ def main(argv=None) -> int:
     oc = cand[np.argmax(far)]
     obstacle = (X - oc[0]) ** 2 + (Y - oc[1]) ** 2 < 0.1 ** 2
     cases.append((f"PIV grid {nx}x{ny}, noise, NaN, obstacle", "grid", gpts, dropout | obstacle))
+    closed_n = 15000
+    closed_pts = rng.random((closed_n, 2)) * [2.0, 1.0]
+    cases.append((f"closed box {closed_n}, circulation", "closed", closed_pts, False))
+    cases.append((f"closed box {closed_n}, circulation + sources", "closed", closed_pts, True))
     rows = []
     for name, kind, pts, invalid in cases:
-        ex = W.evaluate(pts)
+        ex = closed_container(np, pts, invalid) if kind == "closed" else W.evaluate(pts)
         vmax = float(np.abs(ex.v).max())
         for condition in conditions:
             opts = {} if condition == "default" else {"boundary_condition": condition}
-            if kind == "points":
+            if kind in ("points", "closed"):
                 def call():
                     return thh.decompose(pts, ex.v, W.domain, **opts)
             else:
@@ -110,7 +134,7 @@ def main(argv=None) -> int:
                              "seconds": float("nan"), "error": str(exc)[:80]})
                 print(rows[-1], flush=True)
                 continue
-            if kind == "points":
+            if kind in ("points", "closed"):
                 got, where = (res.curl_free, res.div_free, res.harmonic), np.ones(len(pts), bool)
                 chosen = res.stats.get("boundary_condition", res.options.boundary_condition)
             else:
@@ -119,7 +143,8 @@ def main(argv=None) -> int:
                 chosen = res.scattered.stats.get("boundary_condition",
                                                  res.scattered.options.boundary_condition)
             err = _errors(np, got, ex, where)
-            matched, spurious = _critical(np, res.critical_points(), wanted, core)
+            matched, spurious = ((0, 0) if kind == "closed"
+                                 else _critical(np, res.critical_points(), wanted, core))
             rows.append({"case": name, "condition": condition if condition != "default"
                          else f"default ({chosen})", "n": int(where.sum()),
                          "err_d": err[0], "err_r": err[1], "err_h": err[2],

@@ -125,13 +125,18 @@ def test_decompose_figures_are_pngs(decomposed):
 
 
 def test_decompose_summary_and_progress(decomposed, gaussian_files):
-    out, err = decomposed["stdout"], decomposed["stderr"]
+    err = decomposed["stderr"]
+    out = " ".join(decomposed["stdout"].split())            # the summary is wrapped
     n = len(gaussian_files["points"])
     assert f"Decomposed {n} points" in out
     assert "Critical points: 4" in out and "components.npz" in out and "magnitude.png" in out
     assert "Mean |v|" in out and "|h|" in out
-    for stage in ("reading", "setup", "preconditioner", "solve phi and psi", "drawing figures"):
+    for stage in ("reading", "setup", "natural potentials", "drawing figures"):
         assert stage in err, stage
+    # the default chose the natural condition and says why: the field's stream
+    # crosses the box's walls
+    assert "boundary condition natural (chosen by --boundary-condition auto: the flow " \
+        "crosses the boundary, normal flux" in out
     assert "Traceback" not in err
 
 
@@ -238,7 +243,7 @@ def bad_files(gaussian_files, tmp_path_factory):
     ("good", ["--domain", "0,0,1"], "four numbers"),
     ("good", ["--domain", "1,0,0,1"], "x0 < x1"),
     ("good", ["--domain", "nowhere.json"], "no such file"),
-    ("good", ["--max-iterations", "2"], "max_iterations"),
+    ("good", ["--max-iterations", "2", "--boundary-condition", "neumann"], "max_iterations"),
     ("good", ["--support-ratio", "0.8"], "no neighbour within the kernel support"),
 ])
 def test_bad_input_exits_2_with_one_line(case, extra, message, bad_files, gaussian_files):
@@ -477,7 +482,7 @@ def test_a_grid_listed_node_by_node_is_decomposed_as_a_grid(tmp_path):
                            "--domain", "0,0,1,1", *RUNTIME])
     assert rc == 0, err
     stdout = " ".join(stdout.split())
-    assert "x 40 grid" not in stdout and "phi and psi solves" in stdout
+    assert "x 40 grid" not in stdout and "chosen by --boundary-condition auto" in stdout
 
 
 def test_figures_scales_are_robust_and_say_so(tmp_path):

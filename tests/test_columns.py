@@ -38,7 +38,7 @@ def decomposition_rows():
     3k uniformly random points."""
     F = fields.get("gaussian")
     pts = layouts.sample(F.domain, 3000, "random", seed=4)
-    P = poisson_problems(pts, F.evaluate(pts).v, F.domain)
+    P = poisson_problems(pts, F.evaluate(pts).v, F.domain, boundary_condition="neumann")
     M = P.A.preconditioner_for("auto", "bicgstab", dict(P.opts.multilevel_options))
     return P.A, M, np.stack([P.rhs["phi"], P.rhs["psi"]], axis=1), P.opts.tol
 
@@ -186,7 +186,7 @@ def test_the_matrix_and_its_preconditioner_are_freed_without_the_cycle_collector
     gc.collect()
     gc.disable()
     try:
-        P = poisson_problems(pts, F.evaluate(pts).v, F.domain)
+        P = poisson_problems(pts, F.evaluate(pts).v, F.domain, boundary_condition="neumann")
         M = P.A.multilevel(**dict(P.opts.multilevel_options))
         P.A.solve_columns(np.stack([P.rhs["phi"], P.rhs["psi"]], axis=1), preconditioner=M)
         refs = [weakref.ref(P.A), weakref.ref(M)]

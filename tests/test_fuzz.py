@@ -124,23 +124,12 @@ LONG = settings.get_profile("fuzz-long")
 #: edited elsewhere): the fast profile's strategies leave their inputs out, so
 #: that the default run passes; the long profile draws them, so they show up
 #: there until fixed.  Remove an entry (and its use) once its bug is fixed.
-KNOWN_BUGS = {
-    "hull-wall-tie": "domain='hull': each hull vertex's data point lies exactly as far from "
-                     "both its walls (the hull is moved out along the bisectors), and "
-                     "Polygon.closest_wall picks one wall's normal by rounding: the positive "
-                     "rows' wall term, and d and r with it, change by up to 6% when the "
-                     "points move by 2e-16 (unflagged)",
-    "alpha-lattice": "domain='alpha' on lattice points (PIV grids): rounding-size moves "
-                     "make the rim points' sliver Delaunay triangles come and go, whose long "
-                     "edges enter the local spacing (geometry/from_points.py "
-                     "_local_spacing): margin 0.25 or 0.37 spacings, 36 or 8 vertices, the "
-                     "area +-4%; projections on it change by 10% (unflagged)",
-    "adaptive-lattice": "a 16 x 16 lattice in a box with a margin, normal-parallel: r changes "
-                        "by 1e-4 when the points move by 4e-16 with adaptive_support=True "
-                        "(3e-15 without); cause not found",
-}
+KNOWN_BUGS: dict = {}
 #: fixed since the fuzzing found them (each keeps its example in the long tests):
 #: "flush-to-zero" (ti.init left numpy's thread flushing subnormals to 0),
+#: "adaptive-lattice" (the boundary samples' local spacing averaged a rank tie),
+#: "hull-wall-tie" (a hull vertex's data point tied between its two walls),
+#: "alpha-lattice" (the alpha shape on lattices depended on rounding),
 #: "cli-overflow" (the summary and the figures squared |v| > 1e154),
 #: "wall-velocity" (project(wall_velocity=...) unchecked), "natural-one-sided"
 #: (the natural HHD's boundary gradient jumped when a point crossed a cell midline)
@@ -149,8 +138,7 @@ KNOWN_BUGS = {
 def hits_known_bug(case) -> bool:
     """Whether a units case meets an open bug of :data:`KNOWN_BUGS` (the
     properties leave those inputs out until it is fixed; the notes list them)."""
-    return (case.get("domain") in ("hull", "alpha")
-            or (case.get("points") == "lattice" and case.get("condition") == "normal-parallel"))
+    return False
 
 
 def fast(examples: int):
@@ -323,7 +311,7 @@ MISSING_MODES = ("none", "none", "nan_points", "nan_vectors", "masked", "valid_b
 DOMAIN_KINDS = ("none", "bbox", "hull", "alpha", "box_margin", "box_exact", "Box", "polygon",
                 "polygon_hole", "box_outside", "huge_box", "bad_string", "degenerate_box",
                 "inverted_box", "nan_box", "three_numbers")
-CONDITIONS = ("neumann", "normal-parallel", "natural")
+CONDITIONS = ("auto", "neumann", "normal-parallel", "natural")
 
 
 def make_points(kind: str, n: int, seed: int, aspect: float = 1.0) -> np.ndarray:
@@ -1672,7 +1660,11 @@ _UNITS = {"margin": 0.05, "call": "decompose", "offset_sign": (0, 0), "offset_ex
 @pytest.mark.slow
 @LONG
 @given(case=units_cases(known=False))
-# fixed: "flush-to-zero", "natural-one-sided"
+# fixed: "flush-to-zero", "natural-one-sided", "alpha-lattice", "hull-wall-tie"
+@example(case=dict(_UNITS, points="lattice", n=137, seed=13415, field="smooth", domain="alpha",
+                   condition="neumann", exact=False, scale_exp=0.0, magnitude_exp=0))
+@example(case=dict(_UNITS, points="uniform", n=200, seed=5, field="smooth", domain="hull",
+                   condition="neumann", exact=False, scale_exp=1.3, magnitude_exp=0))
 @example(case=dict(_UNITS, points="uniform", n=120, seed=7, field="smooth", domain="box_margin",
                    condition="neumann", exact=True, scale_exp=0.0, magnitude_exp=-300))
 @example(case=dict(_UNITS, points="uniform", n=205, seed=4096, field="smooth", domain="none",

@@ -83,10 +83,15 @@ def test_rigid_rotation_goes_to_r_except_under_neumann(runs_13k):
     pts = UNIT.sample_interior(3000, kind="poisson", seed=2)
     rot = np.c_[0.5 - pts[:, 1], pts[:, 0] - 0.5]
     with pytest.warns(AccuracyWarning, match="h is not harmonic"):
-        res = thh.decompose(pts, rot, UNIT)
-    assert res.options.boundary_condition == "neumann"      # the default
+        res = thh.decompose(pts, rot, UNIT, boundary_condition="neumann")
+    assert res.options.boundary_condition == "neumann"
     assert res.stats["h_curl"] > 0.9 and len(res.stats["flags"]) == 1
     assert np.linalg.norm(res.div_free, axis=1).max() < 1e-3
+    # the default: the rotation crosses the square's walls (normal flux 0.7 of
+    # |v|), so it chose the natural condition and its exact r
+    res = thh.decompose(pts, rot, UNIT)
+    assert res.stats["boundary_condition"] == "natural" and not res.stats["flags"]
+    assert np.abs(res.curl_free).max() < 1e-12 and res.stats["h_curl"] < 0.05
 
 
 def test_normal_parallel_components_meet_the_boundary_as_named():

@@ -234,7 +234,8 @@ def test_ridge_kappa_on_a_bordered_system():
     F = fields.get("trig")
     pts = F.sample(1600, "poisson", seed=1)
     v = F.evaluate(pts).v
-    its = [thh.decompose(pts, v, F.domain, kappa=k).stats["iterations_phi"]
+    its = [thh.decompose(pts, v, F.domain, kappa=k,
+                         boundary_condition="neumann").stats["iterations_phi"]
            for k in (0.0, 1e-8, 1e-6, 1e-2)]
     assert max(its) <= min(its) + 3, its
 
@@ -275,7 +276,8 @@ def test_default_rows_iterations_stay_under_their_bound(layout):
     F = fields.get("gaussian")
     pts = layouts.sample(F.domain, 20000, layout, seed=1)
     ratio = 4.0 if layout == "random" else 2.5
-    P = poisson_problems(pts, F.evaluate(pts).v, F.domain, support_ratio=ratio)
+    P = poisson_problems(pts, F.evaluate(pts).v, F.domain, support_ratio=ratio,
+                         boundary_condition="neumann")
     opts = dict(HHDOptions().multilevel_options)
     for name in ("phi", "psi"):
         res = P.A.solve(P.rhs[name], tol=1e-8, max_iterations=500,
@@ -295,7 +297,7 @@ def test_weak_rows_share_the_cells_of_their_strongest_neighbour():
     from taichi_hh.validation import fields, layouts
     F = fields.get("gaussian")
     pts = layouts.sample(F.domain, 5000, "gradient", seed=1)
-    A = poisson_problems(pts, F.evaluate(pts).v, F.domain).A
+    A = poisson_problems(pts, F.evaluate(pts).v, F.domain, boundary_condition="neumann").A
     n = A.n_particles
     B = A.to_scipy()[:n, :n].tocsr()
     d = np.abs(B.diagonal())

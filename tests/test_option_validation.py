@@ -124,7 +124,7 @@ def test_unknown_method_and_choice_suggest_close_names():
 def test_max_iterations_one_reports_a_consistent_count_and_cap(small):
     pts, v = small
     with pytest.raises(thh.SolverError) as info:
-        thh.decompose(pts, v, UNIT, max_iterations=1)
+        thh.decompose(pts, v, UNIT, max_iterations=1, boundary_condition="neumann")
     msg = str(info.value)
     assert info.value.reason == "max_iterations"
     count = int(re.search(r"at iteration (\d+)", msg).group(1))

@@ -43,7 +43,8 @@ def test_replaced_rows_are_positive_and_consistent_on_random_points():
     runtime.ensure_init()
     F = fields.get("gaussian")
     pts = layouts.sample(F.domain, 6000, "random", seed=2)
-    problems = poisson_problems(pts, F.evaluate(pts).v, F.domain, positive_rows=None)
+    problems = poisson_problems(pts, F.evaluate(pts).v, F.domain, positive_rows=None,
+                                boundary_condition="neumann")
     ops = problems.ps.ops
     p = ops.particles
     st = ops.laplacian_coefficients("corrected", row_kinds=(FLUID,))

@@ -16,9 +16,13 @@ BOUNDS = {"poisson": 0.5, "jitter0.6": 0.5, "random": 1.0, "clusters": 1.0, "gra
 MAX_ITERATIONS = 25
 
 
-def errors(pts, field):
+def errors(pts, field, boundary_condition="neumann"):
+    """Mean errors of d, r, h (percent of mean abs(v)) and the result.  The
+    solver's targets of issue 13 are the Neumann system's (the default chose
+    it then; it chooses the natural condition on this field now, whose bounds
+    test_the_default_meets_the_bounds_on_every_layout checks)."""
     ex = field.evaluate(pts)
-    res = thh.decompose(pts, ex.v, field.domain)
+    res = thh.decompose(pts, ex.v, field.domain, boundary_condition=boundary_condition)
     scale = np.linalg.norm(ex.v, axis=1).mean()
     err = [100 * np.linalg.norm(got - want, axis=1).mean() / scale
            for got, want in ((res.curl_free, ex.d), (res.div_free, ex.r), (res.harmonic, ex.h))]
@@ -36,6 +40,20 @@ def test_every_kind_of_point_set_decomposes_within_its_bound(layout):
     assert not res.stats["flags"]
     its = (res.stats["iterations_phi"], res.stats["iterations_psi"])
     assert max(its) <= MAX_ITERATIONS, its
+
+
+@pytest.mark.parametrize("layout", list(BOUNDS))
+def test_the_default_meets_the_bounds_on_every_layout(layout):
+    """The default condition (auto: natural here, the field's stream crosses
+    the walls) within the same bounds on every layout."""
+    F = fields.get("gaussian")
+    pts = layouts.sample(F.domain, 13000, layout, seed=1)
+    (err_d, err_r, err_h), res = errors(pts, F, boundary_condition="auto")
+    assert res.stats["boundary_condition"] == "natural"
+    bound = BOUNDS[layout]
+    assert err_d <= bound and err_r <= bound, (err_d, err_r)
+    assert err_h <= 2 * bound, err_h
+    assert not res.stats["flags"]
 
 
 @pytest.mark.slow
@@ -81,7 +99,7 @@ def test_iterations_do_not_grow_with_n(layout):
     its = {}
     for n in (13000, 200000):
         pts = layouts.sample(F.domain, n, layout, seed=1)
-        res = thh.decompose(pts, F.evaluate(pts).v, F.domain)
+        res = thh.decompose(pts, F.evaluate(pts).v, F.domain, boundary_condition="neumann")
         its[n] = max(res.stats["iterations_phi"], res.stats["iterations_psi"])
     assert its[200000] <= 1.5 * its[13000] and its[200000] <= MAX_ITERATIONS, its
 

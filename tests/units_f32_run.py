@@ -56,7 +56,8 @@ def main():
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                res = thh.decompose(pts, exact.v * magnitude, (0, 0, 1, 1))
+                res = thh.decompose(pts, exact.v * magnitude, (0, 0, 1, 1),
+                                    boundary_condition="neumann")
             ref = report["neumann"][0]
             row["err_d"] = mean_error(res.curl_free / magnitude, exact.d, exact.v)
             row["err_r"] = mean_error(res.div_free / magnitude, exact.r, exact.v)

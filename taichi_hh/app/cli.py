@@ -66,13 +66,18 @@ _OPTION_HELP = {
                       "1000 particles on, Jacobi below and for cgnr)",
     "max_iterations": "iteration cap of each linear solve (none = max(1000, unknowns))",
     "seed": "random seed of sampled boundary/fake particles",
-    "boundary_condition": "boundary condition of the decomposition (decompose only): neumann = "
-                          "no flux of d and r through the boundary (Petronetto Eq. 6; a field "
-                          "with net curl or divergence, e.g. a rigid rotation, then lands in h, "
-                          "which is flagged as not harmonic); normal-parallel = phi = psi = 0 "
-                          "on the boundary (d normal, r tangent to it, all three parts "
-                          "orthogonal); natural = potentials from the free-space Green's "
-                          "function of div v and curl v (Bhatia et al. 2014), no condition",
+    "boundary_condition": "boundary condition of the decomposition (decompose only): auto = "
+                          "natural, or no-flux where the flow does not cross the boundary (a "
+                          "closed container; the summary says which); neumann = dphi/dn = "
+                          "dpsi/dn = 0 (Petronetto Eq. 6: d tangent, r normal to the "
+                          "boundary; a field with net curl or divergence, e.g. a rigid "
+                          "rotation, then lands in h, which is flagged as not harmonic); "
+                          "normal-parallel = phi = psi = 0 on the boundary (d normal, r "
+                          "tangent to it, all three parts orthogonal); no-flux = dphi/dn = 0 "
+                          "and psi = 0 (d and r tangent to the boundary: a closed "
+                          "container's split); natural = potentials from the free-space "
+                          "Green's function of div v and curl v (Bhatia et al. 2014), no "
+                          "condition",
     "natural_evaluation": "how the natural condition's convolution is summed: fft "
                           "(particle-mesh, O(N log N)) or direct (O(N^2), its reference)",
 }
@@ -486,6 +491,7 @@ def _cmd_decompose(args) -> int:
                   f"{s['residual_phi']:.1e}, {s['residual_psi']:.1e})")
     else:
         solved = "free-space potentials on a {} x {} grid".format(*s["natural_grid"])
+    solved = f"{_condition_said(s)}; {solved}"
     flags = "".join(f" Warning: {f}" for f in s.get("flags", []))
     print(_paragraph(
         f"Decomposed {len(res.points) - s['n_invalid']} points of {args.field}"
@@ -500,6 +506,18 @@ def _cmd_decompose(args) -> int:
         f"Critical points: {len(critical)}{' (' + found + ')' if found else ''}. "
         f"Wrote {', '.join(written)}."))
     return 0
+
+
+def _condition_said(stats: dict) -> str:
+    """The boundary condition used, and why where the default chose it."""
+    condition = stats.get("boundary_condition", "?")
+    flux = stats.get("boundary_flux")
+    if flux is None:
+        return f"boundary condition {condition}"
+    why = ("the flow does not cross the boundary" if condition == "no-flux"
+           else "the flow crosses the boundary")
+    return (f"boundary condition {condition} (chosen by --boundary-condition auto: {why}, "
+            f"normal flux {flux:.2g} of |v|)")
 
 
 def _cmd_project(args) -> int:

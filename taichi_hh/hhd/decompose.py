@@ -5,13 +5,19 @@ points with SPH operators (SPH-HH, Petronetto et al. 2010, Sec. 5 (a)-(e)).
     h harmonic,  lap phi = div v,  lap psi = -curl v  (Eq. 5),
     d phi/dn = d psi/dn = 0 on the boundary  (Eq. 6).
 
-Eq. 6 is the option ``boundary_condition="neumann"`` (the default); the others
-(Bhatia et al., The Helmholtz-Hodge decomposition: a survey, IEEE TVCG 2013):
+Eq. 6 is the option ``boundary_condition="neumann"``; the others (Bhatia et
+al., The Helmholtz-Hodge decomposition: a survey, IEEE TVCG 2013), and the
+default ``auto``, which chooses from the data (:mod:`taichi_hh.hhd.auto`):
+``natural`` for a window of a larger flow (the flow crosses the boundary),
+``no-flux`` for a closed container (v.n = 0 next to the boundary);
+``stats["boundary_condition"]`` and ``result.options`` say which was used,
+``stats["boundary_flux"]`` the measure:
 
-``neumann``          Eq. 6: d and r carry no flux through the boundary, with
-                     the bordered system absorbing what is incompatible with
-                     it (a net divergence or a net curl: a rigid rotation goes
-                     wholly into h, which then has curl: not harmonic; flagged).
+``neumann``          Eq. 6: d tangent to the boundary (no flux through it) and
+                     r normal to it, with the bordered system absorbing what
+                     is incompatible with that (a net divergence or a net
+                     curl: a rigid rotation goes wholly into h, which then
+                     has curl: not harmonic; flagged).
 ``normal-parallel``  phi = psi = 0 on the boundary (Dirichlet rows on the
                      boundary particles): d normal and r tangent to the
                      boundary, d, r, h L2-orthogonal and unique, h harmonic and
@@ -19,6 +25,12 @@ Eq. 6 is the option ``boundary_condition="neumann"`` (the default); the others
                      every boundary component (not a constant per component):
                      the decomposition stays orthogonal and the flow circulating
                      around a hole is harmonic, so it stays in h.
+``no-flux``          d phi/dn = 0 and psi = 0 on the boundary (phi's Neumann
+                     rows, psi's Dirichlet rows: two systems): d and r both
+                     tangent to the boundary, no flux through it, h carries
+                     all of v.n.  The split of a flow in a closed container
+                     (v.n = 0 on the walls): its sources in d, its
+                     circulation in r however close to a wall, h = 0.
 ``natural``          Bhatia et al. 2014: phi = G * div v and psi = -G * curl v
                      over the domain with the free-space Green's function, no
                      condition imposed (:mod:`taichi_hh.hhd.natural`); d and r
@@ -41,14 +53,16 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .. import runtime
+from ..errors import InputError
 from ..sph.operators import ALL_KINDS
 from ..sph.particles import BOUNDARY, FLUID, GHOST
 from ..sph.pointset import PointSet
 from ..sph.positive import make_rows_positive
 from ..linalg.poisson import PoissonMatrix
 from .boundary import collocation_particles, far_from
-from .inputs import (INVALID_MODES, Data, check_data_reach_boundary, check_point_count,
-                     prepare_data, refuse_too_few, validate_input)
+from .inputs import (INVALID_MODES, Data, check_data_near_boundary, check_data_reach_boundary,
+                     check_point_count, prepare_data, refuse_too_few, validate_input)
+from .auto import choose_boundary_condition
 from .natural import natural_potentials
 from .options import (BOUNDARY_CONDITIONS, BOUNDARY_METHODS, METHODS, PRECONDITIONERS,
                       HHDOptions, options_for)
@@ -166,10 +180,30 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
     opts = options_for(method, **options)
     runtime.ensure_init()
     data = prepare_data(points, vectors, domain, invalid=invalid, valid=valid)
+    opts, chosen = resolved_options(opts, data)
+    if opts.boundary_condition == "no-flux":
+        raise InputError("boundary_condition='no-flux' has two matrices (phi's Neumann rows, "
+                         "psi's Dirichlet rows): ask for boundary_condition='neumann' or "
+                         "'normal-parallel' to get the one")
     problems = _unit_problems(data.unit_points, data.unit_vectors, data.unit_domain, opts,
                               progress)
+    problems.stats.update(chosen)
     problems.frame, problems.data = data.frame, data
     return problems
+
+
+def resolved_options(opts: HHDOptions, data: Data) -> tuple:
+    """``(opts, stats)``: ``boundary_condition="auto"`` replaced by the condition
+    the data call for (:func:`~taichi_hh.hhd.auto.choose_boundary_condition`);
+    ``stats``: ``boundary_condition`` (the one used) and, for ``auto``,
+    ``boundary_flux``."""
+    if opts.boundary_condition != "auto":
+        return opts, {"boundary_condition": opts.boundary_condition}
+    spacing = math.sqrt(data.unit_domain.area / max(len(data.unit_points), 1))
+    condition, flux = choose_boundary_condition(data.unit_points, data.unit_vectors,
+                                                data.unit_domain, spacing, opts.boundary)
+    return replace(opts, boundary_condition=condition), {"boundary_condition": condition,
+                                                         "boundary_flux": flux}
 
 
 def _unit_problems(pts, vec, domain, opts: HHDOptions, progress) -> PoissonProblems:
@@ -195,6 +229,8 @@ def _unit_problems(pts, vec, domain, opts: HHDOptions, progress) -> PoissonProbl
                   support_neighbours=opts.support_neighbours if opts.adaptive_support else None)
     if opts.boundary == "collocation" and rows_on_boundary:
         check_data_reach_boundary(ps, BOUNDARY, FLUID)
+    elif opts.boundary == "collocation":
+        check_data_near_boundary(pts, domain, spacing, ps.support)
     ops = ps.ops
     p = ps.particles
     kind = p.get("kind")
@@ -322,7 +358,9 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     opts = options_for(method, **options)
     runtime.ensure_init()
     data = prepare_data(points, vectors, domain, invalid=invalid, valid=valid)
+    opts, chosen = resolved_options(opts, data)
     unit = _decompose_unit(data, opts, progress)
+    unit.stats.update(chosen)
     unit.stats["seconds"]["total"] = time.perf_counter() - t_start
     return _in_caller_units(unit, data)
 
@@ -352,39 +390,57 @@ def _in_caller_units(unit: HHDResult, data: Data) -> HHDResult:
                      else f.domain_from_unit(unit.domain))
 
 
+#: ``no-flux``: each potential under its own condition, one system each
+#: (phi's Neumann rows, psi's Dirichlet rows)
+NO_FLUX_PARTS = (("phi", "neumann"), ("psi", "normal-parallel"))
+
+
 def _decompose_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
     """Steps (a)-(e) on the valid rows in the unit frame."""
     t_start = time.perf_counter()
     say = progress or (lambda stage: None)
-    problems = _unit_problems(data.unit_points, data.unit_vectors, data.unit_domain, opts,
-                              progress)
-    problems.frame, problems.data = data.frame, data
-    check_point_count(len(problems.points), problems.stats, stacklevel=4)  # refused or flagged
-    opts, ps, vec = problems.opts, problems.ps, problems.vectors
-    pts, div_slots, curl_slots = problems.points, problems.rhs["phi"], -problems.rhs["psi"]
-    seconds, stats = problems.seconds, problems.stats
-    if opts.boundary_condition == "natural":
-        say("natural potentials")
-        t = time.perf_counter()
-        nat = natural_potentials(pts, problems.domain,
-                                 {"phi": div_slots[ps.slot_of], "psi": -curl_slots[ps.slot_of]},
-                                 stats["spacing"], evaluation=opts.natural_evaluation)
-        phi, d = nat["phi"]
-        psi, grad_psi = nat["psi"]
-        stats["natural_grid"] = nat["grid"].shape
-        seconds["natural"] = time.perf_counter() - t
+    if opts.boundary_condition == "no-flux":
+        # two systems built and solved one after the other (the first's arrays
+        # freed before the second's are made); d from the first, r from the second
+        solved, seconds = {}, {}
+        for name, condition in NO_FLUX_PARTS:
+            problems = _checked_problems(data, replace(opts, boundary_condition=condition),
+                                         progress, check=name == "phi")
+            rhs = problems.rhs
+            problems.rhs = {name: rhs[name]}
+            potentials, gradients = _potentials_and_gradients(problems, say)
+            solved[name] = (potentials[name], gradients[name])
+            for key, value in problems.seconds.items():
+                seconds[key] = seconds.get(key, 0.0) + value
+            if name == "phi":
+                first = problems.stats
+        problems.rhs = rhs
+        stats = problems.stats
+        for key in ("iterations_phi", "residual_phi", "compatibility_phi", "flags"):
+            if key in first:
+                stats[key] = first[key]
+        (phi, d), (psi, grad_psi) = solved["phi"], solved["psi"]
+        opts = replace(problems.opts, boundary_condition="no-flux")
     else:
-        potentials = _solve_potentials(problems, say)
-        phi, psi = (np.asarray(potentials[k])[ps.slot_of] for k in ("phi", "psi"))
-        say("components")
-        t = time.perf_counter()
-        A = problems.A
-        if A.grad.variant == opts.gradient and A.grad.source_kinds == ALL_KINDS:
-            st_grad = A.grad        # the Neumann rows' gradient: the same fit at the data points
+        problems = _checked_problems(data, opts, progress)
+        seconds, stats = problems.seconds, problems.stats
+        if opts.boundary_condition == "natural":
+            say("natural potentials")
+            t = time.perf_counter()
+            ps = problems.ps
+            nat = natural_potentials(problems.points, problems.domain,
+                                     {k: problems.rhs[k][ps.slot_of] for k in ("phi", "psi")},
+                                     stats["spacing"], evaluation=opts.natural_evaluation)
+            phi, d = nat["phi"]
+            psi, grad_psi = nat["psi"]
+            stats["natural_grid"] = nat["grid"].shape
+            seconds["natural"] = time.perf_counter() - t
         else:
-            st_grad = ps.ops.gradient_coefficients(opts.gradient, row_kinds=(FLUID,))
-        d, grad_psi = _gradients(ps, st_grad, potentials["phi"], potentials["psi"])
-        seconds["components"] = time.perf_counter() - t
+            potentials, gradients = _potentials_and_gradients(problems, say)
+            phi, psi = potentials["phi"], potentials["psi"]
+            d, grad_psi = gradients["phi"], gradients["psi"]
+    ps, vec, pts = problems.ps, problems.vectors, problems.points
+    div_slots, curl_slots = problems.rhs["phi"], -problems.rhs["psi"]
     r = J(grad_psi)
     h = vec - d - r
     seconds["total"] = time.perf_counter() - t_start
@@ -396,6 +452,39 @@ def _decompose_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
                      phi=phi, psi=psi, divergence=div_slots[ps.slot_of],
                      curl=curl_slots[ps.slot_of], stats=stats, options=opts, pointset=ps,
                      domain=problems.domain)
+
+
+def _checked_problems(data: Data, opts: HHDOptions, progress, *,
+                      check: bool = True) -> PoissonProblems:
+    """The problems of ``data`` under ``opts``; with ``check``, too few points
+    refused or flagged."""
+    problems = _unit_problems(data.unit_points, data.unit_vectors, data.unit_domain, opts,
+                              progress)
+    problems.frame, problems.data = data.frame, data
+    if check:
+        check_point_count(len(problems.points), problems.stats, stacklevel=5)
+    return problems
+
+
+def _potentials_and_gradients(problems: PoissonProblems, say) -> tuple:
+    """Steps (d) and (e) for the potentials ``problems.rhs`` names: ``(potentials,
+    gradients)``, each a dict by name, at the data points."""
+    opts, ps = problems.opts, problems.ps
+    slots = _solve_potentials(problems, say)
+    say("components")
+    t = time.perf_counter()
+    A = problems.A
+    if A.grad.variant == opts.gradient and A.grad.source_kinds == ALL_KINDS:
+        st_grad = A.grad        # the Neumann rows' gradient: the same fit at the data points
+    else:
+        st_grad = ps.ops.gradient_coefficients(opts.gradient, row_kinds=(FLUID,))
+    some = np.asarray(next(iter(slots.values())))
+    a, b = (np.asarray(slots[k]) if k in slots else np.zeros_like(some) for k in ("phi", "psi"))
+    ga, gb = _gradients(ps, st_grad, a, b)
+    problems.seconds["components"] = time.perf_counter() - t
+    potentials = {k: np.asarray(v)[ps.slot_of] for k, v in slots.items()}
+    gradients = {k: g for k, g in (("phi", ga), ("psi", gb)) if k in slots}
+    return potentials, gradients
 
 
 def _solve_potentials(problems, say) -> dict:

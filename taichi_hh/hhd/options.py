@@ -49,7 +49,7 @@ from ..errors import InputError
 
 BOUNDARY_METHODS = ("collocation", "petronetto", "colin", "none")
 #: boundary conditions of the decomposition (:func:`~taichi_hh.hhd.decompose.decompose`)
-BOUNDARY_CONDITIONS = ("neumann", "normal-parallel", "natural")
+BOUNDARY_CONDITIONS = ("auto", "neumann", "normal-parallel", "no-flux", "natural")
 #: evaluations of the natural decomposition's convolution (:mod:`taichi_hh.hhd.natural`)
 NATURAL_EVALUATIONS = ("fft", "direct")
 PRECONDITIONERS = ("auto", "multilevel", "jacobi")
@@ -155,7 +155,9 @@ class HHDOptions:
     tol: float = 1e-8
     max_iterations: int | None = None
     seed: int = 0                       # for sampled fake/boundary particles
-    boundary_condition: str = "neumann"  # neumann | normal-parallel | natural (decompose doc)
+    # auto (natural, or no-flux for a closed container: hhd.auto) | neumann |
+    # normal-parallel | no-flux | natural (decompose doc)
+    boundary_condition: str = "auto"
     natural_evaluation: str = "fft"     # fft | direct: the natural HHD's convolution
 
     def __post_init__(self):
@@ -167,9 +169,10 @@ class HHDOptions:
                 raise TypeError(f"HHDOptions.{f.name} has no entry in OPTION_SPECS")
             object.__setattr__(self, f.name, check_option(getattr(self, f.name), f.name, spec))
         # combinations
-        if self.boundary_condition == "normal-parallel" and self.boundary != "collocation":
-            raise InputError("boundary_condition='normal-parallel' puts its Dirichlet rows on "
-                             "the boundary particles of boundary='collocation', got "
+        if self.boundary_condition in ("normal-parallel", "no-flux") \
+                and self.boundary != "collocation":
+            raise InputError(f"boundary_condition={self.boundary_condition!r} puts Dirichlet "
+                             "rows on the boundary particles of boundary='collocation', got "
                              f"boundary={self.boundary!r}")
         if self.preconditioner == "multilevel" and self.solver != "bicgstab":
             raise InputError("the multilevel preconditioner works with solver='bicgstab', got "
@@ -183,13 +186,13 @@ METHODS = {
                                  gradient="difference", laplacian="brookshaw",
                                  neumann_gradient="difference", boundary="petronetto",
                                  kappa=1e-3, bordered=False, tol=1e-6,
-                                 preconditioner="jacobi"),
+                                 preconditioner="jacobi", boundary_condition="neumann"),
     "colin2006": HHDOptions(kernel="poly6", support_ratio=2.0, adaptive_support=False,
                             divergence="colin_difference",
                             gradient="colin_difference", laplacian="colin_difference",
                             neumann_gradient="colin_difference", boundary="colin",
                             bordered=False, solver="cgnr", preconditioner="jacobi", tol=1e-4,
-                            max_iterations=20000),
+                            max_iterations=20000, boundary_condition="neumann"),
 }
 
 #: per-method options of project() that differ from the :data:`METHODS` bundles:
@@ -201,7 +204,9 @@ PROJECT_OVERRIDES = {"colin2006": {"bordered": False, "tol": 1e-4, "max_iteratio
                      # measured with (Colin Table 1 on lattices) on regular layouts; on
                      # irregular ones project() takes the decomposition's adaptive support
                      # by itself (project.SCATTERED_OPTIONS, project.choose_support)
-                     "default": {"support_ratio": 2.5, "adaptive_support": False,
+                     # and a projection keeps the normal flux: Neumann
+                     "default": {"boundary_condition": "neumann",
+                                 "support_ratio": 2.5, "adaptive_support": False,
                                  "divergence": "quadratic", "gradient": "quadratic"}}
 
 
