@@ -159,7 +159,8 @@ def _mark_critical(ax, critical, kinds):
         if kind in kinds:
             st = CRITICAL_STYLE[kind]
             strength = getattr(c, "strength", float("nan"))
-            # strengths are relative to the field's largest derivative (<= ~1)
+            # strengths are relative to the field's robust derivative scale (its
+            # 99th percentile: about 1 for the strongest structures, a peak more)
             size = 40 + 80 * min(strength, 1.5) if math.isfinite(strength) else 70
             ax.scatter([x], [y], s=size, c=st["color"], marker=st["marker"],
                        edgecolors="white", linewidths=1.2, zorder=5)
