@@ -114,23 +114,17 @@ class HHDResult:
                        divergence=self.divergence[keep], curl=self.curl[keep],
                        valid=np.ones(int(keep.sum()), dtype=bool))
 
-    def critical_points(self, threshold: float = 0.1, radius: float | None = None):
+    def critical_points(self, threshold: float = 0.1, radius: float | None = None,
+                        **filters):
         """Sources, sinks and vortices (Petronetto Sec. 6c), strongest first:
-        ``[CriticalPoint(x, y, kind, strength)]``, which unpack as ``(x, y, kind)``.
-        ``radius`` in the points' units.
+        ``[CriticalPoint(x, y, kind, strength, significance, coherence)]``,
+        which unpack as ``(x, y, kind)``.  ``radius`` in the points' units;
+        ``filters`` (``filter=False``, ``edge``, ``significance``,
+        ``coherence``): the measured-data filters.
 
         See :func:`taichi_hh.hhd.critical.find_critical_points`."""
-        from .critical import CriticalPoint, find_critical_points
-        if self.unit is None:
-            return find_critical_points(self, threshold=threshold, radius=radius)
-        frame = self.frame
-        found = find_critical_points(self.unit, threshold=threshold,
-                                     radius=None if radius is None else radius / frame.length)
-        out = []
-        for c in found:
-            x, y = frame.points_from_unit([c.x, c.y])
-            out.append(CriticalPoint(float(x), float(y), c.kind, c.strength))
-        return out
+        from .critical import critical_points
+        return critical_points(self, threshold, radius, **filters)
 
 
 # ---------------------------------------------------------------------------

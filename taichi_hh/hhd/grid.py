@@ -72,10 +72,11 @@ class GridResult:
     stats: dict
     scattered: object = field(repr=False, default=None)
 
-    def critical_points(self, threshold: float = 0.1, radius: float | None = None):
+    def critical_points(self, threshold: float = 0.1, radius: float | None = None,
+                        **filters):
         """Sources, sinks and vortices: see
         :meth:`~taichi_hh.hhd.decompose.HHDResult.critical_points`."""
-        return self.scattered.critical_points(threshold=threshold, radius=radius)
+        return self.scattered.critical_points(threshold, radius, **filters)
 
 
 def _component(values, name: str, shape) -> tuple:
