@@ -524,3 +524,41 @@ def test_messages_name_the_remedy_in_command_line_syntax(gaussian_files, tmp_pat
     rc, out, err = run(["decompose", path, "-o", tmp_path / "o", "--quiet", "--no-figures",
                         "--invalid", "error", *RUNTIME])
     assert rc == 2 and "--invalid missing (the default)" in err and "invalid='" not in err
+
+
+def test_alpha_sets_the_radius_of_domain_alpha_and_its_messages_use_the_command_line(tmp_path):
+    """--alpha A: the alpha shape's radius with --domain alpha (refused without
+    it, on one line).  Data in two pieces at the default radius (a lattice with
+    a gap 6 spacings wide) are refused with the radius that joins them as
+    --alpha, never with --domain alpha again; with --alpha 5 the gap is filled
+    and the field decomposes."""
+    import re
+    x, y = np.meshgrid(np.arange(20.0), np.arange(10.0))
+    pts = np.c_[x.ravel(), y.ravel()]
+    pts = pts[(pts[:, 0] <= 7) | (pts[:, 0] >= 13)]
+    path = tmp_path / "gap.npz"
+    np.savez(path, points=pts, vectors=np.c_[np.sin(pts[:, 1] / 3), np.cos(pts[:, 0] / 4)])
+    common = ["--quiet", "--no-figures", "--no-vtk", *RUNTIME]
+    assert cli.build_parser().parse_args(["decompose", "f.npz", "--alpha", "5"]).alpha == 5.0
+    from taichi_hh.app.errors_report import option_rewriter
+    assert option_rewriter(cli.build_parser())("give domain=('alpha', 3.1) or domain='hull'") \
+        == "give --domain alpha --alpha 3.1 or --domain hull"
+    for command in ("decompose", "project"):
+        rc, _, err = run([command, path, "-o", tmp_path / command, "--domain", "alpha", *common])
+        assert rc == 2 and len(err.strip().splitlines()) == 1, err
+        assert "2 pieces" in err and "give --domain alpha --alpha 3.1 or more, or --domain hull" \
+            in err, err
+        assert re.search(r"--domain alpha(?! --alpha)", err) is None
+        assert "alpha=" not in err and "domain=" not in err and "near (13, " in err
+    rc, out, err = run(["decompose", path, "-o", tmp_path / "joined", "--domain", "alpha",
+                        "--alpha", "5", *common])
+    assert rc == 0, err
+    with np.load(tmp_path / "joined" / "components.npz") as z:
+        assert np.isfinite(z["h"]).all()
+    for extra in ([], ["--domain", "hull"], ["--domain", "0,0,19,9"]):
+        rc, _, err = run(["decompose", path, "-o", tmp_path / "refused", "--alpha", "5",
+                          *extra, *common])
+        assert rc == 2 and len(err.strip().splitlines()) == 1, err
+        assert "--alpha 5 (the alpha shape's radius) applies only with --domain alpha" in err
+    rc, _, err = run(["decompose", path, "--domain", "alpha", "--alpha", "0", *common])
+    assert rc == 2 and "--alpha" in err and "positive" in err

@@ -60,7 +60,7 @@ def test_alpha_shape_finds_the_hole_and_follows_a_concave_outline():
 def test_alpha_shape_refuses_data_in_pieces_and_bad_alpha():
     rng = np.random.default_rng(4)
     two = np.vstack([rng.random((2000, 2)) * 0.3, 0.7 + rng.random((2000, 2)) * 0.3])
-    with pytest.raises(InputError, match="pieces.*larger alpha"):
+    with pytest.raises(InputError, match=r"pieces.*give alpha=\d+ or more"):
         alpha_shape(two)
     with pytest.raises(InputError, match="alpha"):
         alpha_shape(two, alpha=-1.0)
@@ -96,6 +96,95 @@ def test_cli_domain_alpha(tmp_path):
                  "--domain", "alpha"]) == 0
     assert np.isfinite(np.load(out / "components.npz")["h"]).all()
 
+
+
+def _lattice_with_gap(width):
+    """Unit-spaced lattice rows (10 of them) with a gap ``width`` spacings wide
+    between columns 7 and 7 + width: the triangles across it have a
+    circumradius of sqrt(width^2 + 1) / 2 spacings (3.04 at 6: two pieces at
+    the default radius of 3)."""
+    x, y = np.meshgrid(np.arange(14.0 + width), np.arange(10.0))
+    pts = np.c_[x.ravel(), y.ravel()]
+    return pts[(pts[:, 0] <= 7) | (pts[:, 0] >= 7 + width)]
+
+
+def test_the_alpha_radius_joins_pieces_and_each_message_names_the_radius_that_does():
+    """Data in pieces at one radius: the message names the radius from which
+    they form one, in the caller's syntax (``alpha=`` of alpha_shape,
+    ``domain=('alpha', A)`` of decompose), never the domain that just failed;
+    at that radius they form one piece (the gap filled)."""
+    pts = _lattice_with_gap(6)
+    with pytest.raises(InputError, match=r"2 pieces at an alpha-shape radius of 3 local "
+                                         r"spacings.*give alpha=3\.1 or more") as exc:
+        alpha_shape(pts)
+    assert "domain='alpha'" not in str(exc.value)
+    shape = alpha_shape(pts, alpha=3.1, margin=0.0)
+    assert len(shape.rings) == 1 and shape.area == pytest.approx(19 * 9)   # the gap filled
+    from taichi_hh.geometry.from_points import domain_from_points
+    assert domain_from_points(pts, "alpha", 5.0).area > 19 * 9
+    v = np.c_[np.sin(pts[:, 1] / 3), np.cos(pts[:, 0] / 4)]
+    with pytest.raises(InputError, match="pieces") as exc:
+        thh.decompose(pts, v, "alpha")
+    msg = str(exc.value)
+    assert "give domain=('alpha', 3.1) or more, or domain='hull'" in msg
+    assert "domain='alpha'" not in msg and " alpha=" not in msg
+    assert "near (13, " in msg                      # the caller's coordinates, not the unit frame
+    res = thh.decompose(pts, v, ("alpha", 5))
+    assert res.domain.area > 19 * 9 and np.isfinite(res.harmonic).all()
+    # a radius twice too small for a gap in random points: the joining radius is exact
+    rng = np.random.default_rng(4)
+    two = np.vstack([rng.random((2000, 2)) * 0.3, 0.7 + rng.random((2000, 2)) * 0.3])
+    with pytest.raises(InputError) as exc:
+        alpha_shape(two)
+    radius = float(str(exc.value).split("give alpha=")[1].split()[0])
+    assert len(alpha_shape(two, alpha=radius).rings) == 1
+    with pytest.raises(InputError, match="pieces"):
+        alpha_shape(two, alpha=0.98 * radius)
+
+
+def test_a_domain_from_the_points_takes_its_radius_as_a_pair():
+    """``("alpha", A)`` is the alpha shape at A local spacings; other pairs and
+    bad radii are refused, saying what is accepted."""
+    pts = _lattice_with_gap(6)
+    v = np.ones_like(pts)
+    for domain, match in ((("hull", 4), r"only the alpha shape takes a radius.*'hull' alone"),
+                          (("alpha", 0), "alpha .*positive number"),
+                          (("alpha", float("nan")), "alpha .*positive number"),
+                          (("alpha", "5"), "alpha .*positive number"),
+                          (("alpha", True), "alpha .*positive number"),
+                          (("circle", 2), r"\('alpha', A\)")):
+        with pytest.raises(InputError, match=match):
+            thh.decompose(pts, v, domain)
+    with pytest.raises(InputError, match="positive number"):
+        alpha_shape(pts, alpha=-1.0)
+
+
+def test_data_short_of_a_domain_drawn_from_them_are_not_told_to_draw_it_again():
+    """The refusal of data short of the boundary offers the domains drawn closer
+    to the data than the one asked for: never the one that just failed."""
+    from taichi_hh.geometry.domain import Box
+    rng = np.random.default_rng(2)
+    q = rng.random((6000, 2))
+    ell = q[(q[:, 0] < 0.4) | (q[:, 1] < 0.4)]          # an L: its hull spans the notch
+    v = np.c_[-ell[:, 1], ell[:, 0]]
+    with pytest.raises(InputError, match="do not reach the domain's boundary") as exc:
+        thh.decompose(ell, v, "hull")
+    msg = str(exc.value)
+    assert "domain='alpha'" in msg and "domain='hull'" not in msg and "'bbox'" not in msg
+    with pytest.raises(InputError, match="do not reach the domain's boundary") as exc:
+        thh.decompose(ell, v)                            # the bounding box, the default
+    assert "domain='hull'" in str(exc.value) and "domain='bbox'" not in str(exc.value)
+    # the alpha shape across a gap wider than a kernel support: a smaller radius
+    pts = _lattice_with_gap(16)
+    with pytest.raises(InputError, match="do not reach the domain's boundary") as exc:
+        thh.decompose(pts, np.c_[np.sin(pts[:, 1] / 3), np.cos(pts[:, 0] / 4)], ("alpha", 10))
+    msg = str(exc.value)
+    assert "domain=('alpha', 6.7) (a smaller alpha-shape radius" in msg
+    assert "domain='alpha'" not in msg and "domain='hull'" not in msg
+    # the caller's own domain: every domain drawn from the points is offered
+    inner = Box((0.2, 0.2), (0.8, 0.8)).sample_interior(2000, kind="poisson", seed=1)
+    with pytest.raises(InputError, match="domain='bbox'.*domain='hull'.*domain='alpha'"):
+        thh.decompose(inner, np.ones_like(inner), Box((0, 0), (1, 1)))
 
 @pytest.mark.parametrize("domain", ["hull", "alpha"])
 def test_data_covering_part_of_the_domain_decompose_on_the_shape_they_draw(domain):

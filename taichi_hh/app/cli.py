@@ -123,6 +123,12 @@ def _add_common(p, command):
                          "that are the nodes of a rectilinear grid (PIV, model output) are "
                          "decomposed as a grid: the domain from the valid nodes (masked "
                          "regions cut out), the natural boundary condition by default")
+    from ..geometry.from_points import ALPHA
+    io.add_argument("--alpha", metavar="A", type=positive_float, default=None,
+                    help="with --domain alpha: the alpha shape's radius in local spacings (a "
+                         "Delaunay triangle of the points is in the domain while its "
+                         "circumradius is below A spacings; larger: gaps in the data filled, "
+                         f"pieces joined) (default: {ALPHA:g})")
     io.add_argument("--units", metavar="UNIT", default=None,
                     help="the coordinates' unit for the figures' axis labels (e.g. mm, m, "
                          "km, deg)")
@@ -300,15 +306,25 @@ def _out_dir(args) -> str:
 def _read_inputs(args, say, *, domain_kind_as_name: bool = False):
     """``(points, vectors, domain)`` from the command line.  A domain made from
     the points (``bbox``, ``hull``, ``alpha``) is made here, or, with
-    ``domain_kind_as_name``, passed on by name for the library to make from
-    the valid points in its unit frame (the decomposition)."""
+    ``domain_kind_as_name``, passed on by name (``("alpha", A)`` with
+    ``--alpha``) for the library to make from the valid points in its unit
+    frame (the decomposition).  ``--alpha`` without ``--domain alpha`` is
+    refused before the field is read."""
     from . import io
+    from ..errors import InputError
+    from ..geometry.from_points import ALPHA, DOMAINS_FROM_POINTS, domain_from_points
+    kind = args.domain.strip().lower() if args.domain is not None else None
+    if args.alpha is not None and kind != "alpha":
+        given = "without --domain" if kind is None else f"--domain {args.domain}"
+        raise InputError(f"--alpha {args.alpha:g} (the alpha shape's radius) applies only with "
+                         f"--domain alpha, not {given}")
     say(f"reading {args.field}")
     points, vectors = io.read_field(args.field)
-    from ..geometry.from_points import DOMAINS_FROM_POINTS, domain_from_points
-    if args.domain is not None and args.domain.strip().lower() in DOMAINS_FROM_POINTS:
-        kind = args.domain.strip().lower()
-        return points, vectors, kind if domain_kind_as_name else domain_from_points(points, kind)
+    if kind in DOMAINS_FROM_POINTS:
+        alpha = ALPHA if args.alpha is None else args.alpha
+        if domain_kind_as_name:
+            return points, vectors, ("alpha", alpha) if kind == "alpha" else kind
+        return points, vectors, domain_from_points(points, kind, alpha)
     domain = io.read_domain(args.domain)
     return points, vectors, domain
 

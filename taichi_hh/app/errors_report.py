@@ -46,7 +46,9 @@ def option_rewriter(parser):
     """A function that rewrites the library's ``name='value'`` advice in a
     message into the command line's ``--name value`` for every option
     ``parser`` (an argparse parser, its subcommands included) knows, so that a
-    message names the remedy in the caller's syntax."""
+    message names the remedy in the caller's syntax; a pair
+    ``name=('kind', value)`` whose kind is an option too becomes ``--name kind
+    --kind value`` (``domain=('alpha', 5)``: ``--domain alpha --alpha 5``)."""
     import argparse
     import re
     flags = {}
@@ -62,6 +64,7 @@ def option_rewriter(parser):
                     flags.setdefault(action.dest, long[0])
     collect(parser)
     pattern = re.compile(r"\b([a-z][a-z_]*)=(?:'([^']*)'|\"([^\"]*)\"|([\w.+-]+))")
+    pair = re.compile(r"\b([a-z][a-z_]*)=\(\s*['\"]([a-z_]+)['\"]\s*,\s*([\w.+-]+)\s*\)")
 
     def rewrite(text: str) -> str:
         def one(m):
@@ -70,7 +73,13 @@ def option_rewriter(parser):
                 return m.group(0)
             value = next(g for g in m.groups()[1:] if g is not None)
             return f"{flag} {value}"
-        return pattern.sub(one, text)
+
+        def two(m):
+            flag, second = flags.get(m.group(1)), flags.get(m.group(2))
+            if flag is None or second is None:
+                return m.group(0)
+            return f"{flag} {m.group(2)} {second} {m.group(3)}"
+        return pattern.sub(one, pair.sub(two, text))
     return rewrite
 
 

@@ -82,7 +82,7 @@ def check_not_too_narrow(domain, n: int, spacing: float) -> None:
             f"long around an area of {domain.area:.3g}, is {samples:.3g} times the points' "
             f"mean spacing ({spacing:.3g}) long, more than {MAX_SAMPLES_PER_POINT} per point "
             f"({n} points); a domain thinner than the spacing between the points holds no 2D "
-            "field: give a domain the points fill (domain='bbox', 'hull' or 'alpha')")
+            "field: give a domain the points fill (domain='bbox', domain='hull' or domain='alpha')")
 
 
 def _kept(bpts, bnrm, keep, n: int):

@@ -180,7 +180,7 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
                          "psi's Dirichlet rows): ask for boundary_condition='neumann' or "
                          "'normal-parallel' to get the one")
     problems = _unit_problems(data.unit_points, data.unit_vectors, data.unit_domain, opts,
-                              progress)
+                              progress, data)
     problems.stats.update(chosen)
     problems.frame, problems.data = data.frame, data
     return problems
@@ -200,8 +200,10 @@ def resolved_options(opts: HHDOptions, data: Data) -> tuple:
                                                          "boundary_flux": flux}
 
 
-def _unit_problems(pts, vec, domain, opts: HHDOptions, progress) -> PoissonProblems:
-    """:func:`poisson_problems` on checked input in the unit frame."""
+def _unit_problems(pts, vec, domain, opts: HHDOptions, progress,
+                   data: Data | None = None) -> PoissonProblems:
+    """:func:`poisson_problems` on checked input in the unit frame; ``data``:
+    the caller's (its frame and domain for the messages)."""
     say = progress or (lambda stage: None)
     seconds = {}
     n = len(pts)
@@ -222,9 +224,9 @@ def _unit_problems(pts, vec, domain, opts: HHDOptions, progress) -> PoissonProbl
                   boundary=boundary, ghosts=ghosts,
                   support_neighbours=opts.support_neighbours if opts.adaptive_support else None)
     if opts.boundary == "collocation" and rows_on_boundary:
-        check_data_reach_boundary(ps, BOUNDARY, FLUID)
+        check_data_reach_boundary(ps, BOUNDARY, FLUID, data)
     elif opts.boundary == "collocation":
-        check_data_near_boundary(pts, domain, spacing, ps.support)
+        check_data_near_boundary(pts, domain, spacing, ps.support, data)
     ops = ps.ops
     p = ps.particles
     kind = p.get("kind")
@@ -321,8 +323,10 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     :class:`~taichi_hh.geometry.domain.Polygon` (holes allowed), ``(x0, y0, x1,
     y1)``, or one made from the points: ``"bbox"`` (their bounding box, the
     default), ``"hull"`` (convex hull), ``"alpha"`` (alpha shape: concave
-    outlines, and gaps in the data as holes;
-    :func:`~taichi_hh.geometry.from_points.alpha_shape` sets its radius).  method: a bundle of :data:`METHODS`; keyword ``options``
+    outlines, and gaps in the data as holes; ``("alpha", A)``: at a radius of
+    ``A`` local spacings, default 3,
+    :func:`~taichi_hh.geometry.from_points.alpha_shape`).  method: a bundle of
+    :data:`METHODS`; keyword ``options``
     override single fields of :class:`HHDOptions`, e.g.
     ``boundary_condition="normal-parallel"`` or ``"natural"`` (module doc).
     progress: optional ``callable(stage: str)`` told as each stage starts.
@@ -453,7 +457,7 @@ def _checked_problems(data: Data, opts: HHDOptions, progress, *,
     """The problems of ``data`` under ``opts``; with ``check``, too few points
     refused or flagged."""
     problems = _unit_problems(data.unit_points, data.unit_vectors, data.unit_domain, opts,
-                              progress)
+                              progress, data)
     problems.frame, problems.data = data.frame, data
     if check:
         check_point_count(len(problems.points), problems.stats, stacklevel=5)

@@ -32,14 +32,16 @@ FEW_POINTS = 100
 def validate_input(points, vectors, domain):
     """``(points, vectors, domain)`` checked: (N, 2) finite arrays without
     duplicates, every point inside ``domain`` (a Box, a Polygon, ``(x0, y0, x1,
-    y1)``, an (M, 2) vertex array, or ``"bbox"`` / ``"hull"`` / ``"alpha"``:
-    the points' bounding box (the default), convex hull or alpha shape).
+    y1)``, an (M, 2) vertex array, or ``"bbox"`` / ``"hull"`` / ``"alpha"`` /
+    ``("alpha", A)``: the points' bounding box (the default), convex hull or
+    alpha shape, :func:`~taichi_hh.geometry.from_points.domain_spec`).
     Raises :class:`~taichi_hh.errors.InputError`."""
+    from ..geometry.from_points import domain_from_points, domain_spec
     pts = check_points(points)
     vec = check_values(vectors, len(pts), 2, "vectors")
-    if domain is None or isinstance(domain, str):
-        from ..geometry.from_points import domain_from_points
-        domain = domain_from_points(pts, "bbox" if domain is None else domain)
+    spec = domain_spec(domain)
+    if spec is not None:
+        domain = domain_from_points(pts, *spec)
     else:
         from ..geometry.domain import as_domain
         domain = as_domain(domain)
@@ -94,11 +96,14 @@ def _rows_without_source(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.
     return count
 
 
-def check_data_reach_boundary(ps, boundary_kind: int, fluid_kind: int) -> None:
+def check_data_reach_boundary(ps, boundary_kind: int, fluid_kind: int,
+                              data: "Data | None" = None) -> None:
     """Boundary particles whose kernel support holds no data point mean that the
     data stop short of the domain's boundary by more than a support (the
     boundary rows would have no data to read).  Raises
-    :class:`~taichi_hh.errors.InputError` saying where, and the remedy."""
+    :class:`~taichi_hh.errors.InputError` saying where (in the caller's
+    coordinates: ``data.frame``), and the remedy (one other than the domain
+    the caller asked for, ``data.made_from``)."""
     p = ps.particles
     first = runtime.array(ti.i32, 1)
     first.fill(ps.n_total)
@@ -108,10 +113,11 @@ def check_data_reach_boundary(ps, boundary_kind: int, fluid_kind: int) -> None:
         return
     n_boundary = int((p.get("kind") == boundary_kind).sum())
     where = p.get("position")[int(first.to_numpy()[0])]
-    _refuse_gap(n_empty, n_boundary, where, ps.support)
+    _refuse_gap(n_empty, n_boundary, where, ps.support, data)
 
 
-def check_data_near_boundary(points: np.ndarray, domain, spacing: float, reach: float) -> None:
+def check_data_near_boundary(points: np.ndarray, domain, spacing: float, reach: float,
+                             data: "Data | None" = None) -> None:
     """:func:`check_data_reach_boundary` for a decomposition without boundary
     particles (the natural condition): samples of the boundary ``spacing``
     apart, each with a data point within ``reach`` (the kernel support), or
@@ -124,17 +130,35 @@ def check_data_near_boundary(points: np.ndarray, domain, spacing: float, reach: 
     distance = KNearest(points).query(samples, 1)[0][:, 0]
     far = distance > reach
     if far.any():
-        _refuse_gap(int(far.sum()), len(samples), samples[np.argmax(far)], reach)
+        _refuse_gap(int(far.sum()), len(samples), samples[np.argmax(far)], reach, data)
 
 
-def _refuse_gap(n_empty: int, n_boundary: int, where, reach: float) -> None:
+def _refuse_gap(n_empty: int, n_boundary: int, where, reach: float,
+                data: "Data | None" = None) -> None:
+    """The refusal of data short of the boundary (``where``, ``reach``: unit
+    frame when ``data`` is given); its remedies the domains drawn closer to
+    the data than the one ``data.made_from`` names (None: the caller's own)."""
+    if data is not None:
+        where, reach = data.frame.points_from_unit(where), reach * data.frame.length
+    kind, alpha = (data.made_from if data is not None else None) or (None, None)
+    remedies = {
+        "bbox": "domain='bbox' (the points' bounding box)",
+        "hull": "domain='hull' (the points' convex hull)",
+        "alpha": "domain='alpha' (the points' alpha shape: concave outlines and gaps followed)"}
+    if kind is None:
+        offer = list(remedies.values())
+    elif kind == "alpha":
+        # a boundary edge spans up to twice the radius: a smaller one keeps the
+        # outline closer to the data (below 2, random data fall into pieces)
+        offer = [f"domain=('alpha', {max(2.0, round(2.0 * alpha / 3.0, 1)):g}) (a smaller "
+                 "alpha-shape radius: the outline closer to the data)"] if alpha > 2.0 else []
+    else:                       # the hull and the alpha shape lie inside the bounding box
+        offer = [remedies[k] for k in ("hull", "alpha") if k != kind]
     raise InputError(
         f"the data do not reach the domain's boundary: {n_empty} of {n_boundary} boundary "
         f"samples (first at ({where[0]:.4g}, {where[1]:.4g})) have no data point within the "
         f"kernel support ({reach:.3g} at most). Give the domain the data cover: "
-        "domain='bbox' (the points' bounding box), domain='hull' (their convex hull), "
-        "domain='alpha' (their alpha shape: concave outlines and gaps followed), or a "
-        "Box/Polygon that fits them")
+        f"{''.join(o + ', ' for o in offer)}{'or ' if offer else ''}a Box/Polygon that fits them")
 
 
 # --------------------------------------------------------------------------- measured data
@@ -156,6 +180,7 @@ class Data:
     unit_domain: object
     flags: list = field(default_factory=list)
     domain: object = None        # the caller's Box or Polygon; None: made from the points
+    made_from: tuple | None = None   # (kind, alpha) of a domain made from the points
 
     @property
     def n_invalid(self) -> int:
@@ -206,7 +231,8 @@ def prepare_data(points, vectors, domain, *, invalid: str = "missing", valid=Non
     ``invalid="missing"`` (the default) missing rows are left out and the
     results are NaN there; with ``invalid="error"`` they are refused.  The
     domain (a Box, a Polygon, ``(x0, y0, x1, y1)``, an (M, 2) vertex array, or
-    ``"bbox"``, ``"hull"``, ``"alpha"``: one made from the valid points) must
+    ``"bbox"``, ``"hull"``, ``"alpha"``, ``("alpha", A)``: one made from the
+    valid points, :func:`~taichi_hh.geometry.from_points.domain_spec`) must
     hold every valid point.  ``caller``: ``"decompose"``, or ``"project"``,
     which needs a velocity on every particle (missing rows refused) and whose
     zero vectors are fluid at rest.  Raises :class:`~taichi_hh.errors.InputError`."""
@@ -244,10 +270,14 @@ def prepare_data(points, vectors, domain, *, invalid: str = "missing", valid=Non
     from ..sph.pointset import check_distinct
     check_spread(pts_ok)
     check_distinct(pts_ok, rows=np.flatnonzero(ok))
-    if domain is None or isinstance(domain, str):
+    from ..geometry.from_points import domain_from_points, domain_spec
+    made_from = domain_spec(domain)
+    if made_from is not None:
         lo, hi = pts_ok.min(axis=0), pts_ok.max(axis=0)
         frame = Frame.of((lo, hi), vec_ok)
-        unit_domain = "bbox" if domain is None else domain
+        # made in the unit frame, its messages in the caller's coordinates
+        unit_domain = domain_from_points(frame.points_to_unit(pts_ok), *made_from,
+                                         to_caller=frame.points_from_unit)
     else:
         from ..geometry.domain import as_domain
         user_domain = as_domain(domain)
@@ -264,7 +294,7 @@ def prepare_data(points, vectors, domain, *, invalid: str = "missing", valid=Non
     vec_out = vec.copy()
     vec_out[missing] = np.nan
     data = Data(pts, vec_out, ok, frame, unit_pts, unit_vec, unit_domain,
-                domain=None if domain is None or isinstance(domain, str) else user_domain)
+                domain=None if made_from is not None else user_domain, made_from=made_from)
     if caller == "decompose":
         _check_zero_rows(data)
     return data
