@@ -63,6 +63,7 @@ from .boundary import collocation_particles, far_from
 from .inputs import (INVALID_MODES, Data, check_data_near_boundary, check_data_reach_boundary,
                      check_point_count, prepare_data, refuse_too_few, validate_input)
 from .auto import choose_boundary_condition
+from .corners import check_corners
 from .natural import natural_potentials
 from .options import (BOUNDARY_CONDITIONS, BOUNDARY_METHODS, METHODS, PRECONDITIONERS,
                       HHDOptions, options_for)
@@ -418,7 +419,7 @@ def _decompose_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
             if key in first:
                 stats[key] = first[key]
         (phi, d), (psi, grad_psi) = solved["phi"], solved["psi"]
-        opts = replace(problems.opts, boundary_condition="no-flux")
+        opts = problems.opts = replace(problems.opts, boundary_condition="no-flux")
     else:
         problems = _checked_problems(data, opts, progress)
         seconds, stats = problems.seconds, problems.stats
@@ -445,6 +446,9 @@ def _decompose_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
     stats["seconds"] = seconds
     _check_energy(stats, vec, d, r, h, ps.particles.get("volume")[ps.slot_of], opts)
     _check_harmonic(stats, problems, h)
+    if opts.boundary_condition != "natural":
+        check_corners(stats, pts, d, r, problems.domain, stats["spacing"],
+                      opts.boundary_condition, data.frame.points_from_unit)
     runtime.release_launch_arguments(ps.n_total)
     return HHDResult(points=pts, vectors=vec, curl_free=d, div_free=r, harmonic=h,
                      phi=phi, psi=psi, divergence=div_slots[ps.slot_of],
