@@ -161,7 +161,10 @@ class Runner:
         failures = []
         for opts in self.attempts(method):
             try:
-                res = thh.decompose(pts, v, domain, method=method, **opts)
+                # the analysis is of Petronetto's Neumann problem (Eq. 6): the
+                # default method under it, not under the condition auto would choose
+                res = thh.decompose(pts, v, domain, method=method,
+                                    **{"boundary_condition": "neumann", **opts})
             except thh.SolverError as exc:
                 last = exc
                 desc = ", ".join(f"{k}={val:g}" if isinstance(val, float) else f"{k}={val}"

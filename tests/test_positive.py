@@ -180,7 +180,7 @@ def test_iterations_stay_flat_on_random_points():
     # term 11/10 (9/10 at 13k; docs/notes/scattered.md); deterministic counts
     F = fields.get("gaussian")
     pts = layouts.sample(F.domain, 50000, "random", seed=1)
-    res = thh.decompose(pts, F.evaluate(pts).v, F.domain)
+    res = thh.decompose(pts, F.evaluate(pts).v, F.domain, boundary_condition="neumann")
     its = (res.stats["iterations_phi"], res.stats["iterations_psi"])
     assert max(its) <= 13, its
     assert res.stats["positive_rows"]["replaced"] > 0
