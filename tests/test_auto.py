@@ -113,3 +113,20 @@ def test_no_flux_has_no_single_matrix(random_points):
         poisson_problems(random_points, ex.v, BOX)          # auto chose no-flux
     assert poisson_problems(random_points, ex.v, BOX,
                             boundary_condition="neumann").A is not None
+
+
+def test_the_grid_path_chooses_too():
+    """decompose_grid: the window's grid gets natural, a closed cavity sampled on
+    a cell-centred grid (as CFD output and PIV windows are: the outline of the
+    nodes' cells is the box, where v.n = 0) no-flux."""
+    x, y = (np.arange(80) + 0.5) / 40, (np.arange(40) + 0.5) / 40
+    X, Y = np.meshgrid(x, y)
+    nodes = np.c_[X.ravel(), Y.ravel()]
+    ex = closed_container(np, nodes, True)
+    g = thh.decompose_grid(x, y, ex.v[:, 0].reshape(X.shape), ex.v[:, 1].reshape(X.shape))
+    assert g.scattered.stats["boundary_condition"] == "no-flux"
+    err = _errors(g.scattered, closed_container(np, g.scattered.points, True))
+    assert max(err) < 5e-3, err
+    ex = window_field().evaluate(nodes)
+    g = thh.decompose_grid(x, y, ex.v[:, 0].reshape(X.shape), ex.v[:, 1].reshape(X.shape))
+    assert g.scattered.stats["boundary_condition"] == "natural"

@@ -36,13 +36,11 @@ from ..errors import AccuracyWarning, InputError
 from ..geometry.polygon import Polygon
 from ..geometry.raster import cell_outlines, check_axis
 
-__all__ = ["decompose_grid", "GridResult", "HOLE_SIZE", "GRID_BOUNDARY_CONDITION"]
+__all__ = ["decompose_grid", "GridResult", "HOLE_SIZE"]
 
 #: invalid regions holding a block of this many x this many nodes are cut out
 #: of the domain (holes, cut-off corners); smaller gaps are bridged
 HOLE_SIZE = 3
-#: the default method's boundary condition on a grid: a window of a larger flow
-GRID_BOUNDARY_CONDITION = "natural"
 #: valid nodes with fewer valid neighbours (of 8; the same share of 5 or 3 on
 #: edges and corners) are left out as isolated
 MIN_NEIGHBOURS = 4
@@ -145,11 +143,12 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE,
     doc); smaller gaps are bridged.  min_neighbours: valid nodes with fewer
     valid neighbours are left out as isolated (0: none).  Other arguments as
     :func:`~taichi_hh.hhd.decompose.decompose` (``domain`` is made here),
-    but for the boundary condition: a grid of measurements is a window of a
-    larger flow, so with ``method="default"`` it is ``"natural"`` unless
-    given (d, r: what the sources and vortices inside induce; h: the rest;
-    on windows it errs 10 to 500 times less than ``"neumann"``:
-    benchmarks/windows.py, docs/notes/hhd.md).
+    and the default condition alike (``auto``): a grid of measurements is a
+    window of a larger flow, which gets ``"natural"`` (d, r: what the sources
+    and vortices inside induce; h: the rest; on windows it errs 10 to 500
+    times less than ``"neumann"``: benchmarks/windows.py, docs/notes/hhd.md),
+    a closed container (v.n = 0 along the outline of the nodes' cells: a
+    cell-centred simulation with walls) ``"no-flux"``.
 
     Returns a :class:`GridResult`; ``stats`` adds ``n_invalid`` (nodes
     without a vector), ``n_cut_out`` (invalid nodes outside the domain),
@@ -199,8 +198,8 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE,
     inside = domain.contains(nodes).reshape(shape) & ~outside
     used = inside & ~invalid_s
     left_out = int((~invalid_s & ~inside).sum())
-    if method == "default":
-        options.setdefault("boundary_condition", GRID_BOUNDARY_CONDITION)
+    # the default condition as decompose()'s (auto): natural for a window, which
+    # every measured PIV field is, no-flux where the flow does not cross the outline
     res = decompose(nodes[used.ravel()], np.c_[u_s[used], v_s[used]], domain, method=method,
                     progress=progress, **options)
     stats = dict(res.stats)
