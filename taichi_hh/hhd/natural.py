@@ -28,11 +28,14 @@ second order and its error is smooth, so differencing it keeps second order
 (docs/notes/hhd.md).
 """
 import math
+import os
+import time
 
 import numpy as np
 import taichi as ti
 
 from .. import runtime
+from ..geometry.box import Box
 from ..sph.knn import KNearest
 from .options import NATURAL_EVALUATIONS
 
@@ -65,29 +68,94 @@ class Grid:
         i, j = np.meshgrid(np.arange(self.nx), np.arange(self.ny), indexing="ij")
         return np.c_[self.origin[0] + i.ravel() * self.hx, self.origin[1] + j.ravel() * self.hy]
 
-    def coverage(self, domain, sub: int = 4, *, centroids: bool = False):
+    def cell_index(self, points) -> np.ndarray:
+        """(N,) flat index ``i * ny + j`` of the cell holding each point (points
+        beyond the grid in its edge cells)."""
+        lower = self.origin - 0.5 * np.array([self.hx, self.hy])
+        ij = np.floor((points - lower) / [self.hx, self.hy]).astype(np.int64)
+        np.clip(ij[:, 0], 0, self.nx - 1, out=ij[:, 0])
+        np.clip(ij[:, 1], 0, self.ny - 1, out=ij[:, 1])
+        return ij[:, 0] * self.ny + ij[:, 1]
+
+    def coverage(self, domain, sub: int = 4, *, centroids: bool = False, inside: bool = False):
         """(nx, ny) fraction of each cell inside ``domain``, by ``sub`` x ``sub``
         subsamples for the cells the boundary may cross; with ``centroids``
         also (nx, ny, 2) the offset of the inside part's centroid from the
-        cell centre (0 for whole and empty cells), from the same subsamples."""
+        cell centre (0 for whole and empty cells), from the same subsamples;
+        with ``inside`` also (nx, ny) whether each cell centre is in the
+        domain (``domain.contains``).
+
+        An axis-aligned rectangle (a :class:`~taichi_hh.geometry.box.Box`)
+        in closed form: its inside subsamples are a product of the inside
+        columns and rows.  Other polygons: the cells the locator decides whole
+        (inside or out) without a distance, the rest by the exact signed
+        distance of the centre and, where the boundary may cross, the
+        subsamples."""
+        rect = _rectangle(domain)
+        if rect is not None:
+            frac, offset, centre_in = self._rectangle_coverage(rect, domain.boundary_tolerance,
+                                                               sub)
+        else:
+            frac, offset, centre_in = self._polygon_coverage(domain, sub)
+        out = (frac.reshape(self.shape),)
+        if centroids:
+            out += (offset.reshape(self.shape + (2,)),)
+        if inside:
+            out += (centre_in.reshape(self.shape),)
+        return out[0] if len(out) == 1 else out
+
+    def _subsample_offsets(self, sub: int):
+        s = (np.arange(sub) + 0.5) / sub - 0.5
+        return s * self.hx, s * self.hy
+
+    def _rectangle_coverage(self, rect, eps: float, sub: int):
+        """Rectangle ``((x0, y0), (x1, y1))``: a subsample is inside when its x
+        and its y are (within ``eps``, the domain's boundary tolerance), so a
+        cell's inside subsamples are the product of its inside columns and rows:
+        the fraction is the product of the two counts, the centroid the pair of
+        the two means."""
+        (x0, y0), (x1, y1) = rect
+        sx, sy = self._subsample_offsets(sub)
+        parts = []
+        for n, o, h, lo, hi, s in ((self.nx, self.origin[0], self.hx, x0, x1, sx),
+                                   (self.ny, self.origin[1], self.hy, y0, y1, sy)):
+            c = o + np.arange(n) * h                           # as centres() makes them
+            coords = c[:, None] + s[None, :]
+            ins = (coords >= lo - eps) & (coords <= hi + eps)
+            count = ins.sum(axis=1)
+            mean = np.where(count > 0, (ins * s).sum(axis=1) / np.maximum(count, 1), 0.0)
+            mean[count == sub] = 0.0                       # whole columns: the centre
+            centre_in = (c >= lo - eps) & (c <= hi + eps)
+            parts.append((count, mean, centre_in))
+        (cx, mx, ix), (cy, my, iy) = parts
+        frac = (cx[:, None] * cy[None, :]).astype(np.float64) / (sub * sub)
+        offset = np.zeros(self.shape + (2,))
+        offset[..., 0] = np.where(frac > 0, mx[:, None], 0.0)
+        offset[..., 1] = np.where(frac > 0, my[None, :], 0.0)
+        offset[frac == 1.0] = 0.0
+        return frac.ravel(), offset.reshape(-1, 2), (ix[:, None] & iy[None, :]).ravel()
+
+    def _polygon_coverage(self, domain, sub: int):
         c = self.centres()
-        sd = domain.signed_distance(c)
         half_diag = 0.5 * math.hypot(self.hx, self.hy)
-        frac = (sd < -half_diag).astype(np.float64)
+        # 1: the disc of the half diagonal inside (a whole cell), 0: outside
+        # (an empty cell), 2: the boundary may cross it
+        status = domain.classify_discs(c, half_diag, -np.inf, 0.0)
+        frac = (status == 1).astype(np.float64)
+        centre_in = status == 1
         offset = np.zeros((len(c), 2))
-        cut = np.flatnonzero(np.abs(sd) <= half_diag)
+        cut = np.flatnonzero(status == 2)
         if cut.size:
-            s = (np.arange(sub) + 0.5) / sub - 0.5
-            ox, oy = np.meshgrid(s * self.hx, s * self.hy, indexing="ij")
+            centre_in[cut] = domain.contains(c[cut])
+            sx, sy = self._subsample_offsets(sub)
+            ox, oy = np.meshgrid(sx, sy, indexing="ij")
             offs = np.c_[ox.ravel(), oy.ravel()]
             sp = (c[cut][:, None, :] + offs[None, :, :]).reshape(-1, 2)
             inside = domain.contains(sp).reshape(len(cut), -1)
             frac[cut] = inside.mean(axis=1)
             count = inside.sum(axis=1)
             offset[cut] = (inside @ offs) / np.maximum(count, 1)[:, None]
-        if centroids:
-            return frac.reshape(self.shape), offset.reshape(self.shape + (2,))
-        return frac.reshape(self.shape)
+        return frac, offset, centre_in
 
     def self_integral(self) -> float:
         """int over one cell (centred at 0) of G = ln|s| / (2 pi): Gauss-Legendre
@@ -104,19 +172,37 @@ class Grid:
             total += 2.0 * float((w * t_max * (R * R * np.log(R) / 2 - R * R / 4)).sum())
         return total / (2.0 * math.pi)
 
-    def kernel(self) -> np.ndarray:
+    def kernel(self, shape=None) -> np.ndarray:
         """(2 nx, 2 ny) the Green's function times the cell area at every offset
         of the zero-padded grid (wrapped: offset -k at index 2n - k), the cell's
-        own integral at offset 0 (Hockney and Eastwood's free-space convolution)."""
-        ix = np.arange(2 * self.nx)
-        iy = np.arange(2 * self.ny)
-        ix = np.where(ix <= self.nx, ix, ix - 2 * self.nx) * self.hx
-        iy = np.where(iy <= self.ny, iy, iy - 2 * self.ny) * self.hy
+        own integral at offset 0 (Hockney and Eastwood's free-space convolution).
+        ``shape``: a larger padded grid (each side at least 2 n - 2; the offsets
+        wrap at half of it)."""
+        L1, L2 = (2 * self.nx, 2 * self.ny) if shape is None else shape
+        ix = np.arange(L1)
+        iy = np.arange(L2)
+        ix = np.where(ix <= L1 // 2, ix, ix - L1) * self.hx
+        iy = np.where(iy <= L2 // 2, iy, iy - L2) * self.hy
         r2 = ix[:, None] ** 2 + iy[None, :] ** 2
         r2[0, 0] = 1.0
         K = np.log(r2) / (4.0 * math.pi) * (self.hx * self.hy)
         K[0, 0] = self.self_integral()
         return K
+
+
+def _rectangle(domain):
+    """``((x0, y0), (x1, y1))`` when ``domain`` is an axis-aligned rectangle
+    without holes (a Box, or a Polygon of those four corners), else None."""
+    if isinstance(domain, Box):
+        return domain.lo, domain.hi
+    rings = getattr(domain, "rings", ())
+    if len(rings) != 1 or len(rings[0]) != 4:
+        return None
+    (x0, y0), (x1, y1) = domain.bounds
+    corners = {(x0, y0), (x1, y0), (x1, y1), (x0, y1)}
+    if {(float(x), float(y)) for x, y in rings[0]} != corners:
+        return None
+    return (x0, y0), (x1, y1)
 
 
 def mls_at(points, values, targets, k: int = MLS_NEIGHBOURS,
@@ -168,6 +254,71 @@ def _mls_weight(q):
     return (1.0 - q) ** 4 * (1.0 + 4.0 * q) if q < 1.0 else 0.0
 
 
+@ti.func
+def _mls_reach(R, hx, hy):
+    """The cells (i and j offsets from a node's own) that can hold points
+    closer than ``R`` to the node at their centre: offset a holds none closer
+    than (|a| - 1/2) cells (a radius of 2.5 cells: 5 x 5 cells, not 7 x 7)."""
+    return (ti.cast(ti.ceil(R / hx + 0.5), ti.i32) - 1,
+            ti.cast(ti.ceil(R / hy + 0.5), ti.i32) - 1)
+
+
+@ti.func
+def _mls_add(M, rhs, d, v):
+    """One data point's terms of the normal equations: ``d`` its offset from the
+    node over the radius, ``v`` its two values."""
+    w = _mls_weight(d.norm())
+    if w > 0.0:
+        b = ti.Vector([1.0, d[0], d[1], d[0] * d[0], d[0] * d[1], d[1] * d[1]])
+        M += w * b.outer_product(b)
+        rhs += w * b.outer_product(v)
+    return M, rhs
+
+
+@ti.func
+def _cholesky6(M, rhs, dt: ti.template(), floor: ti.template()):
+    """x with M x = rhs for the symmetric positive 6 x 6 ``M`` and 6 x 2 ``rhs``
+    in precision ``dt`` (Cholesky, the diagonal raised by 1e-12 of the trace
+    and ``floor``)."""
+    tr = ti.cast(0.0, dt)
+    for a in ti.static(range(6)):
+        tr += M[a, a]
+    for a in ti.static(range(6)):
+        M[a, a] += 1e-12 * tr + floor
+    # Cholesky M = L L^T, then L y = rhs, L^T x = y
+    L = ti.Matrix.zero(dt, 6, 6)
+    for jj in ti.static(range(6)):
+        s = M[jj, jj]
+        for kk in ti.static(range(jj)):
+            s -= L[jj, kk] * L[jj, kk]
+        L[jj, jj] = ti.sqrt(ti.max(s, 1e-30))
+        for ii in ti.static(range(jj + 1, 6)):
+            s2 = M[ii, jj]
+            for kk in ti.static(range(jj)):
+                s2 -= L[ii, kk] * L[jj, kk]
+            L[ii, jj] = s2 / L[jj, jj]
+    y = ti.Matrix.zero(dt, 6, 2)
+    for ii in ti.static(range(6)):
+        r0 = rhs[ii, 0]
+        r1 = rhs[ii, 1]
+        for kk in ti.static(range(ii)):
+            r0 -= L[ii, kk] * y[kk, 0]
+            r1 -= L[ii, kk] * y[kk, 1]
+        y[ii, 0] = r0 / L[ii, ii]
+        y[ii, 1] = r1 / L[ii, ii]
+    x = ti.Matrix.zero(dt, 6, 2)
+    for q in ti.static(range(6)):
+        ii = ti.static(5 - q)
+        r0 = y[ii, 0]
+        r1 = y[ii, 1]
+        for kk in ti.static(range(ii + 1, 6)):
+            r0 -= L[kk, ii] * x[kk, 0]
+            r1 -= L[kk, ii] * x[kk, 1]
+        x[ii, 0] = r0 / L[ii, ii]
+        x[ii, 1] = r1 / L[ii, ii]
+    return x
+
+
 @ti.kernel
 def _mls_nodes(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, x0: float, y0: float,
                hx: float, hy: float, start: ti.types.ndarray(), pos: ti.types.ndarray(),
@@ -175,126 +326,184 @@ def _mls_nodes(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, x0: float, y
     """Quadratic moving least squares of the two columns of ``vals`` at the
     centres of the ``targets`` cells, from the points (sorted by cell, ``start``
     the offsets) within the first radius of MLS_RADII holding MLS_MIN_POINTS;
-    one gather per node, the 6 x 6 normal equations by Cholesky."""
+    one gather per node, the 6 x 6 normal equations by Cholesky.  Each
+    radius is counted and summed in one pass (the sums kept when the count
+    suffices); the cells of one grid row are consecutive, their points one
+    slot range."""
     h = ti.max(hx, hy)
     for t in range(targets.shape[0]):
         c = targets[t]
         ci = c // ny
         cj = c - ci * ny
         X = ti.Vector([x0 + ci * hx, y0 + cj * hy])
-        R = 0.0
-        for a in ti.static(range(_N_RADII)):
-            if R == 0.0:
-                r_try = MLS_RADII[a] * h
-                reach = ti.cast(ti.ceil(r_try / ti.min(hx, hy)), ti.i32)
-                count = 0
-                for i in range(ti.max(ci - reach, 0), ti.min(ci + reach + 1, nx)):
-                    for j in range(ti.max(cj - reach, 0), ti.min(cj + reach + 1, ny)):
-                        cell = i * ny + j
-                        for k in range(start[cell], start[cell + 1]):
-                            d = pos[k] - X
-                            if d.dot(d) < r_try * r_try:
-                                count += 1
-                if count >= MLS_MIN_POINTS or a == _N_RADII - 1:
-                    R = r_try
-        reach = ti.cast(ti.ceil(R / ti.min(hx, hy)), ti.i32)
         M = ti.Matrix.zero(float, 6, 6)
         rhs = ti.Matrix.zero(float, 6, 2)
-        for i in range(ti.max(ci - reach, 0), ti.min(ci + reach + 1, nx)):
-            for j in range(ti.max(cj - reach, 0), ti.min(cj + reach + 1, ny)):
-                cell = i * ny + j
-                for k in range(start[cell], start[cell + 1]):
-                    d = (pos[k] - X) / R
-                    w = _mls_weight(d.norm())
-                    if w > 0.0:
-                        b = ti.Vector([1.0, d[0], d[1], d[0] * d[0], d[0] * d[1], d[1] * d[1]])
-                        M += w * b.outer_product(b)
-                        rhs += w * b.outer_product(vals[k])
-        tr = 0.0
-        for a in ti.static(range(6)):
-            tr += M[a, a]
-        for a in ti.static(range(6)):
-            M[a, a] += 1e-12 * tr + 1e-30
-        # Cholesky M = L L^T, then L y = rhs, L^T x = y; only x[0, :] is wanted
-        L = ti.Matrix.zero(float, 6, 6)
-        for jj in ti.static(range(6)):
-            s = M[jj, jj]
-            for kk in ti.static(range(jj)):
-                s -= L[jj, kk] * L[jj, kk]
-            L[jj, jj] = ti.sqrt(ti.max(s, 1e-30))
-            for ii in ti.static(range(jj + 1, 6)):
-                s2 = M[ii, jj]
-                for kk in ti.static(range(jj)):
-                    s2 -= L[ii, kk] * L[jj, kk]
-                L[ii, jj] = s2 / L[jj, jj]
-        y = ti.Matrix.zero(float, 6, 2)
-        for ii in ti.static(range(6)):
-            r0 = rhs[ii, 0]
-            r1 = rhs[ii, 1]
-            for kk in ti.static(range(ii)):
-                r0 -= L[ii, kk] * y[kk, 0]
-                r1 -= L[ii, kk] * y[kk, 1]
-            y[ii, 0] = r0 / L[ii, ii]
-            y[ii, 1] = r1 / L[ii, ii]
-        x = ti.Matrix.zero(float, 6, 2)
-        for q in ti.static(range(6)):
-            ii = ti.static(5 - q)
-            r0 = y[ii, 0]
-            r1 = y[ii, 1]
-            for kk in ti.static(range(ii + 1, 6)):
-                r0 -= L[kk, ii] * x[kk, 0]
-                r1 -= L[kk, ii] * x[kk, 1]
-            x[ii, 0] = r0 / L[ii, ii]
-            x[ii, 1] = r1 / L[ii, ii]
-        out[t] = ti.Vector([x[0, 0], x[0, 1]])
+        done = False
+        for a in ti.static(range(_N_RADII)):
+            if not done:
+                R = MLS_RADII[a] * h
+                ri, rj = _mls_reach(R, hx, hy)
+                M = ti.Matrix.zero(float, 6, 6)
+                rhs = ti.Matrix.zero(float, 6, 2)
+                count = 0
+                for i in range(ti.max(ci - ri, 0), ti.min(ci + ri + 1, nx)):
+                    row = i * ny
+                    for k in range(start[row + ti.max(cj - rj, 0)],
+                                   start[row + ti.min(cj + rj + 1, ny)]):
+                        d = ti.Vector([pos[k, 0], pos[k, 1]]) - X
+                        if d.dot(d) < R * R:
+                            count += 1
+                            M, rhs = _mls_add(M, rhs, d / R,
+                                              ti.Vector([vals[k, 0], vals[k, 1]]))
+                if count >= MLS_MIN_POINTS or a == _N_RADII - 1:
+                    done = True
+        x = _cholesky6(M, rhs, float, 1e-30)
+        out[t, 0] = x[0, 0]
+        out[t, 1] = x[0, 1]
 
 
-def reconstruct_on_grid(grid: "Grid", points, values, live) -> np.ndarray:
+@ti.kernel
+def _cell_counts(pts: ti.types.ndarray(), lx: ti.f64, ly: ti.f64, hx: ti.f64, hy: ti.f64,
+                 nx: ti.i32, ny: ti.i32, cell: ti.types.ndarray(), count: ti.types.ndarray()):
+    """cell[p]: the flat index of the grid cell holding point p (as
+    :meth:`Grid.cell_index`); count[c + 1] += 1 for each."""
+    for p in range(pts.shape[0]):
+        fx = ti.math.clamp(ti.floor((pts[p, 0] - lx) / hx), 0.0, ti.cast(nx - 1, ti.f64))
+        fy = ti.math.clamp(ti.floor((pts[p, 1] - ly) / hy), 0.0, ti.cast(ny - 1, ti.f64))
+        c = ti.cast(fx, ti.i32) * ny + ti.cast(fy, ti.i32)
+        cell[p] = c
+        ti.atomic_add(count[c + 1], 1)
+
+
+@ti.kernel
+def _sort_by_cell(pts: ti.types.ndarray(), cell: ti.types.ndarray(), cursor: ti.types.ndarray(),
+                  order: ti.types.ndarray(), out: ti.types.ndarray()):
+    """The counting sort's stable scatter: point p to the next free slot of its
+    cell (``cursor``: the cells' starts, advanced), in input order."""
+    ti.loop_config(serialize=True)
+    for p in range(pts.shape[0]):
+        c = cell[p]
+        k = cursor[c]
+        cursor[c] = k + 1
+        order[k] = p
+        out[k, 0] = pts[p, 0]
+        out[k, 1] = pts[p, 1]
+
+
+class _Binned:
+    """Points sorted by the grid's cells (a counting sort, stable):
+    ``order`` (sorted -> input index), ``start`` (nx * ny + 1 offsets into the
+    sorted points), ``points`` sorted."""
+
+    def __init__(self, grid: "Grid", points):
+        runtime.ensure_init()
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        n = len(pts)
+        lower = grid.origin - 0.5 * np.array([grid.hx, grid.hy])
+        count = np.zeros(grid.nx * grid.ny + 1, dtype=np.int32)
+        self.order = np.empty(n, dtype=np.int64)
+        self.points = np.empty((n, 2))
+        if n:
+            cell = np.empty(n, dtype=np.int32)
+            _cell_counts(pts, float(lower[0]), float(lower[1]), grid.hx, grid.hy, grid.nx,
+                         grid.ny, cell, count)
+            np.cumsum(count, out=count)
+            _sort_by_cell(pts, cell, count[:-1].copy(), self.order, self.points)
+        self.start = count
+
+
+def reconstruct_on_grid(grid: "Grid", points, values, live, *, binned=None) -> np.ndarray:
     """(len(live), m) the columns of ``values`` (N, m) reconstructed at the centres
     of the cells ``live`` (flat indices) by quadratic moving least squares
-    (:func:`_mls_nodes`, two columns per pass)."""
+    (:func:`_mls_nodes`, two columns per pass, on numpy arrays in the
+    runtime's precision).  ``binned``: the points already sorted by cell
+    (:class:`_Binned`)."""
     runtime.ensure_init()
-    real, npr = runtime.real_dtype(), runtime.np_real()
+    npr = runtime.np_real()
     values = np.asarray(values, dtype=np.float64)
     values = values[:, None] if values.ndim == 1 else values
-    lower = grid.origin - 0.5 * np.array([grid.hx, grid.hy])
-    ij = np.floor((points - lower) / [grid.hx, grid.hy]).astype(np.int64)
-    ij[:, 0] = np.clip(ij[:, 0], 0, grid.nx - 1)
-    ij[:, 1] = np.clip(ij[:, 1], 0, grid.ny - 1)
-    cell = ij[:, 0] * grid.ny + ij[:, 1]
-    order = np.argsort(cell, kind="stable")
-    start = np.zeros(grid.nx * grid.ny + 1, dtype=np.int32)
-    np.cumsum(np.bincount(cell, minlength=grid.nx * grid.ny), out=start[1:])
-    pos = runtime.array(real, len(points), vector=2)
-    pos.from_numpy(points[order].astype(npr))
-    start_nd = runtime.array(ti.i32, len(start))
-    start_nd.from_numpy(start)
+    if binned is None:
+        binned = _Binned(grid, points)
+    order = binned.order
     live = np.asarray(live, dtype=np.int32)
-    tg = runtime.array(ti.i32, max(len(live), 1))
-    tg.from_numpy(np.resize(live, max(len(live), 1)))
     out = np.zeros((len(live), values.shape[1]))
-    res = runtime.array(real, max(len(live), 1), vector=2)
-    vals = runtime.array(real, len(points), vector=2)
+    if len(live) == 0 or len(order) == 0:
+        return out
+    pos = np.ascontiguousarray(binned.points, dtype=npr)
+    res = np.empty((len(live), 2), dtype=npr)
     for m in range(0, values.shape[1], 2):
-        pair = np.zeros((len(points), 2))
+        pair = np.zeros((len(order), 2), dtype=npr)
         cols = values[order, m:m + 2]
         pair[:, :cols.shape[1]] = cols
-        vals.from_numpy(pair.astype(npr))
-        if len(live):
-            _mls_nodes(tg, grid.nx, grid.ny, float(grid.origin[0]), float(grid.origin[1]),
-                       grid.hx, grid.hy, start_nd, pos, vals, res)
-        out[:, m:m + cols.shape[1]] = res.to_numpy()[: len(live), : cols.shape[1]]
+        _mls_nodes(live, grid.nx, grid.ny, float(grid.origin[0]), float(grid.origin[1]),
+                   grid.hx, grid.hy, binned.start, pos, pair, res)
+        out[:, m:m + cols.shape[1]] = res[:, : cols.shape[1]]
     return out
+
+
+def fast_length(n: int) -> int:
+    """The smallest 2^a 3^b 5^c >= n (a length the FFTs factor well)."""
+    best = 1 << max(int(n) - 1, 0).bit_length()
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            q = p35
+            while q < n:
+                q *= 2
+            best = min(best, q)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+def _fft():
+    """``(module, keywords)``: scipy.fft on every core where scipy is installed
+    (a test and benchmark dependency, not a core one), numpy.fft otherwise."""
+    try:
+        import scipy.fft as sfft
+    except ImportError:
+        return np.fft, {}
+    return sfft, {"workers": os.cpu_count() or 1}
+
+
+#: the last grid's kernel spectrum (a decomposition at one size repeated, or a
+#: series of fields on the same points, reuses it)
+_SPECTRA: dict = {}
+
+
+def _kernel_spectrum(grid: Grid, shape, fft, kw) -> np.ndarray:
+    """The transform of :meth:`Grid.kernel` on the padded ``shape``: real (the
+    kernel is even in both offsets), (L1, L2 // 2 + 1)."""
+    key = (grid.nx, grid.ny, grid.hx, grid.hy, tuple(shape), fft.__name__)
+    K = _SPECTRA.get(key)
+    if K is None:
+        K = np.ascontiguousarray(fft.rfft2(grid.kernel(shape), **kw).real)
+        _SPECTRA.clear()
+        _SPECTRA[key] = K
+    return K
 
 
 def convolve_fft(grid: Grid, density: np.ndarray) -> np.ndarray:
     """(nx, ny) sum over cells of G(x_a - x_b) density_b (times the cell area),
-    by zero-padded FFT (the padding makes the circular convolution free-space)."""
+    by zero-padded FFT (the padding makes the circular convolution free-space);
+    ``density`` (k, nx, ny) gives (k, nx, ny).  The padded sides are lengths
+    the FFT factors well (:func:`fast_length`, at least 2 n - 1), the
+    transforms skip the padding's zero rows on the way in and the unused rows
+    on the way out."""
     nx, ny = grid.shape
-    K = np.fft.rfft2(grid.kernel())
-    rho = np.zeros((2 * nx, 2 * ny))
-    rho[:nx, :ny] = density
-    return np.fft.irfft2(np.fft.rfft2(rho) * K, s=rho.shape)[:nx, :ny]
+    d = np.asarray(density, dtype=np.float64)
+    one = d.ndim == 2
+    d = d[None] if one else d
+    fft, kw = _fft()
+    L1, L2 = fast_length(2 * nx - 1), fast_length(2 * ny - 1)
+    K = _kernel_spectrum(grid, (L1, L2), fft, kw)
+    A = fft.rfft(d, n=L2, axis=2, **kw)
+    A = fft.fft(A, n=L1, axis=1, **kw)
+    A *= K
+    A = fft.ifft(A, axis=1, **kw)[:, :nx]
+    out = fft.irfft(A, n=L2, axis=2, **kw)[:, :, :ny]
+    return out[0] if one else out
 
 
 @ti.kernel
@@ -332,17 +541,12 @@ def convolve_direct(grid: Grid, density: np.ndarray) -> np.ndarray:
 def grid_gradient(grid: Grid, u: np.ndarray) -> np.ndarray:
     """(nx, ny, 2) fourth-order central differences (second order on the two
     outermost cells)."""
-    g = np.zeros(u.shape + (2,))
+    g = np.empty(u.shape + (2,))
     for axis, h in ((0, grid.hx), (1, grid.hy)):
         d = np.gradient(u, h, axis=axis, edge_order=2)
-        sl = [slice(None)] * 2
-        sl[axis] = slice(2, -2)
-        p2 = np.roll(u, -2, axis=axis)
-        p1 = np.roll(u, -1, axis=axis)
-        m1 = np.roll(u, 1, axis=axis)
-        m2 = np.roll(u, 2, axis=axis)
-        d4 = (-p2 + 8 * p1 - 8 * m1 + m2) / (12 * h)
-        d[tuple(sl)] = d4[tuple(sl)]
+        v = np.moveaxis(u, axis, 0)
+        inner = np.moveaxis(d, axis, 0)
+        inner[2:-2] = (-v[4:] + 8 * v[3:-1] - 8 * v[1:-3] + v[:-4]) / (12 * h)
         g[..., axis] = d
     return g
 
@@ -356,7 +560,52 @@ SPLINE_POLE = math.sqrt(3.0) - 2.0
 SPLINE_PAD = 12
 
 
+@ti.kernel
+def _spline_filter(c: ti.types.ndarray(), z: ti.f64):
+    """The cubic B-spline prefilter in place along the middle axis of ``c``
+    (A, n, B), every line (a, :, b) in parallel: the gain, the causal filter
+    started exactly for the half-sample symmetric extension, the anticausal
+    filter (as :func:`spline_coefficients_numpy`)."""
+    A, n, B = c.shape[0], c.shape[1], c.shape[2]
+    gain = (1.0 - z) * (1.0 - 1.0 / z)
+    zn = ti.pow(z, ti.cast(n, ti.f64))
+    for t in range(A * B):
+        a = t // B
+        b = t - a * B
+        for i in range(n):
+            c[a, i, b] *= gain
+        # causal start: sum_i z^i c_i over the mirrored sequence, in closed form
+        mirror = ti.f64(0.0)
+        zi = ti.f64(1.0)
+        for i in range(1, n):
+            zi *= z
+            mirror += zi * (c[a, i, b] + zn * c[a, n - 1 - i, b])
+        c0 = c[a, 0, b]
+        c[a, 0, b] = c0 + z / (1.0 - zn * zn) * (c0 + zn * c[a, n - 1, b] + mirror)
+        for i in range(1, n):
+            c[a, i, b] += z * c[a, i - 1, b]
+        c[a, n - 1, b] *= z / (z - 1.0)                  # anticausal start
+        for q in range(1, n):
+            i = n - 1 - q
+            c[a, i, b] = z * (c[a, i + 1, b] - c[a, i, b])
+
+
 def spline_coefficients(u: np.ndarray) -> np.ndarray:
+    """The cubic B-spline coefficients interpolating ``u`` (nx, ny[, m]) on
+    its grid padded by ``SPLINE_PAD`` replicated edge values (a contiguous
+    array): :func:`spline_coefficients_numpy`'s recursive filters in a
+    Taichi kernel, every grid line in parallel."""
+    runtime.ensure_init()
+    pad = [(SPLINE_PAD, SPLINE_PAD)] * 2 + [(0, 0)] * (u.ndim - 2)
+    c = np.pad(np.asarray(u, dtype=np.float64), pad, mode="edge")
+    c3 = c.reshape(c.shape[0], c.shape[1], -1)
+    if c3.size:
+        _spline_filter(c3.reshape(1, c3.shape[0], -1), SPLINE_POLE)        # along x
+        _spline_filter(c3, SPLINE_POLE)                                    # along y
+    return c
+
+
+def spline_coefficients_numpy(u: np.ndarray) -> np.ndarray:
     """The cubic B-spline coefficients interpolating ``u`` (nx, ny[, m]) on
     its grid padded by ``SPLINE_PAD`` replicated edge values: along each axis
     the causal and anticausal recursive filters with the pole z (Unser et al.
@@ -398,10 +647,12 @@ def _cubic_weights(t):
 
 @ti.kernel
 def _spline_at(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64, y0: ti.f64,
-               hx: ti.f64, hy: ti.f64, out: ti.types.ndarray()):
-    """out[p, :] = the tensor-product cubic B-spline of ``coef`` (NX, NY, m) at
-    point p: the 4 x 4 knots around it (indices clamped: ``nearest``)."""
-    NX, NY, m = coef.shape[0], coef.shape[1], coef.shape[2]
+               hx: ti.f64, hy: ti.f64, m: ti.template(), scatter: ti.template(),
+               dest: ti.types.ndarray(), out: ti.types.ndarray()):
+    """out[p, :] (with ``scatter``: out[dest[p], :]) = the tensor-product cubic
+    B-spline of ``coef`` (NX, NY, m) at point p: the 4 x 4 knots around it
+    (indices clamped: ``nearest``); the ``m`` columns of a knot read together."""
+    NX, NY = coef.shape[0], coef.shape[1]
     for p in range(pts.shape[0]):
         x = (pts[p, 0] - x0) / hx + SPLINE_PAD
         y = (pts[p, 1] - y0) / hy + SPLINE_PAD
@@ -412,28 +663,37 @@ def _spline_at(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64, y0
         # clamp in floating point: far-away points would overflow i32
         ix = ti.cast(ti.math.clamp(fx, -2.0, ti.cast(NX, ti.f64)), ti.i32)
         iy = ti.cast(ti.math.clamp(fy, -2.0, ti.cast(NY, ti.f64)), ti.i32)
-        for col in range(m):
-            acc = ti.f64(0.0)
-            for a in ti.static(range(4)):
-                i = ti.math.clamp(ix + a - 1, 0, NX - 1)
-                row = ti.f64(0.0)
-                for b in ti.static(range(4)):
-                    row += wy[b] * coef[i, ti.math.clamp(iy + b - 1, 0, NY - 1), col]
-                acc += wx[a] * row
-            out[p, col] = acc
+        acc = ti.Vector.zero(ti.f64, m)
+        for a in ti.static(range(4)):
+            i = ti.math.clamp(ix + a - 1, 0, NX - 1)
+            row = ti.Vector.zero(ti.f64, m)
+            for b in ti.static(range(4)):
+                j = ti.math.clamp(iy + b - 1, 0, NY - 1)
+                for col in ti.static(range(m)):
+                    row[col] += wy[b] * coef[i, j, col]
+            acc += wx[a] * row
+        row_out = p
+        if ti.static(scatter):
+            row_out = ti.cast(dest[p], ti.i32)
+        for col in ti.static(range(m)):
+            out[row_out, col] = acc[col]
 
 
-def at_points(grid: Grid, u: np.ndarray, points) -> np.ndarray:
+def at_points(grid: Grid, u: np.ndarray, points, *, dest=None) -> np.ndarray:
     """Grid values ``u`` (nx, ny[, m]) interpolated at ``points`` by the cubic
     B-spline through them (:func:`spline_coefficients`; the tensor product
-    of the 4 x 4 knots around each point, one gather per point)."""
+    of the 4 x 4 knots around each point, one gather per point).  ``dest``:
+    the row of the result each point's values go to (a permutation)."""
     runtime.ensure_init()
     c = spline_coefficients(u)
-    c3 = np.ascontiguousarray(c if c.ndim == 3 else c[..., None])
+    c3 = c if c.ndim == 3 else c[..., None]
     pts = np.ascontiguousarray(points, dtype=np.float64)
     out = np.zeros((len(pts), c3.shape[2]))
     if len(pts):
-        _spline_at(c3, pts, float(grid.origin[0]), float(grid.origin[1]), grid.hx, grid.hy, out)
+        scatter = dest is not None
+        rows = np.ascontiguousarray(dest, dtype=np.int64) if scatter else np.zeros(1, np.int64)
+        _spline_at(c3, pts, float(grid.origin[0]), float(grid.origin[1]), grid.hx, grid.hy,
+                   c3.shape[2], scatter, rows, out)
     return out if c.ndim == 3 else out[:, 0]
 
 
@@ -449,6 +709,48 @@ ONE_SIDED_REACH = 4
 ONE_SIDED_MIN_NODES = 16
 
 
+@ti.kernel
+def _one_sided(u: ti.types.ndarray(), inside: ti.types.ndarray(), pts: ti.types.ndarray(),
+               x0: ti.f64, y0: ti.f64, hx: ti.f64, hy: ti.f64, col: ti.i32,
+               out: ti.types.ndarray()):
+    """:func:`one_sided_gradient` of the columns ``col`` and ``col + 1`` of
+    ``u`` (nx, ny, m) at each point: out[p, 0:2] and out[p, 2:4] (NaN where
+    fewer than ONE_SIDED_MIN_NODES nodes carry weight)."""
+    nx, ny = u.shape[0], u.shape[1]
+    R = ONE_SIDED_REACH
+    for p in range(pts.shape[0]):
+        P = ti.Vector([pts[p, 0], pts[p, 1]], dt=ti.f64)
+        # the nearest node
+        ci = ti.cast(ti.math.clamp(ti.floor((P[0] - x0) / hx + 0.5), -1e9, 1e9), ti.i32)
+        cj = ti.cast(ti.math.clamp(ti.floor((P[1] - y0) / hy + 0.5), -1e9, 1e9), ti.i32)
+        M = ti.Matrix.zero(ti.f64, 6, 6)
+        rhs = ti.Matrix.zero(ti.f64, 6, 2)
+        count = 0
+        for a in range(-R, R + 1):
+            ii = ti.math.clamp(ci + a, 0, nx - 1)
+            for b in range(-R, R + 1):
+                jj = ti.math.clamp(cj + b, 0, ny - 1)
+                dx = (x0 + ii * hx - P[0]) / hx                      # in cells
+                dy = (y0 + jj * hy - P[1]) / hy
+                q = ti.sqrt(dx * dx + dy * dy) / (R - 0.5)
+                if inside[ii, jj] != 0 and q < 1.0:
+                    w = (1.0 - q) ** 4 * (1.0 + 4.0 * q)
+                    if w > 0.0:
+                        count += 1
+                    B = ti.Vector([1.0, dx, dy, dx * dx, dx * dy, dy * dy], dt=ti.f64)
+                    v = ti.Vector([u[ii, jj, col], u[ii, jj, col + 1]], dt=ti.f64)
+                    M += w * B.outer_product(B)
+                    rhs += w * B.outer_product(v)
+        for c in ti.static(range(4)):
+            out[p, c] = ti.math.nan
+        if count >= ONE_SIDED_MIN_NODES:
+            x = _cholesky6(M, rhs, ti.f64, 0.0)
+            out[p, 0] = x[1, 0] / hx
+            out[p, 1] = x[2, 0] / hy
+            out[p, 2] = x[1, 1] / hx
+            out[p, 3] = x[2, 1] / hy
+
+
 def one_sided_gradient(grid: Grid, u: np.ndarray, inside: np.ndarray, points) -> np.ndarray:
     """(len(points), 2) the gradient of the grid potential ``u`` (nx, ny) at
     ``points`` from a weighted quadratic least-squares fit to the nodes
@@ -462,39 +764,31 @@ def one_sided_gradient(grid: Grid, u: np.ndarray, inside: np.ndarray, points) ->
     rotation on the unit square, 3.3e-3 -> 1.7e-3 -> 8.6e-4 near the boundary
     at 4k -> 16k -> 64k points, against 1.8e-5 -> 1.2e-6 inside); nodes on
     the inside alone see a smooth function, and a quadratic fit's gradient is
-    second order."""
-    pts = np.asarray(points, dtype=np.float64)
-    out = np.zeros((len(pts), 2))
-    if len(pts) == 0:
-        return out
-    R = ONE_SIDED_REACH
-    offs = np.arange(-R, R + 1)
-    oi, oj = np.meshgrid(offs, offs, indexing="ij")
-    oi, oj = oi.ravel(), oj.ravel()
-    h = np.array([grid.hx, grid.hy])
-    for s in range(0, len(pts), 8192):
-        p = pts[s:s + 8192]
-        c = np.rint((p - grid.origin) / h).astype(np.int64)              # nearest node
-        ii = np.clip(c[:, :1] + oi[None], 0, grid.nx - 1)                  # (m, K)
-        jj = np.clip(c[:, 1:] + oj[None], 0, grid.ny - 1)
-        node = np.stack([grid.origin[0] + ii * grid.hx, grid.origin[1] + jj * grid.hy], -1)
-        d = (node - p[:, None, :]) / h                                     # in cells
-        # the weights vanish within R - 1/2 cells: the block around the nearest
-        # node always holds that disc, so the fit moves continuously with p
-        q = np.hypot(d[..., 0], d[..., 1]) / (R - 0.5)
-        w = np.where(inside[ii, jj] & (q < 1.0), (1 - q) ** 4 * (1 + 4 * q), 0.0)
-        B = np.stack([np.ones_like(q), d[..., 0], d[..., 1], d[..., 0] ** 2,
-                      d[..., 0] * d[..., 1], d[..., 1] ** 2], axis=-1)     # (m, K, 6)
-        BW = B * w[..., None]
-        M = np.einsum("mki,mkj->mij", BW, B)
-        M += 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(6)
-        rhs = np.einsum("mki,mk->mi", BW, u[ii, jj])
-        coef = np.linalg.solve(M, rhs[..., None])[..., 0]
-        out[s:s + 8192] = coef[:, 1:3] / h
-        # too few nodes inside (a corner, a thin strip, a ragged outline): the
-        # fit extrapolates; such points keep the spline's gradient (NaN here)
-        out[s:s + 8192][(w > 0).sum(axis=1) < ONE_SIDED_MIN_NODES] = np.nan
-    return out
+    second order.
+
+    ``u`` (nx, ny, m) gives (len(points), m, 2): one fit's weights for every
+    column.  A Taichi kernel (:func:`_one_sided`), one gather per point; NaN
+    where fewer than :data:`ONE_SIDED_MIN_NODES` nodes are inside the stencil."""
+    runtime.ensure_init()
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    u = np.asarray(u, dtype=np.float64)
+    one = u.ndim == 2
+    u3 = u[..., None] if one else u
+    m = u3.shape[2]
+    if m % 2:
+        u3 = np.concatenate([u3, np.zeros(u3.shape[:2] + (1,))], axis=2)
+    u3 = np.ascontiguousarray(u3)
+    out = np.zeros((len(pts), m, 2))
+    if len(pts):
+        ins = np.ascontiguousarray(inside, dtype=np.int32)
+        pair = np.empty((len(pts), 4))
+        for c in range(0, m, 2):
+            _one_sided(u3, ins, pts, float(grid.origin[0]), float(grid.origin[1]),
+                       grid.hx, grid.hy, c, pair)
+            out[:, c] = pair[:, :2]
+            if c + 1 < m:
+                out[:, c + 1] = pair[:, 2:]
+    return out[:, 0] if one else out
 
 
 def natural_potentials(points, domain, sources: dict, spacing: float, *,
@@ -502,37 +796,99 @@ def natural_potentials(points, domain, sources: dict, spacing: float, *,
     """Free-space potentials of ``sources`` (name -> values at ``points``, e.g.
     ``{"phi": div v, "psi": -curl v}``) over ``domain``: name -> ``(potential
     at the points, its gradient at the points)``.  ``evaluation``: ``fft`` or
-    ``direct`` (module doc); ``cell_ratio``: grid cell size / data spacing."""
+    ``direct`` (module doc); ``cell_ratio``: grid cell size / data spacing.
+
+    The points are sorted by grid cell once (the reconstruction's bins; the
+    interpolation and the boundary fit then read the grid in order) and every
+    potential goes through each stage at once: one FFT pass, one spline of
+    all the potentials and their grid gradients, one boundary fit."""
     if evaluation not in NATURAL_EVALUATIONS:
         raise ValueError(f"natural evaluation must be one of {NATURAL_EVALUATIONS}, "
                          f"got {evaluation!r}")
+    seconds = {}
+    clock = [time.perf_counter()]
+
+    def lap(stage):
+        now = time.perf_counter()
+        seconds[stage] = seconds.get(stage, 0.0) + now - clock[0]
+        clock[0] = now
+
     grid = Grid(domain, cell_ratio * spacing)
-    frac, offset = grid.coverage(domain, CUT_SUBSAMPLES, centroids=True)
+    frac, offset, inside = grid.coverage(domain, CUT_SUBSAMPLES, centroids=True, inside=True)
     frac = frac.ravel()
     live = np.flatnonzero(frac > 0)
+    lap("coverage")
     names = list(sources)
     vals = np.stack([np.asarray(sources[k], dtype=np.float64) for k in names], axis=1)
-    at_cells = reconstruct_on_grid(grid, points, vals, live)
-    convolve = convolve_fft if evaluation == "fft" else convolve_direct
+    binned = _Binned(grid, points)
+    lap("bins")
+    at_cells = reconstruct_on_grid(grid, points, vals, live, binned=binned)
+    lap("reconstruct")
+    dens = np.zeros((len(names), grid.nx * grid.ny))
+    dens[:, live] = (at_cells * frac[live, None]).T
+    dens = dens.reshape((len(names),) + grid.shape)
+    # a cut cell's charge sits at its inside part's centroid, not at its
+    # centre: the difference is a dipole p = q (centroid - centre), whose
+    # potential is that of the density -div P (central differences)
+    for m in range(len(names)):
+        dens[m] += _dipole_density(grid, dens[m], offset)
+    lap("density")
+    if evaluation == "fft":
+        u = convolve_fft(grid, dens)
+    else:
+        u = np.stack([convolve_direct(grid, d) for d in dens])
+    lap("convolve")
+    # every potential and its grid gradient, one spline through them all
+    cols = np.empty(grid.shape + (3 * len(names),))
+    for m in range(len(names)):
+        cols[..., 3 * m] = u[m]
+        cols[..., 3 * m + 1:3 * m + 3] = grid_gradient(grid, u[m])
+    sp = binned.points
+    at = at_points(grid, cols, sp, dest=binned.order)           # in the input order
+    lap("interpolate")
+    # the gradient within ONE_SIDED_CELLS of the boundary from the fit
     cell = math.hypot(grid.hx, grid.hy) / math.sqrt(2.0)
-    near = np.flatnonzero(domain.signed_distance(points) > -ONE_SIDED_CELLS * cell)
-    inside = domain.contains(grid.centres()).reshape(grid.shape)
+    near = _near_boundary(domain, sp, ONE_SIDED_CELLS * cell)
+    fitted = one_sided_gradient(grid, np.moveaxis(u, 0, -1), inside, sp[near])
+    ok = np.isfinite(fitted).all(axis=(1, 2))
+    rows = binned.order[near[ok]]
+    lap("boundary_fit")
     out = {}
     for m, name in enumerate(names):
-        dens = np.zeros(grid.nx * grid.ny)
-        dens[live] = at_cells[:, m] * frac[live]
-        dens = dens.reshape(grid.shape)
-        # a cut cell's charge sits at its inside part's centroid, not at its
-        # centre: the difference is a dipole p = q (centroid - centre), whose
-        # potential is that of the density -div P (central differences)
-        P = dens[..., None] * offset
-        dipole = -(np.gradient(P[..., 0], grid.hx, axis=0)
-                   + np.gradient(P[..., 1], grid.hy, axis=1))
-        u = convolve(grid, dens + dipole)
-        gradient = at_points(grid, grid_gradient(grid, u), points)
-        fitted = one_sided_gradient(grid, u, inside, points[near])
-        ok = np.isfinite(fitted).all(axis=1)
-        gradient[near[ok]] = fitted[ok]
-        out[name] = (at_points(grid, u, points), gradient)
+        gradient = at[:, 3 * m + 1:3 * m + 3].copy()
+        gradient[rows] = fitted[ok, m]
+        out[name] = (at[:, 3 * m].copy(), gradient)
+    lap("gather")
     out["grid"] = grid
+    out["seconds"] = seconds
     return out
+
+
+def _dipole_density(grid: Grid, dens: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """(nx, ny) -div P of the dipoles P = dens * offset by central differences:
+    each cut cell's dipole scattered to its four neighbours (the cut cells lie
+    at least MARGIN cells inside the grid, where numpy.gradient's differences
+    are these), zero elsewhere."""
+    out = np.zeros(grid.nx * grid.ny)
+    k = np.flatnonzero((offset[..., 0] != 0) | (offset[..., 1] != 0))
+    if k.size == 0:
+        return out.reshape(grid.shape)
+    q = dens.ravel()[k]
+    for axis, step, h in ((0, grid.ny, grid.hx), (1, 1, grid.hy)):
+        p = q * offset.reshape(-1, 2)[k, axis] / (2.0 * h)
+        np.add.at(out, k - step, -p)          # -(P[i+1] - P[i-1]) / 2h at i = cell - 1
+        np.add.at(out, k + step, p)
+    return out.reshape(grid.shape)
+
+
+def _near_boundary(domain, points, width: float) -> np.ndarray:
+    """Indices of ``points`` whose signed distance exceeds ``-width`` (within
+    ``width`` of the boundary, or outside): a rectangle in closed form, other
+    polygons through the locator (exact distances only near the boundary)."""
+    rect = _rectangle(domain)
+    if rect is None:
+        return np.flatnonzero(domain.classify_discs(points, 0.0, -np.inf, -width) != 1)
+    (x0, y0), (x1, y1) = rect
+    x, y = points[:, 0], points[:, 1]
+    gap = np.minimum(np.minimum(x - x0, x1 - x), np.minimum(y - y0, y1 - y))
+    return np.flatnonzero(gap < width)

@@ -186,6 +186,10 @@ def _monomials(order: ti.template(), u):
                           u[1] * u[1] * u[1]])
 
 
+#: the exponents (of x, of y) of the monomials of _monomials, in order
+_MONOMIAL_EXPONENTS = ((1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3))
+
+
 @ti.func
 def _mls_fit_rows(order: ti.template(), kernel_id: ti.template(), i, pos: ti.template(),
                   mass: ti.template(), rho: ti.template(), offsets: ti.template(),
@@ -194,9 +198,15 @@ def _mls_fit_rows(order: ti.template(), kernel_id: ti.template(), i, pos: ti.tem
     """Cholesky factor of M = sum_j V_j W_ij p_j p_j^T with p the monomials of
     ``order`` (2 or 3) of x_ji / H_i; returns (factor, ok).  ok is False when a
     pivot falls below SINGULAR_RATIO of the diagonal scale (too few neighbours,
-    or all on one conic (cubic))."""
+    or all on one conic (cubic)).
+
+    M's entries are the moments S_ab = sum_j V_j W_ij u^a v^b of degree 2 to
+    2 * order (u, v = x_ji / H_i), each entry the moment of its two
+    monomials' summed exponents: 25 sums per pair for the cubic fit where the
+    matrix's lower half has 45 (12 and 15 for the quadratic)."""
     m = ti.static(_n_monomials(order))
-    M = ti.Matrix.zero(float, m, m)
+    D = ti.static(2 * order + 1)                 # exponents 0 .. 2 * order
+    S = ti.Vector.zero(float, D * D)             # S[a * D + b], 2 <= a + b <= 2 * order
     Hi = pair_support(adaptive, hs, i, i, H)      # the monomials' length scale
     for k in range(offsets[i], offsets[i + 1]):
         j = nbrs[k]
@@ -204,8 +214,23 @@ def _mls_fit_rows(order: ti.template(), kernel_id: ti.template(), i, pos: ti.tem
         x = pos[j] - pos[i]
         W, _F, _L = kernel_terms(kernel_id, x.norm(), pair_support(adaptive, hs, i, j, H))
         u = x / Hi
-        p = _monomials(order, u)
-        M += (mj / rho[j]) * W * p.outer_product(p)
+        pu = ti.Vector.zero(float, D)            # V_j W u^a
+        pv = ti.Vector.zero(float, D)            # v^b
+        pu[0] = (mj / rho[j]) * W
+        pv[0] = 1.0
+        for e in ti.static(range(1, D)):
+            pu[e] = pu[e - 1] * u[0]
+            pv[e] = pv[e - 1] * u[1]
+        for a in ti.static(range(D)):
+            for b in ti.static(range(D - a)):
+                if ti.static(a + b >= 2):
+                    S[a * D + b] += pu[a] * pv[b]
+    M = ti.Matrix.zero(float, m, m)
+    for r in ti.static(range(m)):
+        for c in ti.static(range(r + 1)):        # the lower half: all the factor reads
+            ar, br = ti.static(_MONOMIAL_EXPONENTS[r])
+            ac, bc = ti.static(_MONOMIAL_EXPONENTS[c])
+            M[r, c] = S[(ar + ac) * D + br + bc]
     return _cholesky_factor(order, M)
 
 

@@ -1,0 +1,162 @@
+"""Warm seconds of the default decomposition of a data window at scale (issue 28).
+
+    python benchmarks/natural_scale.py [--sizes 100000,300000,1000000] [--repeats 3]
+                                       [--kernels] [--out-dir DIR]
+
+The issue's case: ``decompose(points, vectors, domain)`` with the default
+options (``boundary_condition="auto"`` chooses ``natural`` there) on N
+uniformly random points in the 2 x 1 window of
+:func:`taichi_hh.validation.windows.window_field` (sources and vortices
+inside and outside, a stream); target 1M points in 4 s warm on a quiet
+2-core machine.  Per N: the first call at that size (the first size's
+includes compiling), then ``--repeats`` warm calls: their median and least
+wall seconds, the process CPU seconds of the median call (both threads of
+the Taichi kernels counted), the stages of ``stats["seconds"]`` (setup:
+checks, particles, neighbours, densities; divergence: the cubic MLS stencil
+and div v, curl v; natural: the potentials; other: the checks after them)
+and the natural step's own stages (coverage, bins, reconstruct, density,
+convolve, interpolate, boundary_fit, gather: from
+:func:`taichi_hh.hhd.natural.natural_potentials`), the errors of d, r, h
+against the expected split (% of mean |v|), and the load average when the
+size started (the machines are shared: compare rows of one run, and CPU
+seconds across runs).  ``--kernels`` also times every Taichi kernel launch
+(wall and CPU) and prints the largest.
+
+Writes ``outputs/benchmarks/natural_scale.csv``.
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import os
+import statistics
+import time
+import warnings
+
+import _common
+
+_common.add_repo_to_path()
+
+NATURAL_STAGES = ("coverage", "bins", "reconstruct", "density", "convolve", "interpolate",
+                  "boundary_fit", "gather")
+
+
+def _kernel_timer():
+    """Wrap Taichi's kernel launches: name -> [calls, wall s, CPU s]."""
+    from taichi.lang import kernel_impl
+    times = collections.defaultdict(lambda: [0, 0.0, 0.0])
+    call = kernel_impl.Kernel.__call__
+
+    def timed(self, *args, **kwargs):
+        t, c = time.perf_counter(), time.process_time()
+        try:
+            return call(self, *args, **kwargs)
+        finally:
+            entry = times[self.func.__qualname__]
+            entry[0] += 1
+            entry[1] += time.perf_counter() - t
+            entry[2] += time.process_time() - c
+
+    kernel_impl.Kernel.__call__ = timed
+    return times
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="100000,300000,1000000")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--kernels", action="store_true", help="time every Taichi kernel launch")
+    ap.add_argument("--out-dir", default=os.path.join("outputs", "benchmarks"))
+    args = ap.parse_args(argv)
+    import numpy as np
+    import taichi_hh as thh
+    from taichi_hh.hhd import decompose as dec
+    from taichi_hh.validation.windows import window_field
+
+    warnings.simplefilter("ignore")
+    thh.init()
+    kernels = _kernel_timer() if args.kernels else None
+    # the natural step's own breakdown, recorded as decompose() calls it
+    stages: dict = {}
+    natural_potentials = dec.natural_potentials
+
+    def recorded(*a, **k):
+        out = natural_potentials(*a, **k)
+        stages.clear()
+        stages.update(out.get("seconds", {}))
+        return out
+
+    dec.natural_potentials = recorded
+    F = window_field()
+    rows = []
+    for n in _common.parse_list(args.sizes, int):
+        load = os.getloadavg()[0]
+        pts = np.random.default_rng(args.seed).random((n, 2)) * [2.0, 1.0]
+        ex = F.evaluate(pts)
+        t = time.perf_counter()
+        res = thh.decompose(pts, ex.v, F.domain)
+        first = time.perf_counter() - t
+        vm = np.linalg.norm(ex.v, axis=1).mean()
+        err = [100 * float(np.linalg.norm(a - b, axis=1).mean() / vm)
+               for a, b in ((res.curl_free, ex.d), (res.div_free, ex.r),
+                            (res.harmonic, ex.h))]
+        warm = []
+        for _ in range(max(args.repeats, 1)):
+            if kernels is not None:
+                kernels.clear()
+            t, c = time.perf_counter(), time.process_time()
+            res = thh.decompose(pts, ex.v, F.domain)
+            wall, cpu = time.perf_counter() - t, time.process_time() - c
+            kern = ({k: tuple(v) for k, v in kernels.items()} if kernels is not None else {})
+            warm.append((wall, cpu, dict(res.stats["seconds"]), dict(stages), kern))
+        warm.sort(key=lambda w: w[0])
+        wall, cpu, sec, nat, kern = warm[len(warm) // 2]
+        row = {"n": n, "condition": res.stats.get("boundary_condition", ""),
+               "grid": "x".join(map(str, res.stats.get("natural_grid", ()))),
+               "load": load, "first_s": first,
+               "warm_median_s": statistics.median(w[0] for w in warm),
+               "warm_min_s": warm[0][0], "cpu_s": cpu}
+        for key in ("setup", "divergence", "natural"):
+            row[f"{key}_s"] = sec.get(key, float("nan"))
+        row["other_s"] = sec["total"] - sum(sec.get(k, 0.0) for k in
+                                            ("setup", "divergence", "natural"))
+        for key in NATURAL_STAGES:
+            row[f"nat_{key}_s"] = nat.get(key, float("nan"))
+        if kern:
+            row["kernels_s"] = sum(v[1] for v in kern.values())
+            row["kernels_cpu_s"] = sum(v[2] for v in kern.values())
+        row.update(zip(("err_d_pct", "err_r_pct", "err_h_pct"), err))
+        rows.append(row)
+        print({k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()},
+              flush=True)
+        if kern:
+            for name, (calls, w, c) in sorted(kern.items(), key=lambda kv: -kv[1][1])[:12]:
+                print(f"    {w:7.3f} s wall {c:7.3f} s cpu {calls:3d}x {name}")
+    names = ["n", "condition", "grid", "load", "first_s", "warm_median_s", "warm_min_s", "cpu_s",
+             "setup_s", "divergence_s", "natural_s", "other_s"] \
+        + [f"nat_{k}_s" for k in NATURAL_STAGES] \
+        + (["kernels_s", "kernels_cpu_s"] if kernels is not None else []) \
+        + ["err_d_pct", "err_r_pct", "err_h_pct"]
+    header = ["N", "grid", "load", "first s", "warm s", "cpu s", "setup", "div", "natural",
+              "other", "err d, r, h %"]
+    table = [[str(r["n"]), r["grid"], f"{r['load']:.1f}", f"{r['first_s']:.2f}",
+              f"{r['warm_median_s']:.2f}", f"{r['cpu_s']:.2f}", f"{r['setup_s']:.2f}",
+              f"{r['divergence_s']:.2f}", f"{r['natural_s']:.2f}", f"{r['other_s']:.2f}",
+              ", ".join(f"{r[k]:.2g}" for k in ("err_d_pct", "err_r_pct", "err_h_pct"))]
+             for r in rows]
+    print(_common.format_table(header, table))
+    nat_header = ["N"] + list(NATURAL_STAGES)
+    nat_table = [[str(r["n"])] + [f"{r[f'nat_{k}_s']:.3f}" for k in NATURAL_STAGES]
+                 for r in rows]
+    print("natural step, seconds of the median warm call:")
+    print(_common.format_table(nat_header, nat_table))
+    os.makedirs(args.out_dir, exist_ok=True)
+    path = os.path.join(args.out_dir, "natural_scale.csv")
+    _common.write_csv_atomic(path, rows, names)
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
