@@ -18,7 +18,7 @@ import taichi as ti
 
 from .. import runtime
 from ..errors import InputError
-from .neighbors import GridSpec, cell_coords
+from .neighbors import GridSpec, cell_coords, counting_sort
 
 #: the largest k (the k best are kept in registers per query)
 MAX_K = 64
@@ -123,12 +123,10 @@ class KNearest:
         self.spec = GridSpec.covering(lo, hi, cell)
         # binned in float64 whatever the runtime's precision: the kernel's
         # stopping test relies on every source lying in its cell
-        cells = self.cells(pts)
-        order = self._order = np.argsort(cells, kind="stable")
-        start = np.zeros(self.spec.ncells + 1, dtype=np.int32)
-        np.cumsum(np.bincount(cells, minlength=self.spec.ncells), out=start[1:])
+        order, start = counting_sort(self.cells(pts), self.spec.ncells)
+        self._order = order
         self.order = runtime.array(ti.i32, n)
-        self.order.from_numpy(order.astype(np.int32))
+        self.order.from_numpy(order)
         self.start = runtime.array(ti.i32, len(start))
         self.start.from_numpy(start)
         self.pos = runtime.array(ti.f64, n, vector=2)

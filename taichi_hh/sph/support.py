@@ -173,20 +173,23 @@ def _fill_adaptive(pos: ti.types.ndarray(), n: ti.i32, hs: ti.types.ndarray(),
                    lo_y: float, inv_cell: float, nx: ti.i32, ny: ti.i32,
                    offsets: ti.types.ndarray(), nbrs: ti.types.ndarray()):
     # rows come out sorted by slot: cell rows in increasing order, each one
-    # contiguous run of slots (the particles are sorted by cell)
+    # contiguous run of slots (the particles are sorted by cell).  Branch-free
+    # as neighbors._fill_pairs: every candidate is written at the next free
+    # position of the row, which advances only past the accepted ones
     for i in range(n):
         p = pos[i]
         hi = hs[i]
         x0, x1, y0, y1 = _block(p, hi, reach, lo_x, lo_y, inv_cell, nx, ny)
         k = offsets[i]
+        end = offsets[i + 1]
         for gy in range(y0, y1 + 1):
             row = gy * nx
             for j in range(cell_start[row + x0], cell_start[row + x1 + 1]):
                 d = pos[j] - p
                 h = ti.max(hi, hs[j])
-                if (d.dot(d) < h * h) & (j != i):
+                if k < end:          # never past the row: the next row is another thread's
                     nbrs[k] = j
-                    k += 1
+                k += ti.select((d.dot(d) < h * h) & (j != i), 1, 0)
 
 
 def adaptive_grid_spec(points: np.ndarray, supports: np.ndarray):

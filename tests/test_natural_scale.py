@@ -1,0 +1,104 @@
+"""The natural HHD's fast paths (hhd/natural.py) against their references:
+a rectangle's closed-form coverage against the polygon subsamples, the
+Taichi spline prefilter and boundary fit against numpy, the batched FFT
+against single convolutions, the counting sort against numpy's."""
+import numpy as np
+
+import taichi_hh as thh
+from taichi_hh.hhd import natural
+from taichi_hh.sph.neighbors import counting_sort
+
+RECT = thh.Box((0.1, -0.2), (2.1, 0.8))
+# the same rectangle as a polygon with an extra vertex on its bottom side:
+# not recognised as a rectangle, so it takes the polygon path
+RECT_POLY = thh.Polygon([[0.1, -0.2], [1.3, -0.2], [2.1, -0.2], [2.1, 0.8], [0.1, 0.8]])
+
+
+def test_rectangle_coverage_is_the_polygon_subsamples():
+    for cell in (0.037, 0.05, 0.1):
+        grid = natural.Grid(RECT, cell)
+        a = grid.coverage(RECT, 16, centroids=True, inside=True)
+        b = grid.coverage(RECT_POLY, 16, centroids=True, inside=True)
+        assert np.array_equal(a[0], b[0])
+        assert np.abs(a[1] - b[1]).max() < 1e-15
+        assert np.array_equal(a[2], b[2])
+        assert np.array_equal(a[2].ravel(), RECT.contains(grid.centres()))
+
+
+def test_natural_potentials_same_on_a_rectangle_and_its_polygon():
+    pts = RECT.sample_interior(3000, kind="random", seed=2)
+    src = {"phi": np.sin(2 * pts[:, 0]) * pts[:, 1], "psi": np.cos(3 * pts[:, 1])}
+    sp = np.sqrt(RECT.area / len(pts))
+    a = natural.natural_potentials(pts, RECT, src, sp)
+    b = natural.natural_potentials(pts, RECT_POLY, src, sp)
+    for name in src:
+        for k in (0, 1):
+            assert np.abs(a[name][k] - b[name][k]).max() < 1e-12 * np.abs(a[name][k]).max()
+    assert set(a["seconds"]) >= {"coverage", "reconstruct", "convolve", "interpolate"}
+
+
+def test_spline_prefilter_kernel_is_the_numpy_filter():
+    u = np.random.default_rng(0).standard_normal((37, 23, 3))
+    a = natural.spline_coefficients(u)
+    b = natural.spline_coefficients_numpy(u)
+    assert np.abs(a - b).max() < 1e-13 * np.abs(b).max()
+    assert np.abs(natural.spline_coefficients(u[..., 0]) - b[..., 0]).max() < 1e-13 * 10
+
+
+def test_batched_fft_convolution_is_each_single_one():
+    grid = natural.Grid(RECT, 0.04)
+    d = np.random.default_rng(1).standard_normal((2,) + grid.shape)
+    both = natural.convolve_fft(grid, d)
+    for m in range(2):
+        one = natural.convolve_fft(grid, d[m])
+        assert np.abs(both[m] - one).max() < 1e-13 * np.abs(one).max()
+
+
+def _one_sided_numpy(grid, u, inside, pts):
+    """The boundary fit as first written (numpy, LU solve)."""
+    R = natural.ONE_SIDED_REACH
+    offs = np.arange(-R, R + 1)
+    oi, oj = np.meshgrid(offs, offs, indexing="ij")
+    oi, oj = oi.ravel(), oj.ravel()
+    h = np.array([grid.hx, grid.hy])
+    c = np.rint((pts - grid.origin) / h).astype(np.int64)
+    ii = np.clip(c[:, :1] + oi[None], 0, grid.nx - 1)
+    jj = np.clip(c[:, 1:] + oj[None], 0, grid.ny - 1)
+    node = np.stack([grid.origin[0] + ii * grid.hx, grid.origin[1] + jj * grid.hy], -1)
+    d = (node - pts[:, None, :]) / h
+    q = np.hypot(d[..., 0], d[..., 1]) / (R - 0.5)
+    w = np.where(inside[ii, jj] & (q < 1.0), (1 - q) ** 4 * (1 + 4 * q), 0.0)
+    B = np.stack([np.ones_like(q), d[..., 0], d[..., 1], d[..., 0] ** 2,
+                  d[..., 0] * d[..., 1], d[..., 1] ** 2], axis=-1)
+    BW = B * w[..., None]
+    M = np.einsum("mki,mkj->mij", BW, B)
+    M += 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(6)
+    coef = np.linalg.solve(M, np.einsum("mki,mk->mi", BW, u[ii, jj])[..., None])[..., 0]
+    out = coef[:, 1:3] / h
+    out[(w > 0).sum(axis=1) < natural.ONE_SIDED_MIN_NODES] = np.nan
+    return out
+
+
+def test_boundary_fit_kernel_is_the_numpy_fit():
+    grid = natural.Grid(RECT, 0.02)
+    c = grid.centres()
+    u = (np.sin(3 * c[:, 0]) * np.cos(2 * c[:, 1]) + c[:, 0] ** 2).reshape(grid.shape)
+    inside = RECT.contains(c).reshape(grid.shape)
+    pts = RECT.sample_interior(2000, kind="random", seed=4)
+    a = natural.one_sided_gradient(grid, u, inside, pts)
+    b = _one_sided_numpy(grid, u, inside, pts)
+    ok = np.isfinite(b).all(axis=1)
+    assert np.array_equal(np.isfinite(a).all(axis=1), ok) and ok.any() and not ok.all()
+    assert np.abs(a[ok] - b[ok]).max() < 1e-10 * np.abs(b[ok]).max()
+    both = natural.one_sided_gradient(grid, np.stack([u, 2 * u], -1), inside, pts)
+    assert np.allclose(both[ok, 0], a[ok], rtol=0, atol=1e-12) and \
+        np.allclose(both[ok, 1], 2 * a[ok], rtol=0, atol=1e-11)
+
+
+def test_counting_sort_is_a_stable_argsort():
+    keys = np.random.default_rng(3).integers(0, 500, 20000)
+    order, start = counting_sort(keys, 600)
+    assert np.array_equal(order, np.argsort(keys, kind="stable"))
+    assert np.array_equal(start, np.r_[0, np.cumsum(np.bincount(keys, minlength=600))])
+    order, start = counting_sort(np.zeros(0, dtype=np.int64), 3)
+    assert order.size == 0 and np.array_equal(start, [0, 0, 0, 0])
