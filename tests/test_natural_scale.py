@@ -1,12 +1,13 @@
 """The natural HHD's fast paths (hhd/natural.py) against their references:
 a rectangle's closed-form coverage against the polygon subsamples, the
 Taichi spline prefilter and boundary fit against numpy, the batched FFT
-against single convolutions, the counting sort against numpy's."""
+against single convolutions, the k-nearest search's counting sort against
+numpy's stable sort."""
 import numpy as np
 
 import taichi_hh as thh
 from taichi_hh.hhd import natural
-from taichi_hh.sph.neighbors import counting_sort
+from taichi_hh.sph.knn import KNearest
 
 RECT = thh.Box((0.1, -0.2), (2.1, 0.8))
 # the same rectangle as a polygon with an extra vertex on its bottom side:
@@ -95,10 +96,12 @@ def test_boundary_fit_kernel_is_the_numpy_fit():
         np.allclose(both[ok, 1], 2 * a[ok], rtol=0, atol=1e-11)
 
 
-def test_counting_sort_is_a_stable_argsort():
-    keys = np.random.default_rng(3).integers(0, 500, 20000)
-    order, start = counting_sort(keys, 600)
-    assert np.array_equal(order, np.argsort(keys, kind="stable"))
-    assert np.array_equal(start, np.r_[0, np.cumsum(np.bincount(keys, minlength=600))])
-    order, start = counting_sort(np.zeros(0, dtype=np.int64), 3)
-    assert order.size == 0 and np.array_equal(start, [0, 0, 0, 0])
+def test_knearest_bins_its_sources_as_a_stable_sort():
+    pts = np.random.default_rng(3).random((20000, 2)) * [2.0, 1.0]
+    search = KNearest(pts)
+    cells = search.cells(pts)
+    order = np.argsort(cells, kind="stable")
+    assert np.array_equal(search._order, order)
+    assert np.array_equal(search.pos.to_numpy(), pts[order])
+    assert np.array_equal(search.start.to_numpy(),
+                          np.r_[0, np.cumsum(np.bincount(cells, minlength=search.spec.ncells))])

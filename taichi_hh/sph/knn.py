@@ -18,7 +18,7 @@ import taichi as ti
 
 from .. import runtime
 from ..errors import InputError
-from .neighbors import GridSpec, cell_coords, counting_sort
+from .neighbors import GridSpec, cell_coords
 
 #: the largest k (the k best are kept in registers per query)
 MAX_K = 64
@@ -106,6 +106,34 @@ def _k_nearest(k: ti.template(), nq: ti.i32, qpos: ti.types.ndarray(), qorder: t
                 idx[q, t] = bid[t]
 
 
+@ti.kernel
+def _source_cells(pts: ti.types.ndarray(), lo_x: ti.f64, lo_y: ti.f64, inv_cell: ti.f64,
+                  nx: ti.i32, ny: ti.i32, cell: ti.types.ndarray(), count: ti.types.ndarray()):
+    """cell[i]: the flat cell of source i (as :meth:`KNearest.cells`, float64);
+    count[c + 1] += 1 for each."""
+    for i in range(pts.shape[0]):
+        fx = ti.math.clamp(ti.floor((pts[i, 0] - lo_x) * inv_cell), 0.0, ti.cast(nx - 1, ti.f64))
+        fy = ti.math.clamp(ti.floor((pts[i, 1] - lo_y) * inv_cell), 0.0, ti.cast(ny - 1, ti.f64))
+        c = ti.cast(fy, ti.i32) * nx + ti.cast(fx, ti.i32)
+        cell[i] = c
+        ti.atomic_add(count[c + 1], 1)
+
+
+@ti.kernel
+def _place_sources(pts: ti.types.ndarray(), cell: ti.types.ndarray(),
+                   cursor: ti.types.ndarray(), order: ti.types.ndarray(),
+                   pos: ti.types.ndarray()):
+    """The counting sort's stable scatter: source i to the next free slot of
+    its cell, its index to ``order``, its position to ``pos``."""
+    ti.loop_config(serialize=True)
+    for i in range(pts.shape[0]):
+        c = cell[i]
+        k = cursor[c]
+        cursor[c] = k + 1
+        order[k] = i
+        pos[k] = ti.Vector([pts[i, 0], pts[i, 1]], dt=ti.f64)
+
+
 class KNearest:
     """The sources binned once; :meth:`query` any number of query sets."""
 
@@ -123,14 +151,20 @@ class KNearest:
         self.spec = GridSpec.covering(lo, hi, cell)
         # binned in float64 whatever the runtime's precision: the kernel's
         # stopping test relies on every source lying in its cell
-        order, start = counting_sort(self.cells(pts), self.spec.ncells)
-        self._order = order
-        self.order = runtime.array(ti.i32, n)
+        # a counting sort by cell (stable: the order of np.argsort(self.cells(pts),
+        # kind="stable")), the sorted positions written straight to the kernel's array
+        s = self.spec
+        start = np.zeros(s.ncells + 1, dtype=np.int32)
+        cell = np.empty(n, dtype=np.int32)
+        _source_cells(pts, s.lo_x, s.lo_y, s.inv_cell, s.nx, s.ny, cell, start)
+        np.cumsum(start, out=start)
+        order = self._order = np.empty(n, dtype=np.int32)
+        self.pos = runtime.array(ti.f64, n, vector=2, zeroed=False)
+        _place_sources(pts, cell, start[:-1].copy(), order, self.pos)
+        self.order = runtime.array(ti.i32, n, zeroed=False)
         self.order.from_numpy(order)
-        self.start = runtime.array(ti.i32, len(start))
+        self.start = runtime.array(ti.i32, len(start), zeroed=False)
         self.start.from_numpy(start)
-        self.pos = runtime.array(ti.f64, n, vector=2)
-        self.pos.from_numpy(pts[order])
 
     def cells(self, points) -> np.ndarray:
         """Flat cell index ``cy * nx + cx`` of every point (as ``cell_coords``

@@ -93,40 +93,6 @@ def _stable_scatter(cell_of: ti.types.ndarray(), n: ti.i32, start: ti.types.ndar
             rank[i] = slot
 
 
-@ti.kernel
-def _count_keys(keys: ti.types.ndarray(), count: ti.types.ndarray()):
-    for i in range(keys.shape[0]):
-        ti.atomic_add(count[keys[i] + 1], 1)
-
-
-@ti.kernel
-def _scatter_keys(keys: ti.types.ndarray(), cursor: ti.types.ndarray(),
-                  order: ti.types.ndarray()):
-    ti.loop_config(serialize=True)
-    for i in range(keys.shape[0]):
-        c = keys[i]
-        k = cursor[c]
-        cursor[c] = k + 1
-        order[k] = i
-
-
-def counting_sort(keys, nkeys: int):
-    """``(order, start)`` for integer ``keys`` (N,) in [0, nkeys): ``order``
-    (N,) int32 sorts them stably (``np.argsort(keys, kind="stable")``),
-    ``start`` (nkeys + 1,) int32 the offsets of each key's run in that order
-    (a parallel count and a serial scatter in Taichi: a few times faster than
-    numpy's stable sort of a million keys)."""
-    runtime.ensure_init()
-    keys = np.ascontiguousarray(keys)
-    start = np.zeros(int(nkeys) + 1, dtype=np.int32)
-    order = np.empty(len(keys), dtype=np.int32)
-    if len(keys):
-        _count_keys(keys, start)
-        np.cumsum(start, out=start)
-        _scatter_keys(keys, start[:-1].copy(), order)
-    return order, start
-
-
 @dataclass
 class GridSpec:
     lo_x: float

@@ -355,6 +355,12 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
                     R3 = _gradient_rows(3, Lc) / Hi
             elif not linear:
                 R2 = _gradient_rows(2, Lf) / Hi
+                if ti.static(variant == GradientVariant.CUBIC):
+                    # the quadratic fallback as the leading columns of the
+                    # cubic rows: one product per pair below, no branch
+                    for a in ti.static(range(2)):
+                        for b in ti.static(range(5)):
+                            R3[a, b] = R2[a, b]
         for k in range(offsets[i], offsets[i + 1]):
             j = nbrs[k]
             mj = _src_mass(mass, kind, j, src_kinds)
@@ -381,10 +387,7 @@ def _gradient_coeffs(kernel_id: ti.template(), variant: ti.template(), pos: ti.t
                     u = -xij / Hi
                     c = (mj / rho[j]) * W
                     if ti.static(variant == GradientVariant.CUBIC):
-                        if cubic:
-                            coef = c * (R3 @ _monomials(3, u))
-                        else:
-                            coef = c * (R2 @ _monomials(2, u))
+                        coef = c * (R3 @ _monomials(3, u))
                     else:
                         coef = c * (R2 @ _monomials(2, u))
             G[k] = coef

@@ -86,6 +86,34 @@ def _scatter(rank: ti.types.ndarray(), n: ti.i32, src: ti.types.ndarray(), dst: 
         dst[rank[i]] = src[i]
 
 
+@ti.kernel
+def to_slots(values: ti.types.ndarray(), slot: ti.types.ndarray(), ncomp: ti.template(),
+              vector: ti.template(), out: ti.types.ndarray()):
+    """out[slot[i]] = values[i, :] in the runtime's precision (``vector``: out
+    holds vectors of ``ncomp``, else scalars)."""
+    for i in range(values.shape[0]):
+        if ti.static(not vector):
+            out[slot[i]] = ti.cast(values[i, 0], float)
+        else:
+            v = ti.Vector.zero(float, ncomp)
+            for c in ti.static(range(ncomp)):
+                v[c] = ti.cast(values[i, c], float)
+            out[slot[i]] = v
+
+
+@ti.kernel
+def from_slots(nd: ti.types.ndarray(), slot: ti.types.ndarray(), ncomp: ti.template(),
+                vector: ti.template(), out: ti.types.ndarray()):
+    """out[i, :] = nd[slot[i]] in float64 (``vector``: nd holds vectors)."""
+    for i in range(out.shape[0]):
+        if ti.static(not vector):
+            out[i, 0] = ti.cast(nd[slot[i]], ti.f64)
+        else:
+            v = nd[slot[i]]
+            for c in ti.static(range(ncomp)):
+                out[i, c] = ti.cast(v[c], ti.f64)
+
+
 def _alloc(name: str, capacity: int):
     real = runtime.real_dtype()
     if name in VECTOR_QUANTITIES:

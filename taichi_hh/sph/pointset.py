@@ -17,7 +17,7 @@ from ..errors import InputError, NeighbourError
 from .kernels import KERNELS
 from .neighbors import GridSpec, PairList, bin_particles
 from .operators import Operators
-from .particles import BOUNDARY, FLUID, GHOST, Particles
+from .particles import BOUNDARY, FLUID, GHOST, Particles, from_slots, to_slots
 
 #: default kernel support radius in units of the mean particle spacing
 #: sqrt(area / N): 24 neighbours on a regular lattice, about 26 on disordered
@@ -287,18 +287,29 @@ class PointSet:
 
     def upload(self, values):
         """Data-point values (caller order) -> Taichi array in slot order
-        (zero at boundary and ghost slots)."""
-        values = np.asarray(values, dtype=np.float64)
+        (zero at boundary and ghost slots): one scatter kernel."""
+        values = np.ascontiguousarray(values, dtype=np.float64)
         ncomp = 1 if values.ndim == 1 else values.shape[1]
-        full = np.zeros((self.n_total,) + values.shape[1:])
-        full[self.slot_of] = values
-        nd = self.new_array(ncomp)
-        nd.from_numpy(full.astype(runtime.np_real()))
+        nd = self.new_array(ncomp, zeroed=self.n_total > self.n or self.n == 0)
+        if self.n:
+            to_slots(values.reshape(self.n, ncomp), self._slots(), ncomp, ncomp > 1, nd)
         return nd
 
     def download(self, nd) -> np.ndarray:
-        """Taichi array in slot order -> data-point values in caller order (float64)."""
-        return nd.to_numpy()[: self.n_total][self.slot_of].astype(np.float64)
+        """Taichi array in slot order -> data-point values in caller order
+        (float64): one gather kernel."""
+        shape = tuple(getattr(nd, "element_shape", ()))
+        ncomp = shape[0] if shape else 1
+        out = np.empty((self.n, ncomp))
+        if self.n:
+            from_slots(nd, self._slots(), ncomp, bool(shape), out)
+        return out if shape else out[:, 0]
+
+    def _slots(self) -> np.ndarray:
+        """slot_of as int32 (the kernels' index), made once."""
+        if getattr(self, "_slot32", None) is None:
+            self._slot32 = np.ascontiguousarray(self.slot_of, dtype=np.int32)
+        return self._slot32
 
     def gradient_stencil(self, variant: str, source_kinds=(FLUID,)):
         key = ("gradient", variant, tuple(source_kinds))
