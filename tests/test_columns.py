@@ -8,6 +8,7 @@ from taichi_hh import runtime
 from taichi_hh.errors import SolverError
 from taichi_hh.hhd.decompose import poisson_problems
 from taichi_hh.linalg import krylov
+from taichi_hh.linalg.csr import CSRMatrix
 from taichi_hh.linalg.poisson import PoissonMatrix
 from taichi_hh.validation import fields, layouts
 from test_poisson import neumann_square
@@ -165,7 +166,7 @@ def test_operators_without_columns_are_solved_one_column_after_the_other():
     import scipy.sparse as sp
     n = 200
     T = sp.diags([-1.0, 2.05, -1.0], [-1, 0, 1], shape=(n, n)).tocsr()
-    A = krylov.CSRMatrix.from_scipy(T)
+    A = CSRMatrix.from_scipy(T)
     rng = np.random.default_rng(1)
     B = rng.standard_normal((n, 2))
     results = krylov.bicgstab_columns(A, B, tol=1e-10)
@@ -205,3 +206,79 @@ def test_three_columns_together(bordered):
         alone = A.solve(B3[:, c], tol=1e-10)
         assert res.converged and abs(res.iterations - alone.iterations) <= 1
         assert np.abs(res.x - alone.x).max() <= 1e-8 * np.abs(alone.x).max()
+
+
+class ScipyColumns:
+    """An operator that takes several columns (``accepts_columns``), applied in
+    numpy: the joint driver's failure paths on systems built to fail."""
+
+    accepts_columns = True
+
+    def __init__(self, matrix):
+        self.A = matrix.tocsr()
+        self.n = matrix.shape[0]
+
+    def apply(self, x, y):
+        self.apply_dot(x, y, y)
+
+    def apply_dot(self, x, y, a):
+        X = x.to_numpy()
+        cols = 1 if X.ndim == 1 else X.shape[1]
+        Y = self.A @ X.reshape(len(X), cols)[: self.n]
+        out = y.to_numpy().reshape(-1, cols)
+        out[: self.n] = Y
+        y.from_numpy(out.reshape(y.to_numpy().shape))
+        Aa = Y if a is y else a.to_numpy().reshape(-1, cols)[: self.n]
+        ay, yy = (Aa * Y).sum(axis=0), (Y * Y).sum(axis=0)
+        return (float(ay[0]), float(yy[0])) if cols == 1 else (ay, yy)
+
+    def diagonal(self, d):
+        d.from_numpy(np.resize(self.A.diagonal(), d.shape[0]).astype(runtime.np_real()))
+
+
+def _both_ways(A, B, **kwargs):
+    """The joint solve of the columns of B and each column's solve alone."""
+    joint = krylov.bicgstab_columns(ScipyColumns(A), B, raise_on_failure=False, **kwargs)
+    alone = [krylov.bicgstab(ScipyColumns(A), B[:, c], raise_on_failure=False, **kwargs)
+             for c in range(B.shape[1])]
+    return joint, alone
+
+
+def test_a_column_that_breaks_down_fails_alone_while_the_other_converges():
+    """A block diagonal system: an SPD block, where the first column lives, and
+    a skew block, where <r, A r> = 0 breaks the second column down at every
+    restart.  The second fails with the reason, count and message of its own
+    solve; the first converges as alone."""
+    import scipy.sparse as sp
+    S = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(30, 30))
+    A = sp.block_diag([S, sp.csr_matrix(np.array([[0.0, 1.0], [-1.0, 0.0]]))]).tocsr()
+    B = np.zeros((32, 2))
+    B[:30, 0] = np.random.default_rng(2).standard_normal(30)
+    B[30, 1] = 1.0
+    joint, alone = _both_ways(A, B, tol=1e-10, preconditioner=None)
+    assert joint[0].converged and abs(joint[0].iterations - alone[0].iterations) <= 1
+    assert np.abs(joint[0].x - alone[0].x).max() <= 1e-8 * np.abs(alone[0].x).max()
+    assert joint[1].reason == alone[1].reason == "breakdown"
+    assert joint[1].iterations == alone[1].iterations
+    assert joint[1].message == alone[1].message and "restarts did not cure it" in joint[1].detail
+    assert not joint[1].x.any()
+    with pytest.raises(SolverError) as info:
+        krylov.bicgstab_columns(ScipyColumns(A), B, tol=1e-10, preconditioner=None)
+    assert info.value.reason == "breakdown"
+
+
+def test_the_cap_stops_the_slow_column_after_the_fast_one_converged():
+    """An eigenvector converges at once and is frozen; a random right-hand side
+    meets the cap with the count, history and residual of its solve alone."""
+    import scipy.sparse as sp
+    n = 60
+    A = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(n, n)).tocsr()
+    B = np.stack([np.sin(3 * np.pi * np.arange(1, n + 1) / (n + 1)),
+                  np.random.default_rng(5).standard_normal(n)], axis=1)
+    joint, alone = _both_ways(A, B, tol=1e-10, max_iterations=6)
+    assert joint[0].converged and joint[0].iterations == alone[0].iterations <= 2
+    assert len(joint[0].history) == joint[0].iterations + 1
+    assert joint[1].reason == alone[1].reason == "max_iterations"
+    assert joint[1].iterations == 6 and len(joint[1].history) == 7
+    np.testing.assert_allclose(joint[1].history, alone[1].history, rtol=1e-10)
+    assert joint[1].relative_residual == pytest.approx(alone[1].relative_residual, rel=1e-10)

@@ -1,4 +1,5 @@
-"""Correctness of the Krylov solvers in taichi_hh.linalg.krylov (no timing assertions)."""
+"""Correctness of the Krylov solvers in taichi_hh.linalg.krylov and of the CSR
+matrix in taichi_hh.linalg.csr (no timing assertions)."""
 import math
 import os
 
@@ -10,6 +11,7 @@ import scipy.sparse.linalg as spla
 from taichi_hh import runtime
 
 from taichi_hh.linalg import krylov as solvers
+from taichi_hh.linalg.csr import CSRMatrix
 from taichi_hh.errors import InputError, SolverError
 
 _HAS_CONFTEST = os.path.exists(os.path.join(os.path.dirname(__file__), "conftest.py"))
@@ -64,7 +66,7 @@ def rhs(n, seed=0):
 
 
 def csr(A):
-    return solvers.CSRMatrix.from_scipy(A)
+    return CSRMatrix.from_scipy(A)
 
 
 def rel_err(x, ref):
@@ -169,7 +171,7 @@ def test_csr_sums_duplicates_and_handles_empty_rows():
     indptr = [0, 2, 2, 4]
     indices = [0, 0, 2, 1]
     data = [1.0, 2.0, 5.0, 7.0]
-    M = solvers.CSRMatrix(indptr, indices, data)
+    M = CSRMatrix(indptr, indices, data)
     ref = sp.csr_matrix((data, indices, indptr), shape=(3, 3))
     x = np.array([1.0, 2.0, 3.0])
     np.testing.assert_allclose(_to_numpy_apply(M.apply, x, 3), ref @ x)
@@ -183,7 +185,7 @@ def test_csr_sums_duplicates_and_handles_empty_rows():
 ])
 def test_csr_rejects_bad_input(args, match):
     with pytest.raises(InputError, match=match):
-        solvers.CSRMatrix(*args)
+        CSRMatrix(*args)
 
 
 # --------------------------------------------------------------------------

@@ -1,0 +1,331 @@
+"""The Krylov solvers' Taichi kernels: vector operations and each method's fused
+iteration steps, on one right-hand side or several (:mod:`taichi_hh.linalg.columns`).
+
+Cost model: a kernel launch costs ~0.1 ms of Python-side argument handling
+(more with more ndarray arguments), plus ~0.1 ms per parallel loop to wake
+the CPU thread pool.  So each iteration is a few fused kernels, each a
+sequence of loops with the scalar algebra between them done in the kernel,
+returning its reductions as a tuple: BiCGSTAB uses 2 kernels besides its 2
+operator applies (3 passes over the vectors; the new vectors' dot products
+come from ``apply_dot``), CG 1 besides 1 apply, CGNR 2 besides 2.  Below
+:data:`PARALLEL_MIN_SIZE` entries the loops run serially, which is faster
+there than waking the thread pool.  Reductions accumulate in kernel-scope
+locals (per-thread partial sums, no contended atomics) and come back as the
+kernel's return values, so no extra launch reads them.
+"""
+from functools import lru_cache
+from types import SimpleNamespace
+
+import taichi as ti
+
+from taichi_hh import runtime
+from taichi_hh.linalg.columns import zeros
+
+__all__ = ["PARALLEL_MIN_SIZE", "serial_below_threshold", "solver_kernels"]
+
+# Vector sizes below which loops run on one thread: a serial pass over 1e5
+# entries beats waking the thread pool (docs/notes/linalg.md).
+PARALLEL_MIN_SIZE = 200_000
+
+
+def serial_below_threshold(size: int) -> bool:
+    """Whether loops over ``size`` entries run serially (:data:`PARALLEL_MIN_SIZE`)."""
+    return size < PARALLEL_MIN_SIZE
+
+
+def solver_kernels(size: int, cols: int = 1) -> SimpleNamespace:
+    """The kernel set for vectors of ``size`` entries and ``cols`` columns in the
+    current precision.  Every set has the vector kernels (``fill``, ``copy``,
+    ``norm2``, ``dot2``, ``invert_diagonal``) and BiCGSTAB's (``bicg_restart``,
+    ``bicg_half``, ``bicg_full``); the one-column set also CG's and CGNR's,
+    which solve one right-hand side only."""
+    runtime.ensure_init()
+    return _build(runtime.state().precision, serial_below_threshold(size), cols)
+
+
+@ti.func
+def negligible(dot, aa, bb, btol):
+    """|<a, b>| <= btol ||a|| ||b||, given <a, b>, ||a||^2 and ||b||^2: below it a
+    dot product is rounding noise (the solvers' breakdown test)."""
+    return ti.abs(dot) <= btol * ti.sqrt(aa) * ti.sqrt(bb)
+
+
+@ti.func
+def indicator(cond):
+    """1.0 where cond holds, else 0.0 (per column)."""
+    return ti.select(cond, 1.0, 0.0)
+
+
+@lru_cache(maxsize=None)
+def _build(precision: str, serial: bool, cols: int) -> SimpleNamespace:
+    """Compile-once kernel set.  Built lazily because the real type of the
+    arguments and return values depends on the runtime precision; ``serial``
+    and ``cols`` are compile-time settings, not data."""
+    kernels = _vector_kernels(precision, serial, cols)
+    kernels.update(_bicgstab_kernels(precision, serial, cols))
+    if cols == 1:
+        kernels.update(_cg_kernels(precision, serial))
+        kernels.update(_cgnr_kernels(precision, serial))
+    return SimpleNamespace(**kernels)
+
+
+def _types(precision: str, cols: int):
+    """(real, per-column scalar, column vector, real vector) Taichi types."""
+    real = ti.f64 if precision == "f64" else ti.f32
+    scal = real if cols == 1 else ti.types.vector(cols, real)
+    return real, scal, ti.types.ndarray(dtype=scal, ndim=1), ti.types.ndarray(dtype=real, ndim=1)
+
+
+def _vector_kernels(precision: str, serial: bool, cols: int) -> dict:
+    real, scal, vec, rvec = _types(precision, cols)
+
+    @ti.kernel
+    def fill(a: vec, value: real, n: ti.i32):
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            a[i] = value * (zeros(cols) + 1.0)
+
+    @ti.kernel
+    def copy(src: vec, dst: vec, n: ti.i32):
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            dst[i] = src[i]
+
+    @ti.kernel
+    def norm2(a: vec, n: ti.i32) -> scal:
+        acc = zeros(cols)
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            acc += a[i] * a[i]
+        return acc
+
+    @ti.kernel
+    def dot2(a: vec, y: vec, n: ti.i32) -> (scal, scal):
+        """(<a, y>, <y, y>)."""
+        ay = zeros(cols)
+        yy = zeros(cols)
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            ay += a[i] * y[i]
+            yy += y[i] * y[i]
+        return ay, yy
+
+    @ti.kernel
+    def invert_diagonal(d: rvec, dinv: rvec, n: ti.i32) -> ti.i32:
+        """dinv = 1/d; returns the first index with d zero or non-finite, or -1."""
+        bad = n
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            di = d[i]
+            if di == 0.0 or di != di or ti.abs(di) == ti.math.inf:
+                ti.atomic_min(bad, i)
+                dinv[i] = 0.0
+            else:
+                dinv[i] = 1.0 / di
+        return bad if bad < n else -1
+
+    return dict(fill=fill, copy=copy, norm2=norm2, dot2=dot2, invert_diagonal=invert_diagonal)
+
+
+def _bicgstab_kernels(precision: str, serial: bool, cols: int) -> dict:
+    """BiCGSTAB (right-preconditioned, M^-1 = dinv) on ``cols`` columns, each its
+    own iteration: the scalars (alpha, omega, rho, ...) are per column, and so
+    are ``active`` (1: iterating, 0: frozen, e.g. converged: x and r stay) and
+    the restart's ``mask`` (1: restart this column)."""
+    real, scal, vec, rvec = _types(precision, cols)
+
+    # Storage sharing (element-wise safe): s overwrites r, and z holds
+    # phat = M^-1 p until the half step turns it into shat = M^-1 s.
+    @ti.kernel
+    def bicg_restart(b: vec, ax: vec, r: vec, r_hat: vec, p: vec, z: vec, dinv: rvec,
+                     mask: scal, n: ti.i32) -> scal:
+        """In the masked columns r = b - A x and r_hat = p = r; z = M^-1 p.
+        Returns ||r||^2."""
+        rr = zeros(cols)
+        restart = mask > 0.0
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            ri = ti.select(restart, b[i] - ax[i], r[i])
+            pi = ti.select(restart, ri, p[i])
+            r[i] = ri
+            r_hat[i] = ti.select(restart, ri, r_hat[i])
+            p[i] = pi
+            z[i] = dinv[i] * pi
+            rr += ri * ri
+        return rr
+
+    @ti.kernel
+    def bicg_half(x: vec, r: vec, v: vec, z: vec, dinv: rvec, rv: scal, vv: scal,
+                  rho: scal, rhat2: scal, active: scal, btol: real,
+                  n: ti.i32) -> (scal, scal, scal):
+        """Given v = A phat and its dots rv = <r_hat, v>, vv = <v, v> (from the
+        apply): alpha = rho / rv; x += alpha phat; s = r - alpha v (into r);
+        z = shat = M^-1 s.  Returns (||s||^2, alpha, breakdown flag); on
+        breakdown alpha = 0 and x, r are unchanged."""
+        ok = active * (1.0 - indicator(negligible(rv, rhat2, vv, btol)))
+        alpha = ti.select(ok > 0.0, rho / rv, 0.0)
+        flag = active - ok
+        ss = zeros(cols)
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            x[i] += alpha * z[i]
+            si = r[i] - alpha * v[i]
+            r[i] = si
+            z[i] = dinv[i] * si
+            ss += si * si
+        return ss, alpha, flag
+
+    @ti.kernel
+    def bicg_full(x: vec, r: vec, r_hat: vec, p: vec, v: vec, t: vec, z: vec, dinv: rvec,
+                  ts: scal, tt: scal, ss: scal, alpha: scal, rho: scal, rhat2: scal,
+                  active: scal, btol: real, n: ti.i32) -> (scal, scal, scal, scal):
+        """Given t = A shat and its dots ts = <s, t>, tt = <t, t> (from the apply)
+        and ss = ||s||^2: omega = ts / tt; x += omega shat; r = s - omega t;
+        then the next direction p = r + beta (p - omega v), z = phat = M^-1 p.
+        Returns (||r||^2, rho_new, omega flag, rho flag)."""
+        omega = ti.select((tt > 0.0) & (active > 0.0), ts / tt, 0.0)
+        omega_flag = active * indicator(negligible(ts, tt, ss, btol))
+        rr = zeros(cols)
+        rho_new = zeros(cols)
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            x[i] += omega * z[i]
+            ri = r[i] - omega * t[i]
+            r[i] = ri
+            rr += ri * ri
+            rho_new += r_hat[i] * ri
+        rho_flag = active * indicator(negligible(rho_new, rhat2, rr, btol))
+        go = active * (1.0 - omega_flag) * (1.0 - rho_flag)
+        beta = ti.select(go > 0.0, (rho_new / rho) * (alpha / omega), 0.0)
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            pi = r[i] + beta * (p[i] - omega * v[i])
+            p[i] = pi
+            z[i] = dinv[i] * pi
+        return rr, rho_new, omega_flag, rho_flag
+
+    return dict(bicg_restart=bicg_restart, bicg_half=bicg_half, bicg_full=bicg_full)
+
+
+def _cg_kernels(precision: str, serial: bool) -> dict:
+    """Preconditioned CG (M^-1 = dinv), one column."""
+    real, _, vec, _ = _types(precision, 1)
+
+    @ti.kernel
+    def cg_restart(b: vec, ax: vec, r: vec, p: vec, dinv: vec, n: ti.i32) -> (real, real, real):
+        """r = b - A x; p = M^-1 r.  Returns (||r||^2, <r, M^-1 r>, ||M^-1 r||^2)."""
+        rr = 0.0
+        rz = 0.0
+        zz = 0.0
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            ri = b[i] - ax[i]
+            zi = dinv[i] * ri
+            r[i] = ri
+            p[i] = zi
+            rr += ri * ri
+            rz += ri * zi
+            zz += zi * zi
+        return rr, rz, zz
+
+    @ti.kernel
+    def cg_step(x: vec, r: vec, p: vec, q: vec, dinv: vec, rz: real, btol: real,
+                n: ti.i32) -> (real, real, real, real):
+        """alpha = rz/<p, q>; x += alpha p; r -= alpha q; p = M^-1 r + beta p.
+        Returns (||r||^2, rz_new, <p,q> flag, rz flag); alpha = 0 on breakdown."""
+        pq = 0.0
+        pp = 0.0
+        qq = 0.0
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            pq += p[i] * q[i]
+            pp += p[i] * p[i]
+            qq += q[i] * q[i]
+        alpha = 0.0
+        pq_flag = 1.0
+        if not negligible(pq, pp, qq, btol):
+            alpha = rz / pq
+            pq_flag = 0.0
+        rr = 0.0
+        rz_new = 0.0
+        zz = 0.0
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            x[i] += alpha * p[i]
+            ri = r[i] - alpha * q[i]
+            zi = dinv[i] * ri
+            r[i] = ri
+            rr += ri * ri
+            rz_new += ri * zi
+            zz += zi * zi
+        rz_flag = 1.0 if negligible(rz_new, rr, zz, btol) else 0.0
+        beta = 0.0
+        if rz_flag == 0.0:
+            beta = rz_new / rz
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            p[i] = dinv[i] * r[i] + beta * p[i]
+        return rr, rz_new, pq_flag, rz_flag
+
+    return dict(cg_restart=cg_restart, cg_step=cg_step)
+
+
+def _cgnr_kernels(precision: str, serial: bool) -> dict:
+    """CG on A^T A x = A^T b, preconditioned by M^-1 = dinv, one column."""
+    real, _, vec, _ = _types(precision, 1)
+
+    @ti.kernel
+    def nr_residual(b: vec, ax: vec, r: vec, m: ti.i32) -> real:
+        """r = b - A x.  Returns ||r||^2."""
+        rr = 0.0
+        ti.loop_config(serialize=serial)
+        for i in range(m):
+            ri = b[i] - ax[i]
+            r[i] = ri
+            rr += ri * ri
+        return rr
+
+    @ti.kernel
+    def nr_direction(z: vec, p: vec, dinv: vec, gamma_old: real, n: ti.i32) -> (real, real):
+        """z = A^T r: gamma = <z, M^-1 z>; p = M^-1 z + (gamma/gamma_old) p
+        (a fresh start when gamma_old = 0).  Returns (gamma, ||z||^2)."""
+        gamma = 0.0
+        zz = 0.0
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            gamma += z[i] * dinv[i] * z[i]
+            zz += z[i] * z[i]
+        beta = 0.0
+        if gamma_old != 0.0:
+            beta = gamma / gamma_old
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            p[i] = dinv[i] * z[i] + beta * p[i]
+        return gamma, zz
+
+    @ti.kernel
+    def nr_update(x: vec, r: vec, p: vec, w: vec, gamma: real, m: ti.i32,
+                  n: ti.i32) -> (real, real):
+        """w = A p: alpha = gamma/||w||^2; x += alpha p; r -= alpha w.
+        Returns (||r||^2, breakdown flag); alpha = 0 when A p = 0."""
+        ww = 0.0
+        ti.loop_config(serialize=serial)
+        for i in range(m):
+            ww += w[i] * w[i]
+        alpha = 0.0
+        flag = 1.0
+        if ww > 0.0:
+            alpha = gamma / ww
+            flag = 0.0
+        rr = 0.0
+        ti.loop_config(serialize=serial)
+        for i in range(ti.max(m, n)):
+            if i < n:
+                x[i] += alpha * p[i]
+            if i < m:
+                ri = r[i] - alpha * w[i]
+                r[i] = ri
+                rr += ri * ri
+        return rr, flag
+
+    return dict(nr_residual=nr_residual, nr_direction=nr_direction, nr_update=nr_update)
