@@ -41,14 +41,19 @@ def boundary_flux(points: np.ndarray, vectors: np.ndarray, domain, spacing: floa
     (n: the outward normal at the closest boundary point) over the RMS of
     abs(v) over all points; 0 for a field that is zero.  With no point in the
     band (data far from the boundary) the flux is unknown: NaN."""
-    dist, _, normal, _ = domain.closest_boundary(points)
-    near = dist < band * spacing
+    reach = band * spacing
+    # the closest boundary point only for the points that can be in the band
+    # (the locator's cells decide the rest: 0.05 s instead of 0.3 s at 1M)
+    candidates = np.flatnonzero(domain.classify_discs(points, 0.0, -np.inf, -reach) != 1)
+    dist, _, normal, _ = domain.closest_boundary(points[candidates])
+    keep = dist < reach
+    near = candidates[keep]
     size = float(np.mean((vectors ** 2).sum(axis=1)))
-    if not near.any():
+    if not keep.any():
         return float("nan")
     if size == 0.0:
         return 0.0
-    normal_part = (vectors[near] * normal[near]).sum(axis=1)
+    normal_part = (vectors[near] * normal[keep]).sum(axis=1)
     return float(np.sqrt(np.mean(normal_part ** 2) / size))
 
 

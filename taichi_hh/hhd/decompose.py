@@ -434,6 +434,7 @@ def _decompose_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
             psi, grad_psi = nat["psi"]
             stats["natural_grid"] = nat["grid"].shape
             seconds["natural"] = time.perf_counter() - t
+            seconds.update({f"natural_{k}": v for k, v in nat.get("seconds", {}).items()})
         else:
             potentials, gradients = _potentials_and_gradients(problems, say)
             phi, psi = potentials["phi"], potentials["psi"]
