@@ -127,15 +127,21 @@ def test_a_zero_column_is_zero_at_once_and_frees_the_other(bordered):
 def test_a_column_that_converges_first_is_frozen(bordered):
     """The two columns need different counts: the one that meets tol first
     stops at its own solve's count, with its own history, while the other
-    goes on; identical columns stay identical."""
+    goes on; identical columns stay identical.  At tol 1e-8: the joint and the
+    single solves sum their reductions in different orders, a 1e-16 relative
+    difference that BiCGSTAB amplifies (measured on this matrix: the residual
+    histories part by 1e-13 .. 1e-8 relative in the teens, O(1) by iteration
+    25), so near 1e-11 the counts
+    part by rounding alone (26 against 28 after the cubic stencil's moment
+    sums were reordered) while at 1e-8 (18 and 20 iterations) they agree."""
     A, B = bordered
-    alone = [A.solve(B[:, c], tol=1e-11) for c in range(2)]
-    joint = A.solve_columns(B, tol=1e-11)
+    alone = [A.solve(B[:, c], tol=1e-8) for c in range(2)]
+    joint = A.solve_columns(B, tol=1e-8)
     assert alone[0].iterations != alone[1].iterations     # one of them stops first
     for c in range(2):
         assert abs(joint[c].iterations - alone[c].iterations) <= 1
         assert len(joint[c].history) == joint[c].iterations + 1
-    twins = A.solve_columns(np.stack([B[:, 0], B[:, 0]], axis=1), tol=1e-11)
+    twins = A.solve_columns(np.stack([B[:, 0], B[:, 0]], axis=1), tol=1e-8)
     assert twins[0].iterations == twins[1].iterations
     assert np.array_equal(twins[0].x, twins[1].x)
 
