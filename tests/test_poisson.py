@@ -202,3 +202,36 @@ def test_ghost_rows_are_shepard_sums():
     assert np.array_equal(rows[:, ghosts], np.eye(len(ghosts)))
     assert (rows[:, kind == FLUID] <= 0).all()
     assert (rows[:, kind == FLUID] < 0).sum(axis=1).min() >= 1
+
+
+def test_a_small_system_at_the_cap_is_solved_directly():
+    """118 clustered points: the projection's Poisson step took 848-900 of its
+    1000 BiCGSTAB iterations, so whether it met tol depended on rounding; a
+    system of at most DIRECT_MAX unknowns that BiCGSTAB leaves at the default
+    cap or stagnating is solved by dense LU, to tol; a cap the caller sets
+    still raises."""
+    import warnings
+    import taichi_hh as thh
+    from taichi_hh.errors import SolverError
+    from taichi_hh.linalg.poisson import DIRECT_MAX
+    from taichi_hh.validation import layouts
+    from taichi_hh.geometry.domain import Box
+    assert DIRECT_MAX >= 118
+    pts = layouts.sample(Box((0, 0), (1, 1)), 118, "clusters", seed=287)
+    v = np.c_[pts[:, 0] - 0.5, pts[:, 1] - 0.5] + 0.3
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = thh.project(pts, v, "bbox")
+    assert res.max_divergence[-1] < 1e-6 * res.max_divergence[0]
+    ps, phi, b, kind = neumann_square(10, seed=1)
+    A = PoissonMatrix(ps.ops, bordered=True)
+    b = np.append(b, 0.0)                       # the border's row, as solve() appends it
+    direct = A._direct_instead(b, 1e-12, SolverError("stuck", reason="stagnation",
+                                                      iteration=7, residual=1e-3),
+                               "bicgstab", {})
+    assert direct.converged and direct.relative_residual <= 1e-12
+    assert "dense LU" in direct.message and direct.iterations == 7
+    with pytest.raises(SolverError):
+        A._direct_instead(b, 1e-12, SolverError("cap", reason="max_iterations", iteration=3,
+                                                residual=1e-3), "bicgstab",
+                          {"max_iterations": 3})

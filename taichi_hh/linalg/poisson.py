@@ -199,6 +199,12 @@ MULTILEVEL_MIN_N = 1000
 #: iterative refinement, the residual in double precision on the host
 #: (:meth:`PoissonMatrix.solve_columns`)
 SINGLE_PRECISION_TOL = 1e-4
+#: systems of at most this many unknowns that BiCGSTAB leaves at its default
+#: iteration cap or stagnating are solved by dense LU on the host instead
+#: (PoissonMatrix.solve): 118 clustered points made the projection's Poisson
+#: step take 848-900 iterations against the cap of 1000, so whether it met
+#: tol depended on rounding (the units fuzz property found it)
+DIRECT_MAX = 2000
 #: each refinement sweep's f32 solve lowers the double-precision residual by this
 REFINEMENT_STEP = 1e-3
 #: sweeps before a refinement that stops gaining is given up
@@ -452,6 +458,35 @@ class PoissonMatrix:
                 res.x = res.x[: self.n_particles]
         return results
 
+    def _direct_instead(self, b: np.ndarray, tol: float, failure: SolverError, method: str,
+                        kwargs: dict):
+        """The small system BiCGSTAB failed on (at its default cap or stagnating)
+        solved by dense LU in double precision (:data:`DIRECT_MAX`); ``failure``
+        raised again where that does not apply or does not reach ``tol``."""
+        import time
+        if (method != "bicgstab" or self.n > DIRECT_MAX or kwargs.get("max_iterations")
+                is not None or failure.reason not in ("max_iterations", "stagnation")):
+            raise failure
+        t = time.perf_counter()
+        dense = self.host_apply(np.eye(self.n))
+        try:
+            x = np.linalg.solve(dense, b)
+        except np.linalg.LinAlgError:
+            raise failure from None
+        norm = float(np.linalg.norm(b))
+        rel = float(np.linalg.norm(b - dense @ x) / norm) if norm > 0 else 0.0
+        if not rel <= tol:
+            raise failure
+        res = solvers.SolveResult(
+            x_ndarray=None, converged=True, reason="converged", iterations=failure.iteration,
+            relative_residual=rel, history=np.array([failure.residual, rel]),
+            seconds=time.perf_counter() - t, applies=self.n, method="bicgstab, then dense LU",
+            message=f"BiCGSTAB stopped ({failure.reason} at iteration {failure.iteration}, "
+                    f"relative residual {failure.residual:.3g}); solved by dense LU",
+            n=self.n)
+        res.x = x
+        return res
+
     def host_apply(self, X: np.ndarray) -> np.ndarray:
         """``A X`` in double precision on the host (columns of ``X``, shape ``(n,
         cols)``): the matrix's stored coefficients, exactly as the kernels read
@@ -579,13 +614,16 @@ class PoissonMatrix:
             b = np.append(b, 0.0)
             if x0 is not None:
                 x0 = np.append(np.asarray(x0, dtype=np.float64), border0)
-        if method == "bicgstab" and runtime.state().precision == "f32" \
-                and tol < SINGLE_PRECISION_TOL:
-            # the residual in double precision (solve_columns)
-            res = self._refined_columns(b[:, None], tol, kwargs,
-                                        None if x0 is None else x0[:, None])[0]
-        else:
-            res = solve[method](self, b, x0, tol=tol, **kwargs)
+        try:
+            if method == "bicgstab" and runtime.state().precision == "f32" \
+                    and tol < SINGLE_PRECISION_TOL:
+                # the residual in double precision (solve_columns)
+                res = self._refined_columns(b[:, None], tol, kwargs,
+                                            None if x0 is None else x0[:, None])[0]
+            else:
+                res = solve[method](self, b, x0, tol=tol, **kwargs)
+        except SolverError as exc:
+            res = self._direct_instead(b, tol, exc, method, kwargs)
         res.border = float(res.x[-1]) if self.bordered else 0.0
         if self.bordered:
             res.x = res.x[: self.n_particles]
