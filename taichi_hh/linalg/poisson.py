@@ -201,7 +201,7 @@ MULTILEVEL_MIN_N = 1000
 SINGLE_PRECISION_TOL = 1e-4
 #: systems of at most this many unknowns that BiCGSTAB leaves at its default
 #: iteration cap or stagnating are solved by dense LU on the host instead
-#: (PoissonMatrix.solve): 118 clustered points made the projection's Poisson
+#: (PoissonMatrix.solve and solve_columns): 118 clustered points made the projection's Poisson
 #: step take 848-900 iterations against the cap of 1000, so whether it met
 #: tol depended on rounding (the units fuzz property found it)
 DIRECT_MAX = 2000
@@ -451,7 +451,20 @@ class PoissonMatrix:
         if runtime.state().precision == "f32" and tol < SINGLE_PRECISION_TOL:
             results = self._refined_columns(B, tol, kwargs)
         else:
-            results = solvers.bicgstab_columns(self, B, tol=tol, **kwargs)
+            raise_on_failure = kwargs.pop("raise_on_failure", True)
+            results = solvers.bicgstab_columns(self, B, tol=tol, raise_on_failure=False,
+                                               **kwargs)
+            for c, res in enumerate(results):
+                if res.converged:
+                    continue
+                failure = SolverError(res.message, reason=res.reason,
+                                      iteration=res.iterations, residual=res.relative_residual)
+                try:                # a small system at the default cap: as solve() does
+                    results[c] = self._direct_instead(B[:, c], tol, failure, "bicgstab",
+                                                      kwargs)
+                except SolverError:
+                    if raise_on_failure:
+                        raise
         for res in results:
             res.border = float(res.x[-1]) if self.bordered else 0.0
             if self.bordered:
