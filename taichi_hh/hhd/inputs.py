@@ -127,8 +127,13 @@ def check_data_near_boundary(points: np.ndarray, domain, spacing: float, reach: 
     times the field's energy on data covering the middle 36% of the domain)."""
     from ..sph.knn import KNearest
     samples = domain.sample_boundary(spacing)[0]
-    distance = KNearest(points).query(samples, 1)[0][:, 0]
-    far = distance > reach
+    # a point within reach of a boundary sample is within reach of the boundary:
+    # only those are searched (the locator's cells place the rest deeper)
+    near = points[domain.classify_discs(points, 0.0, -np.inf, -reach) != 1]
+    if len(near) == 0:
+        far = np.ones(len(samples), dtype=bool)
+    else:
+        far = KNearest(near).query(samples, 1)[0][:, 0] > reach
     if far.any():
         _refuse_gap(int(far.sum()), len(samples), samples[np.argmax(far)], reach, data)
 
