@@ -18,7 +18,10 @@ state = runtime.init(arch="cpu", precision="f64", verbose=False, **KWARGS)
 main = threading.get_native_id()
 single = []
 for name in os.listdir("/proc/self/task"):
-    allowed = os.sched_getaffinity(int(name))
+    try:
+        allowed = os.sched_getaffinity(int(name))
+    except ProcessLookupError:      # a thread that ended after the listing
+        continue
     if int(name) != main and len(allowed) == 1:
         single.append(sorted(allowed)[0])
 import taichi as ti
@@ -47,6 +50,14 @@ def test_workers_are_bound_one_to_a_core():
     if len(cpus) < 2:
         assert got["pinned"] == [] and got["single"] == []
         return
+    # All or nothing: a machine busy enough to hide a worker from the search
+    # leaves every thread unbound, which a second try on a quieter moment
+    # should not repeat three times running.
+    for _ in range(2):
+        assert got["pinned"] or got["single"] == []
+        if got["pinned"]:
+            break
+        got = _probe()
     # every worker bound, to the usable cores in turn; the caller left free
     assert len(got["pinned"]) == got["workers"]
     assert set(got["pinned"]) == set(cpus[:got["workers"]])
