@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import taichi_hh as thh
-from taichi_hh.hhd.auto import CLOSED_FLUX, boundary_flux
+from taichi_hh.hhd.auto import (CANCELLING_RATIO, CLOSED_FLUX, ORTHOGONAL_CONDITION, boundary_flux,
+                                 energy_closer, natural_cancels)
 from taichi_hh.geometry.box import Box
 from taichi_hh.validation.windows import window_field
 
@@ -130,3 +131,56 @@ def test_the_grid_path_chooses_too():
     ex = window_field().evaluate(nodes)
     g = thh.decompose_grid(x, y, ex.v[:, 0].reshape(X.shape), ex.v[:, 1].reshape(X.shape))
     assert g.scattered.stats["boundary_condition"] == "natural"
+
+
+# ---- a window split whose parts cancel gives way to the orthogonal one
+
+
+def _straddling_dipole(pts):
+    """A vortex just inside the unit box's left wall, its opposite just
+    outside (a wall's image pair), and a stream up through the top and the
+    bottom: the natural split's r (the inside vortex alone, in free space) and
+    h (the image and the stream) carry 2.2 times the field's energy."""
+    from taichi_hh.validation.windows import Core
+    inside = Core((0.05, 0.5), 1.0, 0.04, "vortex")
+    outside = Core((-0.05, 0.5), -1.0, 0.04, "vortex")
+    return inside.velocity(pts) + outside.velocity(pts) + np.array([0.0, 0.2])
+
+
+def test_cancelling_natural_parts_give_way_to_the_orthogonal_split():
+    pts = np.random.default_rng(5).random((5000, 2))
+    vec = _straddling_dipole(pts)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")          # the discarded attempt warns nothing
+        res = thh.decompose(pts, vec, (0, 0, 1, 1))
+    s = res.stats
+    assert s["boundary_flux"] >= CLOSED_FLUX
+    assert s["boundary_condition"] == ORTHOGONAL_CONDITION
+    assert s["natural_energy_ratio"] > CANCELLING_RATIO
+    assert abs(s["energy_ratio"] - 1.0) < 0.05      # orthogonal parts: no cancelling
+    ref = thh.decompose(pts, vec, (0, 0, 1, 1), boundary_condition=ORTHOGONAL_CONDITION)
+    for a, b in ((res.curl_free, ref.curl_free), (res.div_free, ref.div_free),
+                 (res.harmonic, ref.harmonic)):
+        assert np.array_equal(a, b)
+    natural = thh.decompose(pts, vec, (0, 0, 1, 1), boundary_condition="natural")
+    assert natural.stats["energy_ratio"] == s["natural_energy_ratio"]
+    assert set(s["seconds"]["auto_attempts"]) == {"natural", "orthogonal"}
+
+
+def test_a_window_whose_parts_do_not_cancel_keeps_the_natural_split(random_points):
+    ex = window_field().evaluate(random_points)
+    res = thh.decompose(random_points, ex.v, BOX)
+    assert res.stats["boundary_condition"] == "natural"
+    assert not natural_cancels(res.stats["energy_ratio"])
+    assert "natural_energy_ratio" not in res.stats
+    assert "auto_attempts" not in res.stats["seconds"]
+
+
+def test_the_split_whose_energy_is_closer_to_the_fields_wins():
+    assert energy_closer(1.1, 2.0) and not energy_closer(2.0, 1.1)
+    assert energy_closer(0.8, 1.5)           # by the factor: 1.25 against 1.5
+    assert not energy_closer(0.4, 2.0)       # 2.5 against 2
+    assert energy_closer(3.0, float("nan")) and not energy_closer(float("inf"), 3.0)
+    assert not energy_closer(0.0, 3.0)
+    assert natural_cancels(CANCELLING_RATIO * 1.01) and not natural_cancels(CANCELLING_RATIO)
+    assert natural_cancels(float("nan"))

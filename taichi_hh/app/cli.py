@@ -532,6 +532,10 @@ def _condition_said(stats: dict) -> str:
         return f"boundary condition {condition}"
     why = ("the flow does not cross the boundary" if condition == "no-flux"
            else "the flow crosses the boundary")
+    cancelled = stats.get("natural_energy_ratio")
+    if cancelled is not None:
+        why += (f", and the natural split's parts cancel (they carry {cancelled:.3g} times "
+                "the field's energy): the orthogonal split instead")
     return (f"boundary condition {condition} (chosen by --boundary-condition auto: {why}, "
             f"normal flux {flux:.2g} of |v|)")
 

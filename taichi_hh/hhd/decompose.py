@@ -62,7 +62,8 @@ from ..linalg.poisson import PoissonMatrix
 from .boundary import collocation_particles, far_from
 from .inputs import (INVALID_MODES, Data, check_data_near_boundary, check_data_reach_boundary,
                      check_point_count, prepare_data, refuse_too_few, validate_input)
-from .auto import choose_boundary_condition
+from .auto import (ORTHOGONAL_CONDITION, choose_boundary_condition, energy_closer,
+                   natural_cancels)
 from .corners import check_corners
 from .natural import natural_potentials
 from .options import (BOUNDARY_CONDITIONS, BOUNDARY_METHODS, METHODS, PRECONDITIONERS,
@@ -358,10 +359,49 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     runtime.ensure_init()
     data = prepare_data(points, vectors, domain, invalid=invalid, valid=valid)
     opts, chosen = resolved_options(opts, data)
-    unit = _decompose_unit(data, opts, progress)
+    if "boundary_flux" in chosen and opts.boundary_condition == "natural":
+        unit, opts, chosen = _auto_window(data, opts, chosen, progress)
+    else:
+        unit = _decompose_unit(data, opts, progress)
     unit.stats.update(chosen)
     unit.stats["seconds"]["total"] = time.perf_counter() - t_start
     return _in_caller_units(unit, data)
+
+
+def _auto_window(data: Data, opts: HHDOptions, chosen: dict, progress) -> tuple:
+    """``(unit result, options, chosen)`` of ``auto``'s window split: the
+    natural one unless its parts cancel, then the orthogonal one
+    (:func:`~taichi_hh.hhd.auto.natural_cancels`; the natural attempt's
+    warnings are not the answer's and are dropped with it)."""
+    import warnings
+
+    def attempt(options):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            return _decompose_unit(data, options, progress), caught
+
+    def answer(unit, caught):
+        for w in caught:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        return unit
+
+    natural, natural_warnings = attempt(opts)
+    ratio = natural.stats["energy_ratio"]
+    if not natural_cancels(ratio):
+        return answer(natural, natural_warnings), opts, chosen
+    orthogonal_opts = replace(opts, boundary_condition=ORTHOGONAL_CONDITION)
+    orthogonal, orthogonal_warnings = attempt(orthogonal_opts)
+    seconds = {"natural": natural.stats["seconds"]["total"],
+               "orthogonal": orthogonal.stats["seconds"]["total"]}
+    if not energy_closer(orthogonal.stats["energy_ratio"], ratio):
+        # data the orthogonal condition serves worse (gaps at the boundary):
+        # the natural split stands, with its own flags
+        natural.stats["seconds"]["auto_attempts"] = seconds
+        return answer(natural, natural_warnings), opts, {
+            **chosen, "orthogonal_energy_ratio": orthogonal.stats["energy_ratio"]}
+    orthogonal.stats["seconds"]["auto_attempts"] = seconds
+    return answer(orthogonal, orthogonal_warnings), orthogonal_opts, {
+        **chosen, "boundary_condition": ORTHOGONAL_CONDITION, "natural_energy_ratio": ratio}
 
 
 def _in_caller_units(unit: HHDResult, data: Data) -> HHDResult:
