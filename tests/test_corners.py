@@ -97,3 +97,51 @@ def test_a_masked_grid_under_neumann_is_reported():
         thh.decompose_grid(x, y, u, v, mask=building)
     with pytest.warns(AccuracyWarning, match="re-entrant corner"):
         thh.decompose_grid(x, y, u, v, mask=building, boundary_condition="neumann")
+
+
+def test_neumann_rows_keep_clear_of_reentrant_corners():
+    """Samples on both walls of a re-entrant corner and at its vertex make
+    nearly dependent Neumann rows (taichi_hh.hhd.boundary.CORNER_CLEARANCE):
+    without them a box with a square island solves in about a box's
+    iterations, not 3-4 times them, and as accurately."""
+    from taichi_hh.hhd.boundary import CORNER_CLEARANCE, collocation_particles
+    from taichi_hh.hhd.corners import reentrant_corners
+    from taichi_hh.geometry.domain import Polygon
+    island = np.array([[0.45, 0.37], [0.65, 0.37], [0.65, 0.53], [0.45, 0.53]])
+    box = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
+    dom = Polygon(box, holes=[island])
+    rng = np.random.default_rng(0)
+    pts = rng.random((40000, 2)) * [2.0, 1.0]
+    pts = pts[dom.contains(pts)][:8000]
+    spacing = np.sqrt(dom.area / len(pts))
+    corners = reentrant_corners(dom)
+    assert len(corners) == 4
+    for local in (False, True):
+        every, _ = collocation_particles(dom, pts, spacing, local=local)
+        clear, _ = collocation_particles(dom, pts, spacing, local=local, clear_corners=True)
+        near = np.hypot(*(clear[:, None, :] - corners[None]).transpose(2, 0, 1)).min(axis=1)
+        assert near.min() > 0.5 * CORNER_CLEARANCE * spacing
+        assert 0 < len(every) - len(clear) <= 4 * 5          # a few a corner, no more
+    # Gaussian potentials three widths and more from every wall, a uniform stream
+    from taichi_hh.validation.fields import Bump
+    bumps = (Bump((1.3, 0.5), 0.01, 0.08), Bump((0.25, 0.7), -0.01, 0.08))
+    stream = np.array([0.05, 0.02])
+
+    def split(at):
+        g = sum(b(at)[1] for b in bumps)
+        return g, np.c_[g[:, 1], -g[:, 0]], g + np.c_[g[:, 1], -g[:, 0]] + stream
+
+    def solve(at, domain, condition):
+        d, r, v = split(at)
+        res = thh.decompose(at, v, domain, boundary_condition=condition)
+        scale = np.linalg.norm(v, axis=1).mean()
+        err = max(np.linalg.norm(res.curl_free - d, axis=1).mean(),
+                  np.linalg.norm(res.div_free - r, axis=1).mean()) / scale
+        return err, max(res.stats["iterations_phi"], res.stats["iterations_psi"])
+
+    island_err, island_its = solve(pts, dom, "neumann")
+    dirichlet_err, _ = solve(pts, dom, "normal-parallel")
+    _, box_its = solve(rng.random((len(pts), 2)) * [2.0, 1.0], (0.0, 0.0, 2.0, 1.0), "neumann")
+    # with the corner samples: 33 iterations against 9, 2.2x normal-parallel's error
+    assert island_its <= 2 * box_its, (island_its, box_its)
+    assert island_err <= 1.25 * dirichlet_err, (island_err, dirichlet_err)

@@ -11,6 +11,7 @@ from ..errors import InputError
 from ..checks import check_spread
 from ..sph.knn import KNearest
 from ..sph.pointset import check_distinct
+from .corners import reentrant_corners
 
 #: the data's local spacing at a boundary sample is measured from its this
 #: many nearest data points (k = 8 left the spacing noisy on uniformly random
@@ -23,11 +24,29 @@ NEAREST_AVERAGED = 4
 #: 2 area / perimeter below 1/32 of it), and sampling it once took hours
 #: (a square's boundary takes 4 sqrt(N) samples, a 1000:1 strip's 63 sqrt(N))
 MAX_SAMPLES_PER_POINT = 64
+#: Neumann rows: no boundary sample within this many spacings of a
+#: re-entrant corner (:func:`collocation_particles`); 1 and 1.25 measured
+#: alike, 0 (the vertex's own sample only) keeps half the extra iterations
+CORNER_CLEARANCE = 1.0
 
 
-def collocation_particles(domain, points, spacing: float, local: bool = False):
+def collocation_particles(domain, points, spacing: float, local: bool = False,
+                          clear_corners: bool = False):
     """Boundary samples and their outward normals, without those within a
     quarter spacing of a data point (data points on the boundary take over).
+
+    ``clear_corners`` (for Neumann rows): no sample within
+    :data:`CORNER_CLEARANCE` spacings of a re-entrant corner
+    (:func:`~taichi_hh.hhd.corners.reentrant_corners`).  There the rows of
+    the samples on the two walls and of the vertex (its normal the bisector)
+    constrain the normal derivative in two directions over the same few
+    neighbours: nearly dependent rows, which cost the multilevel-preconditioned
+    solve 2-5 times a box's iterations (12-14k random points, 8/8 on a box:
+    an L-notch 16/15, a box with a square island 30/28, a coast with two
+    islands and 15 sharp corners 44/45; without those rows 13/11, 13/13,
+    14/14; errors of d and r within -55%..+13% of the corner rows' ones:
+    docs/notes/hhd.md).  The data points' own
+    rows and the walls' samples farther out carry the condition there.
 
     The samples are ``spacing`` apart, or with ``local`` as far apart as the
     data next to the boundary: where the data are denser or sparser than on
@@ -44,6 +63,8 @@ def collocation_particles(domain, points, spacing: float, local: bool = False):
     if not local:
         bpts, bnrm, _ = domain.sample_boundary(spacing)
         keep = far_from(bpts, points, 0.25 * spacing, domain)
+        if clear_corners:
+            keep &= _clear_of_corners(domain, bpts, spacing)
         return _kept(bpts, bnrm, keep, len(points))
     pts = np.asarray(points, dtype=np.float64)
     k = min(SPACING_NEIGHBOURS, len(pts) - 1)
@@ -68,8 +89,25 @@ def collocation_particles(domain, points, spacing: float, local: bool = False):
 
     bpts, bnrm, _ = domain.sample_boundary(spacing, spacing_at=data_spacing)
     nearest = search.query(bpts, 1)[0][:, 0]
-    keep = nearest >= 0.25 * data_spacing(bpts)
+    local_spacing = data_spacing(bpts)
+    keep = nearest >= 0.25 * local_spacing
+    if clear_corners:
+        keep &= _clear_of_corners(domain, bpts, local_spacing)
     return _kept(bpts, bnrm, keep, len(points))
+
+
+def _clear_of_corners(domain, samples, spacing) -> np.ndarray:
+    """Mask of ``samples`` farther than :data:`CORNER_CLEARANCE` x ``spacing``
+    (a number or one per sample) from every re-entrant corner of ``domain``."""
+    corners = reentrant_corners(domain)
+    keep = np.ones(len(samples), dtype=bool)
+    if len(corners) == 0 or len(samples) == 0:
+        return keep
+    reach = CORNER_CLEARANCE * np.broadcast_to(np.asarray(spacing, dtype=np.float64),
+                                               (len(samples),))
+    for corner in corners:
+        keep &= np.hypot(*(samples - corner).T) > reach
+    return keep
 
 
 def check_not_too_narrow(domain, n: int, spacing: float) -> None:
