@@ -33,8 +33,9 @@ class AccuracyWarning(UserWarning):
     ``stats["flags"]`` lists the same findings."""
 
 
-class BlowUp(RuntimeError):
-    """The simulation cannot go on.  ``cause``: ``"non-finite"`` (NaN/inf
+class BlowUp(TaichiHHError, RuntimeError):
+    """The simulation cannot go on (a :class:`TaichiHHError`: ``except
+    TaichiHHError`` catches it with the rest).  ``cause``: ``"non-finite"`` (NaN/inf
     values), ``"left-box"`` (particles outside the domain), ``"solver"`` (a
     solver broke down) or ``"time-step"`` (time did not advance)."""
 

@@ -317,8 +317,8 @@ def release_launch_arguments(n_particles: int) -> None:
     themselves (a reference cycle) and to the launch's arguments, so every
     array passed to a kernel stays alive until Python's cycle collector runs,
     which may be long after: a 1M-point decomposition left 1.1 GB so, and
-    the next one, allocating beside it, took 11 s instead of 9
-    (docs/notes/scattered.md, "Ninth session").  For calls on at least
+    the next one allocated beside it, slower (docs/notes/scattered.md, "What
+    a call leaves behind").  For calls on at least
     :data:`RELEASE_MIN_PARTICLES` particles, runs the collector."""
     if n_particles >= RELEASE_MIN_PARTICLES:
         import gc
@@ -334,7 +334,7 @@ def array(dtype, shape, vector: int | None = None, *, zeroed: bool = True):
     a tenth of a 13k-point decomposition's allocations) and zero-fills it
     serially, the first touch of fresh pages: 0.4-1.25 s for a 720 MB pair
     array of 1M points, slower the more memory the process holds (4.9 s of a
-    1M-point decomposition; docs/notes/scattered.md, "Eighth session").  Here
+    1M-point decomposition; docs/notes/scattered.md, "Allocation: Taichi's zero fill").  Here
     the traceback is left out and, with ``zeroed=False``, the fill: for arrays
     a kernel writes in full before anything reads them, whose pages the
     kernel's parallel loop then touches first.  Built with the constructor

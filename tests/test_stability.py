@@ -9,7 +9,7 @@ import pytest
 import taichi_hh as thh
 from taichi_hh.validation import fields
 from taichi_hh.flow.twophase import BlowUpError, FlowParams, TwoPhaseFlow
-from taichi_hh.errors import BlowUp
+from taichi_hh.errors import BlowUp, TaichiHHError
 from taichi_hh.hhd.decompose import options_for
 
 SOLVER_REASONS = {"breakdown", "stagnation", "divergence", "max_iterations", "non-finite"}
@@ -154,6 +154,7 @@ def test_flow_time_step_far_past_the_limit_is_reported():
     exc = _run_until_blowup(flow, 40)
     assert exc is not None, "a time step 64x past the stable limit ran on silently"
     assert isinstance(exc, BlowUp) and exc.cause in BlowUp.CAUSES
+    assert isinstance(exc, TaichiHHError)                  # caught with the package's errors
     assert f"t={flow.time:.4g}" in str(exc)
 
 

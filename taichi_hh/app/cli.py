@@ -154,8 +154,9 @@ def _add_common(p, command):
         "(Petronetto Eq. 10), corrected (renormalised, exact on quadratics).")
     num.add_argument("--method", default="default", choices=tuple(METHODS),
                      help="bundle of numerical options: default = most accurate (Wendland "
-                          "C2, quadratic MLS gradients, corrected Laplacian, collocated "
-                          "Neumann rows); petronetto2010 = Petronetto et al. 2010 as "
+                          "C2, cubic MLS divergence and curl, quadratic MLS gradients in "
+                          "the Neumann rows, corrected Laplacian, collocated boundary "
+                          "rows, the boundary condition chosen from the data); petronetto2010 = Petronetto et al. 2010 as "
                           "published; colin2006 = Colin et al. 2006's operators "
                           "(default: default)")
     choices = {"kernel": KERNELS, "divergence": GRADIENT_VARIANTS,

@@ -4,7 +4,7 @@ their distance from a seed triangle's circumcentre, each joins the convex
 hull of those before it through the hull edges it sees, and edges are
 flipped until every pair of triangles is Delaunay.  The sweep is one serial
 Taichi kernel: at 13k points it takes a few milliseconds where matplotlib's
-qhull takes 31-35 (docs/notes/scattered.md, "Ninth session").
+qhull takes 31-35 (docs/notes/scattered.md, "Alpha shape").
 
 The arithmetic is plain floating point (no exact predicates), so the result
 is checked (:func:`valid_triangulation`: every point used, one orientation,

@@ -5,7 +5,7 @@ psi, Petronetto Eq. 5).  At a million particles an iteration is bound by
 memory traffic over the matrix's pair arrays, which does not grow with the
 number of columns: kernels that read each pair once for both columns do two
 solves' iterations in little more than one's time (docs/notes/scattered.md,
-"Ninth session").  Such kernels take Taichi arrays of scalars (one column) or
+"Both potentials in one solve").  Such kernels take Taichi arrays of scalars (one column) or
 of ``cols``-vectors (several), with ``cols`` a compile-time argument; their
 accumulators start from :func:`zeros`.
 """

@@ -737,8 +737,8 @@ class MultilevelPreconditioner:
         # the rows the cycle reads, not the matrix: the matrix caches this
         # preconditioner (PoissonMatrix.multilevel), and a reference back would
         # make a cycle that keeps both, gigabytes at 1M particles, alive until
-        # the garbage collector runs (a 1M decomposition after another took 11
-        # s instead of 9: docs/notes/scattered.md, "Ninth session")
+        # the garbage collector runs, and the next large call allocates beside
+        # them (docs/notes/scattered.md, "What a call leaves behind")
         self._rows = (A.ops.pairs.offsets, A.ops.pairs.neighbours, A.K, A.D)
         ops = A.ops
         n = ops.particles.n
