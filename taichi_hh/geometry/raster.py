@@ -62,8 +62,8 @@ def cell_outlines(x, y, inside) -> list:
     for points, offsets in zip(rings_list, offsets_list):
         rings = [_simplified(points[a:b]) for a, b in zip(offsets[:-1], offsets[1:])]
         pieces.append((rings[0], rings[1:]))
-    if not pieces:
-        return []
+    if len(pieces) < 2:
+        return pieces
     X, Y = np.meshgrid(x, y)
     nodes = np.c_[X[inside], Y[inside]]
 

@@ -28,7 +28,9 @@ or a corner, tens of times the typical one (docs/notes/hhd.md).
 from __future__ import annotations
 
 import math
+import warnings
 from collections import namedtuple
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -71,6 +73,16 @@ COHERENCE = 0.75
 COHERENCE_RADIUS = 3.0
 #: the data's noise is estimated at this many points at most (a median)
 NOISE_SAMPLES = 2000
+#: on a grid (the grid-native natural path), the binomial passes
+#: (:func:`~taichi_hh.hhd.natural_grid.smoothed`) over the potentials before
+#: their extrema are sought, and one over div v, curl v, div d and curl r: the
+#: scattered path smooths the data's derivatives by its MLS operators (one pass
+#: matches its divergence on pivpy's noisy samples, 16-22% apart against
+#: 31-54% unsmoothed) and its potentials' density once more by the MLS
+#: reconstruction onto its cells; with fewer passes the extrema that PIV's
+#: correlated noise makes in the potentials pass as weak vortices
+#: (tests/test_critical.py, the "piv" layout: two at significance 17-21)
+POT_PASSES = 3
 
 
 class CriticalPoint(namedtuple("CriticalPoint", "x y kind")):
@@ -105,7 +117,12 @@ def critical_points(result, threshold: float = THRESHOLD, radius: float | None =
     """:func:`find_critical_points` of a decomposition in the caller's units:
     an :class:`~taichi_hh.hhd.decompose.HHDResult` (run in its unit frame,
     positions mapped back; ``radius`` in the points' units) or a
-    :class:`~taichi_hh.hhd.grid.GridResult` (its scattered decomposition)."""
+    :class:`~taichi_hh.hhd.grid.GridResult` (its scattered decomposition, or
+    on the grid where the grid-native path ran:
+    :func:`find_grid_critical_points`)."""
+    lattice = getattr(result, "lattice", None)
+    if lattice is not None:              # the grid-native natural path: on the grid
+        return find_grid_critical_points(lattice, threshold, radius, **filters)
     result = getattr(result, "scattered", None) or result
     unit, frame = getattr(result, "unit", None), getattr(result, "frame", None)
     if unit is None or frame is None:
@@ -258,6 +275,306 @@ def find_critical_points(res, threshold: float = THRESHOLD, radius: float | None
             out.append(CriticalPoint(float(x), float(y), kind, strength[i], z, c))
     out.sort(key=lambda p: -p.strength)
     return out
+
+
+def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float | None = None,
+                              *, filter: bool = True, edge: float | None = EDGE,
+                              significance: float | None = SIGNIFICANCE,
+                              coherence: float | None = COHERENCE):
+    """:func:`find_critical_points` of a decomposition on a uniform grid's
+    nodes (``lat``: :class:`~taichi_hh.hhd.natural_grid.NodeFields`), the same
+    tests on the grid without a neighbour search:
+
+    - the support H (and the default ``radius``) is what the adaptive
+      support gives a grid's node (``support_ratio`` times the local spacing
+      of its 12 nearest nodes), the local spacing the mean spacing;
+    - a candidate is a strict extremum among its 8 neighbours (a necessary
+      condition, vectorised over the grid), then among the used nodes within
+      ``radius`` (a window of the grid);
+    - strengths from div d and curl r by the decomposition's differences;
+    - distances to the outline from the grid
+      (:func:`~taichi_hh.hhd.natural_grid.outline_distance`: exact along
+      straight edges, at most the exact one at the outline's corners);
+    - the noise from the quadratic fit to each sampled node's 20 nearest
+      nodes (a fixed filter on the grid where all of them are used), the
+      white-noise spread of a disc mean from the difference stencils' rows.
+    """
+    from .natural_grid import outline_distance, smoothed
+    used, inside = lat.used, lat.inside
+    n = int(used.sum())
+    if n < 4:
+        return []
+    if not filter:
+        edge = significance = coherence = None
+    hx, hy = lat.hx, lat.hy
+    ny, nx = used.shape
+    ell = float(lat.spacing)
+    support = grid_support(hx, hy, lat.options.support_ratio)
+    rad = support if radius is None else float(radius)
+    # distances to the outline (in the points' units) up to what the tests need
+    far = max(SCALE_EDGE, edge or 0.0) * ell
+    jj, ii, best, _ = outline_distance(used, inside, hx, hy, far)
+    dist = np.full(used.shape, np.inf)
+    dist[jj, ii] = best
+    # the derivatives smoothed as the scattered path's MLS operator smooths
+    # them (natural_grid.smoothed): the strengths, signs, coherence and
+    # significance read them
+    dd = lat.div_curl(lat.curl_free)
+    dr = lat.div_curl(lat.div_free)
+    sm = smoothed(np.stack([lat.divergence, lat.curl, dd[..., 0], dr[..., 1], lat.phi, lat.psi],
+                           axis=-1), lat.inside)
+    comps, pots = sm[..., 2:4], sm[..., 4:6]
+    for _ in range(POT_PASSES - 1):
+        pots = smoothed(pots, lat.inside)
+    div_v, curl_v = sm[..., 0][used], sm[..., 1][used]
+    vec = np.stack([lat.u[used], lat.v[used]], axis=1)
+    scale = strength_scale(SimpleNamespace(divergence=div_v, curl=curl_v, vectors=vec,
+                                           stats={"spacing": ell}), dist[used] / ell)
+    if scale == 0.0 or not math.isfinite(scale):
+        return []
+    Ry, Rx = int(rad // hy), int(rad // hx)
+    oy, ox = np.mgrid[-Ry:Ry + 1, -Rx:Rx + 1]
+    r_off = np.hypot(oy * hy, ox * hx)
+    in_rad = (r_off < rad) & (r_off > 0)                  # the others within radius
+    sigma = None
+    rows = None
+    out = []
+    for pot, fld, comp, kinds, signs in (
+            (pots[..., 0], lat.curl_free, comps[..., 0], ("source", "sink"), (1, -1)),
+            (pots[..., 1], lat.div_free, comps[..., 1], ("cw_vortex", "ccw_vortex"), (-1, 1))):
+        pot = np.where(used, pot, np.nan)
+        comp = np.where(used, comp, np.nan)
+        with np.errstate(invalid="ignore"):
+            strength = np.abs(comp) / scale
+            speed = np.hypot(fld[..., 0], fld[..., 1])
+            cand = used & (strength >= threshold) & (speed <= np.abs(comp) * rad)
+            if edge is not None and edge > 0:
+                cand &= dist >= edge * ell
+            cand &= (comp * signs[0] > 0) | (comp * signs[1] > 0)
+        if not cand.any():
+            continue
+        # a strict extremum among the 8 neighbours (necessary), then among the
+        # used nodes within the radius: gathers over the candidates
+        padded = np.pad(pot, ((Ry, Ry), (Rx, Rx)), constant_values=np.nan)
+        jj, ii = np.nonzero(cand)
+        near8 = (np.abs(oy) <= 1) & (np.abs(ox) <= 1) & (r_off > 0)
+        nb = padded[jj[:, None] + Ry + oy[near8][None, :], ii[:, None] + Rx + ox[near8][None, :]]
+        here = pot[jj, ii]
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)    # all-NaN rows: no extremum
+            low = here < np.nanmin(nb, axis=1)
+            high = here > np.nanmax(nb, axis=1)
+            keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
+            jj, ii, low, high = jj[keep], ii[keep], low[keep], high[keep]
+            nb = padded[jj[:, None] + Ry + oy[in_rad][None, :],
+                        ii[:, None] + Rx + ox[in_rad][None, :]]
+            here = pot[jj, ii]
+            c_here = comp[jj, ii]
+            low &= (here < np.nanmin(nb, axis=1)) & (c_here * signs[0] > 0)
+            high &= (here > np.nanmax(nb, axis=1)) & (c_here * signs[1] > 0)
+            keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
+        jj, ii, low = jj[keep], ii[keep], low[keep]
+        c_all = np.full(jj.size, math.nan)
+        if coherence is not None and jj.size:            # one sign over the disc
+            sel = (r_off <= COHERENCE_RADIUS * ell)
+            cpad = np.pad(comp, ((Ry, Ry), (Rx, Rx)), constant_values=np.nan)
+            disc_c = cpad[jj[:, None] + Ry + oy[sel][None, :], ii[:, None] + Rx + ox[sel][None, :]]
+            sign = np.sign(comp[jj, ii])
+            total = np.nansum(np.abs(disc_c), axis=1)
+            c_all = np.where(total > 0, sign * np.nansum(disc_c, axis=1) /
+                             np.maximum(total, 1e-300), 1.0)
+            keep = c_all >= coherence
+            jj, ii, low, c_all = jj[keep], ii[keep], low[keep], c_all[keep]
+        order = np.argsort(-strength[jj, ii], kind="stable")
+        for k in order:
+            j, i = int(jj[k]), int(ii[k])
+            kind = kinds[0] if low[k] else kinds[1]
+            win = _window(j, i, Ry, Rx, ny, nx)
+            sub_r = r_off[win[2]]
+            disc = used[win[0]] & (sub_r < rad)
+            sub_comp = comp[win[0]]
+            sign = 1.0 if comp[j, i] > 0 else -1.0
+            z = math.nan
+            if significance is not None:
+                if sigma is None:
+                    sigma = grid_noise_sigma(lat)
+                if rows is None:
+                    rows = _GridRows(lat)
+                z = -math.inf
+                discs = np.stack([disc & (sub_r <= radius_i * ell)
+                                  for radius_i in SIGNIFICANCE_RADII])
+                norms = rows.mean_row_norms(discs, win)
+                for inner, norm in zip(discs, norms):
+                    mean = sign * float(sub_comp[inner].mean())
+                    spread = sigma * norm
+                    z = max(z, mean / spread if spread > 0 else
+                            (math.inf if mean > 0 else -math.inf))
+                if z < significance:
+                    continue
+            x, y = _grid_refine(lat, pot, j, i, win, disc, sub_r, rad)
+            out.append(CriticalPoint(float(x), float(y), kind, strength[j, i], z,
+                                     float(c_all[k])))
+    out.sort(key=lambda p: -p.strength)
+    return out
+
+
+def grid_support(hx: float, hy: float, support_ratio: float) -> float:
+    """The adaptive support of a grid's node (:mod:`taichi_hh.sph.support`):
+    ``support_ratio`` times its local spacing, the distance to its 12th
+    nearest node times sqrt(pi / 12)."""
+    from ..sph.support import DEFAULT_NEIGHBOURS
+    k = DEFAULT_NEIGHBOURS
+    R = int(math.ceil(math.sqrt(k))) + 1
+    oy, ox = np.mgrid[-R:R + 1, -R:R + 1]
+    r = np.sort(np.hypot(oy * hy, ox * hx).ravel())
+    return support_ratio * float(r[k]) * math.sqrt(math.pi / k)     # r[0]: the node itself
+
+
+def _window(j, i, Ry, Rx, ny, nx):
+    """``(grid slice, window shape, slice of the full window)`` of the nodes
+    within Ry rows and Rx columns of (j, i), clipped to the grid."""
+    j0, j1 = max(j - Ry, 0), min(j + Ry + 1, ny)
+    i0, i1 = max(i - Rx, 0), min(i + Rx + 1, nx)
+    return ((slice(j0, j1), slice(i0, i1)), (j1 - j0, i1 - i0),
+            (slice(j0 - (j - Ry), j1 - (j - Ry)), slice(i0 - (i - Rx), i1 - (i - Rx))))
+
+
+def _grid_refine(lat, pot, j, i, win, disc, sub_r, rad):
+    """The stationary point of the quadratic least-squares fit of ``pot`` over
+    the used nodes within ``rad`` of node (j, i) (the node kept where it falls
+    farther than ``rad`` or outside the domain's outline)."""
+    from ..geometry.rings import point_in_ring
+    gy, gx = np.nonzero(disc)
+    X = lat.x[win[0][1]][gx] - lat.x[i]
+    Y = lat.y[win[0][0]][gy] - lat.y[j]
+    here = (float(lat.x[i]), float(lat.y[j]))
+    if len(X) < 6:
+        return here
+    A = np.c_[np.ones(len(X)), X, Y, X * X, X * Y, Y * Y]
+    try:                                  # the normal equations: no LAPACK least squares
+        coef = np.linalg.solve(A.T @ A, A.T @ pot[win[0]][disc])
+    except np.linalg.LinAlgError:
+        return here
+    a, b, c = 2 * coef[3], coef[4], 2 * coef[5]
+    det = a * c - b * b
+    if det == 0 or not math.isfinite(det):
+        return here
+    step = (-(c * coef[1] - b * coef[2]) / det, -(a * coef[2] - b * coef[1]) / det)
+    if not all(math.isfinite(t) for t in step) or math.hypot(*step) > rad:
+        return here
+    p = (here[0] + float(step[0]), here[1] + float(step[1]))
+    dom = lat.domain
+    if dom is not None:
+        rings = getattr(dom, "rings", ())
+        if rings and (not point_in_ring(p, rings[0])
+                      or any(point_in_ring(p, h) for h in rings[1:])):
+            return here
+    return p
+
+
+def grid_noise_sigma(lat, samples: int = NOISE_SAMPLES) -> float:
+    """:func:`noise_sigma` on a grid: the quadratic moving-least-squares fit
+    to each sampled node's 20 nearest nodes (itself left out; Wendland
+    weights on the distance over 1.5 times the 20th), a fixed filter at the
+    nodes whose 20 neighbours are all used; where fewer than a tenth of the
+    samples have them, :func:`noise_sigma` of the used nodes."""
+    used = lat.used
+    ny, nx = used.shape
+    hx, hy = lat.hx, lat.hy
+    k = 20
+    R = 3
+    oy, ox = np.mgrid[-R:R + 1, -R:R + 1]
+    oy, ox = oy.ravel(), ox.ravel()
+    r = np.hypot(oy * hy, ox * hx)
+    order = np.argsort(r, kind="stable")[1:k + 1]          # the 20 nearest, not the node
+    oy, ox, r = oy[order], ox[order], r[order]
+    scale = 1.5 * r.max()
+    q = r / scale
+    w = (1 - q) ** 4 * (1 + 4 * q)
+    dx, dy = ox * hx / scale, oy * hy / scale
+    B = np.c_[np.ones(k), dx, dy, dx * dx, dx * dy, dy * dy]
+    M = (B * w[:, None]).T @ B
+    M += 1e-12 * np.trace(M) * np.eye(6)
+    filt = np.linalg.solve(M, (B * w[:, None]).T)[0]        # the constant coefficient's weights
+    flat = np.flatnonzero(used.ravel())
+    step = max(1, -(-len(flat) // samples))
+    at = flat[::step]
+    j, i = np.divmod(at, nx)
+    J_ = j[:, None] + oy[None, :]
+    I_ = i[:, None] + ox[None, :]
+    inb = (J_ >= 0) & (J_ < ny) & (I_ >= 0) & (I_ < nx)
+    Jc, Ic = np.clip(J_, 0, ny - 1), np.clip(I_, 0, nx - 1)
+    full = (inb & used[Jc, Ic]).all(axis=1)
+    vec = np.stack([lat.u, lat.v], axis=-1)
+    if full.sum() < max(8, 0.1 * len(at)):
+        return noise_sigma(np.c_[lat.x[np.divmod(flat, nx)[1]], lat.y[np.divmod(flat, nx)[0]]],
+                           vec.reshape(-1, 2)[flat], samples)
+    fit = np.einsum("s,gsk->gk", filt, vec[Jc[full], Ic[full]])
+    return 1.4826 * float(np.median(np.abs(vec[j[full], i[full]] - fit)))
+
+
+class _GridRows:
+    """The rows of the operator the critical points read on a grid: the
+    difference stencils of the vectors (:mod:`taichi_hh.hhd.natural_grid`,
+    along x on u, along y on v), smoothed by the binomial filter
+    (:func:`~taichi_hh.hhd.natural_grid.smoothed`): the white-noise spread of
+    a mean over a disc of nodes."""
+
+    def __init__(self, lat):
+        from .natural_grid import PAD, STENCILS
+        self.cx, self.cy = lat.data_codes
+        self.inside = lat.inside
+        self.table, self.pad = STENCILS, PAD
+        self.hx, self.hy = lat.hx, lat.hy
+
+    def mean_row_norms(self, discs, win) -> np.ndarray:
+        """2-norms of the means of the smoothed divergence rows of the nodes
+        of each of ``discs`` (bool (k, wy, wx) over the window ``win``,
+        :func:`_window`): each disc's indicator smeared by the binomial
+        filter weighs the rows of the nodes it reaches; the central stencils
+        (nearly every node's) by shifted sums, the others node by node."""
+        P = self.pad
+        k = discs.shape[0]
+        m = discs.reshape(k, -1).sum(axis=1)
+        ny, nx = self.inside.shape
+        # the window grown by the filter's reach (one node), clipped to the grid
+        gs = win[0]
+        j0, j1 = max(gs[0].start - 1, 0), min(gs[0].stop + 1, ny)
+        i0, i1 = max(gs[1].start - 1, 0), min(gs[1].stop + 1, nx)
+        wy, wx = j1 - j0, i1 - i0
+        ind = np.zeros((k, wy + 2, wx + 2))
+        oj, oi = gs[0].start - j0 + 1, gs[1].start - i0 + 1
+        ind[:, oj:oj + discs.shape[1], oi:oi + discs.shape[2]] = discs
+        ind = 0.25 * ind[:, :, :-2] + 0.5 * ind[:, :, 1:-1] + 0.25 * ind[:, :, 2:]
+        sl = (slice(j0, j1), slice(i0, i1))
+        weight = (0.25 * ind[:, :-2] + 0.5 * ind[:, 1:-1] + 0.25 * ind[:, 2:]) \
+            * self.inside[sl]                                           # (k, wy, wx)
+        total = np.zeros(k)
+        for codes, h, axis in ((self.cx, self.hx, 1), (self.cy, self.hy, 0)):
+            c = codes[sl]
+            acc = np.zeros((k, wy + 2 * P, wx + 2 * P))
+            central = weight * ((c == 0) / h)
+            for o in (-2, -1, 1, 2):
+                w = self.table[0, o + P]
+                if axis == 1:
+                    acc[:, P:P + wy, P + o:P + o + wx] += w * central
+                else:
+                    acc[:, P + o:P + o + wy, P:P + wx] += w * central
+            other = (c != 0) & (weight > 0).any(axis=0)
+            if other.any():
+                gj, gi = np.nonzero(other)
+                co = c[other].astype(np.intp)
+                wo = weight[:, other] / h                              # (k, n)
+                for o in range(-P, P + 1):
+                    wgt = self.table[co, o + P][None, :] * wo
+                    if axis == 1:
+                        idx = (slice(None), gj + P, gi + P + o)
+                    else:
+                        idx = (slice(None), gj + P + o, gi + P)
+                    np.add.at(acc, (np.arange(k)[:, None], idx[1][None, :], idx[2][None, :]),
+                              wgt)
+            total += np.einsum("kij,kij->k", acc, acc)
+        return np.sqrt(total) / np.maximum(m, 1)
 
 
 def strength_scale(res, edge_distance=None) -> float:

@@ -26,8 +26,9 @@ nodes is decomposed and the others are left out (counted and warned).
 """
 from __future__ import annotations
 
+import math
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -44,6 +45,9 @@ HOLE_SIZE = 3
 #: valid nodes with fewer valid neighbours (of 8; the same share of 5 or 3 on
 #: edges and corners) are left out as isolated
 MIN_NEIGHBOURS = 4
+#: the options the grid-native natural path takes (the others are the
+#: scattered operators' and solvers': decompose() on the nodes)
+GRID_NATIVE_OPTIONS = frozenset({"boundary_condition", "natural_evaluation"})
 
 
 @dataclass
@@ -54,7 +58,10 @@ class GridResult:
     ``phi``, ``psi``, ``divergence``, ``curl``: (ny, nx); NaN where no vector
     was decomposed.  ``used``: the nodes decomposed; ``inside``: the nodes
     inside ``domain`` (used nodes and bridged gaps).  ``scattered``: the
-    decomposition of the used nodes (:class:`~taichi_hh.hhd.decompose.HHDResult`)."""
+    decomposition of the used nodes as
+    :func:`~taichi_hh.hhd.decompose.decompose` returns one
+    (:class:`~taichi_hh.hhd.decompose.HHDResult`, made on first use where the
+    grid-native path ran)."""
     x: np.ndarray
     y: np.ndarray
     curl_free: np.ndarray
@@ -68,13 +75,23 @@ class GridResult:
     inside: np.ndarray
     domain: Polygon
     stats: dict
-    scattered: object = field(repr=False, default=None)
+    lattice: object = field(repr=False, default=None)     # NodeFields of the grid-native path
+    _scattered: object = field(repr=False, default=None)
+
+    @property
+    def scattered(self):
+        if self._scattered is None and self.lattice is not None:
+            self._scattered = self.lattice.result()
+        return self._scattered
 
     def critical_points(self, threshold: float = 0.1, radius: float | None = None,
                         **filters):
         """Sources, sinks and vortices: see
-        :meth:`~taichi_hh.hhd.decompose.HHDResult.critical_points`."""
-        return self.scattered.critical_points(threshold, radius, **filters)
+        :meth:`~taichi_hh.hhd.decompose.HHDResult.critical_points` (on the
+        grid's nodes where the grid-native path ran:
+        :func:`~taichi_hh.hhd.critical.find_grid_critical_points`)."""
+        from .critical import critical_points
+        return critical_points(self, threshold, radius, **filters)
 
 
 def _component(values, name: str, shape) -> tuple:
@@ -100,6 +117,8 @@ def cut_out(invalid: np.ndarray, hole_size: int = HOLE_SIZE) -> np.ndarray:
     ``invalid`` by a ``hole_size`` square, the grid's outside counted invalid,
     i.e. every invalid node that lies in some all-invalid ``hole_size`` x
     ``hole_size`` block."""
+    if not invalid.any():
+        return np.zeros_like(invalid)
     k = hole_size - 1
     core = np.pad(invalid, k, constant_values=True)
     for _ in range(k):           # erosion: (j, i) stays if its 2 x 2 block upwards is all set
@@ -118,6 +137,8 @@ def isolated_nodes(invalid: np.ndarray, min_neighbours: int = MIN_NEIGHBOURS) ->
     neighbours) fewer than the same share of them (4 of 8: 3 of 5, 2 of 3): a
     full grid's corner is no island, an edge node amid rejected ones is."""
     ny, nx = invalid.shape
+    if not invalid.any():          # a full grid: each node has its share of neighbours
+        return np.zeros_like(invalid)
 
     def neighbours(a):
         pad = np.pad(a, 1, constant_values=False)
@@ -132,7 +153,7 @@ def isolated_nodes(invalid: np.ndarray, min_neighbours: int = MIN_NEIGHBOURS) ->
 
 def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE,
                    min_neighbours: int = MIN_NEIGHBOURS, method: str = "default",
-                   progress=None, **options) -> GridResult:
+                   progress=None, _path: str = "auto", **options) -> GridResult:
     """Helmholtz-Hodge decomposition of a field on a rectilinear grid.
 
     x: (nx,) and y: (ny,) node coordinates (strictly monotonic, any spacing);
@@ -150,10 +171,22 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE,
     a closed container (v.n = 0 along the outline of the nodes' cells: a
     cell-centred simulation with walls) ``"no-flux"``.
 
+    A uniform grid (equal steps along x, and along y) under the natural
+    condition (chosen or asked for; the default method, ``natural_evaluation``
+    the only numerical option given) is decomposed on its own nodes
+    (:mod:`taichi_hh.hhd.natural_grid`: finite differences and the FFT over the
+    nodes' cells, no neighbour search; ``stats["grid_native"]``), every other
+    case through :func:`~taichi_hh.hhd.decompose.decompose` on the used nodes.
+    ``_path="scattered"`` (internal: tests and benchmarks) takes the second
+    way always.
+
     Returns a :class:`GridResult`; ``stats`` adds ``n_invalid`` (nodes
     without a vector), ``n_cut_out`` (invalid nodes outside the domain),
     ``n_left_out`` (valid nodes of smaller pieces, not decomposed)."""
     from .decompose import decompose
+    from .natural_grid import NodeFields, decompose_nodes, uniform_steps
+    if _path not in ("auto", "scattered"):
+        raise InputError(f"_path must be 'auto' or 'scattered', got {_path!r}")
     if "domain" in options:
         raise InputError("decompose_grid makes its domain from the valid nodes: give "
                          "mask= (True where invalid) to cut regions out, or use "
@@ -193,15 +226,36 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE,
     pieces = cell_outlines(xs, ys, ~outside)
     outer, holes = pieces[0]
     domain = Polygon(outer, holes)
-    X, Y = np.meshgrid(xs, ys)
-    nodes = np.c_[X.ravel(), Y.ravel()]
-    inside = domain.contains(nodes).reshape(shape) & ~outside
+
+    def nodes():
+        X, Y = np.meshgrid(xs, ys)
+        return np.c_[X.ravel(), Y.ravel()]
+    if len(pieces) == 1:             # every node not cut out is inside the one outline
+        inside = ~outside
+    else:
+        inside = domain.contains(nodes()).reshape(shape) & ~outside
     used = inside & ~invalid_s
     left_out = int((~invalid_s & ~inside).sum())
-    # the default condition as decompose()'s (auto): natural for a window, which
-    # every measured PIV field is, no-flux where the flow does not cross the outline
-    res = decompose(nodes[used.ravel()], np.c_[u_s[used], v_s[used]], domain, method=method,
-                    progress=progress, **options)
+    res = None
+    steps = uniform_steps(xs, ys) if _path != "scattered" else None
+    if steps is not None and method == "default" and set(options) <= GRID_NATIVE_OPTIONS:
+        # a uniform grid under the natural condition: on its own nodes
+        # (hhd.natural_grid); the default condition (auto) measured alike
+        from .decompose import options_for
+        opts = options_for(method, **options)
+        chosen = {"boundary_condition": opts.boundary_condition}
+        if opts.boundary_condition == "auto":
+            chosen = _auto_condition(xs, ys, used, inside, u_s, v_s, domain, steps,
+                                     opts.boundary)
+        if chosen["boundary_condition"] == "natural":
+            res = decompose_nodes(xs, ys, steps, u_s, v_s, inside, used, domain,
+                                  replace(opts, boundary_condition="natural"), chosen,
+                                  progress)
+    if res is None:
+        # the default condition as decompose()'s (auto): natural for a window, which
+        # every measured PIV field is, no-flux where the flow does not cross the outline
+        res = decompose(nodes()[used.ravel()], np.c_[u_s[used], v_s[used]], domain,
+                        method=method, progress=progress, **options)
     stats = dict(res.stats)
     stats.update(n_invalid=int(missing.sum()), n_isolated=int(isolated.sum()),
                  n_cut_out=int((outside & invalid_s).sum()),
@@ -212,18 +266,54 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE,
                f"{hole_size} nodes or more: left out (NaN); a larger hole_size bridges the gaps")
         stats["flags"] = list(stats.get("flags", [])) + [msg]
         warnings.warn(msg, AccuracyWarning, stacklevel=2)
+    lattice = res if isinstance(res, NodeFields) else None
+    gaps = inside & ~used
 
-    def on_grid(values):
-        values = np.asarray(values)
+    def on_grid(name):
+        if lattice is not None:         # on the grid already, NaN off the inside nodes
+            out = np.array(getattr(lattice, name))
+            if gaps.any():
+                out[gaps] = np.nan
+            return out[sl]
+        values = np.asarray(getattr(res, name))
         out = np.full(shape + values.shape[1:], np.nan)
         out[used] = values
         return out[sl]                      # the input's order again
-    return GridResult(x=x_in, y=y_in, curl_free=on_grid(res.curl_free),
-                      div_free=on_grid(res.div_free), harmonic=on_grid(res.harmonic),
-                      phi=on_grid(res.phi), psi=on_grid(res.psi),
-                      divergence=on_grid(res.divergence), curl=on_grid(res.curl),
+    return GridResult(x=x_in, y=y_in, curl_free=on_grid("curl_free"),
+                      div_free=on_grid("div_free"), harmonic=on_grid("harmonic"),
+                      phi=on_grid("phi"), psi=on_grid("psi"),
+                      divergence=on_grid("divergence"), curl=on_grid("curl"),
                       used=used[sl], inside=inside[sl], domain=domain, stats=stats,
-                      scattered=res)
+                      lattice=lattice, _scattered=None if lattice is not None else res)
+
+
+def _auto_condition(xs, ys, used, inside, u, v, domain, steps, boundary: str) -> dict:
+    """``auto``'s choice on a uniform grid's used nodes, as
+    :func:`~taichi_hh.hhd.auto.choose_boundary_condition` makes it:
+    ``{"boundary_condition", "boundary_flux"}``.  The flux
+    (:func:`~taichi_hh.hhd.auto.boundary_flux`: RMS of v.n over the nodes
+    within its band of the outline over the RMS of abs(v)) with the
+    distances and normals from the grid rather than the domain's locator
+    (:func:`~taichi_hh.hhd.natural_grid.outline_distance`)."""
+    from .auto import CLOSED_FLUX, FLUX_BAND
+    from .natural_grid import outline_distance
+    hx, hy = steps
+    n = int(used.sum())
+    vec = np.stack([u, v], axis=-1)
+    size = float(np.mean((vec[used] ** 2).sum(axis=1)))
+    spacing = math.sqrt(domain.area / max(n, 1))
+    reach = FLUX_BAND * spacing
+    jj, ii, best, normal = outline_distance(used, inside, hx, hy, reach)
+    keep = best < reach
+    if not keep.any():
+        flux = float("nan")
+    elif size == 0.0:
+        flux = 0.0
+    else:
+        normal_part = (vec[jj[keep], ii[keep]] * normal[keep]).sum(axis=1)
+        flux = float(np.sqrt(np.mean(normal_part ** 2) / size))
+    closed = np.isfinite(flux) and flux < CLOSED_FLUX and boundary == "collocation"
+    return {"boundary_condition": "no-flux" if closed else "natural", "boundary_flux": flux}
 
 
 def grid_of(points) -> tuple | None:

@@ -1,0 +1,696 @@
+"""The natural Helmholtz-Hodge decomposition on a uniform grid's own nodes:
+the fast path of :func:`~taichi_hh.hhd.grid.decompose_grid`.
+
+The scattered path (:mod:`taichi_hh.hhd.natural`) reconstructs div v and
+curl v from the data points onto a grid of cells by moving least squares,
+weighs the cells by their coverage of the domain, and interpolates the
+potentials' gradients back to the points.  A uniform grid of measurements
+needs none of that: each node is the centre of its cell, and the domain of
+:func:`~taichi_hh.hhd.grid.decompose_grid` is the union of the cells of the
+nodes kept (the raster outline of :mod:`taichi_hh.geometry.raster`, but for
+the 45-degree cuts at its corners: an eighth of a cell each).  So
+
+* div v and curl v at the nodes by finite differences: fourth order where
+  two nodes on each side are inside the domain, one-sided fourth order next
+  to the outline and holes, lower order only where a line of inside nodes is
+  shorter than five (:func:`axis_derivative`); the bridged gaps (dropouts,
+  isolated nodes left out: inside the domain, no vector) get v from a
+  weighted quadratic least-squares fit to the valid nodes around them
+  (:func:`fill_gaps`) so the differences across them stay fourth order;
+* phi = G * div v and psi = -G * curl v over the cells by zero-padded FFT
+  (:func:`~taichi_hh.hhd.natural.convolve_fft`, the free-space kernel of
+  :meth:`~taichi_hh.hhd.natural.Grid.kernel` with each cell's own integral),
+  the midpoint rule: second order;
+* d = grad phi, r = J grad psi by the same differences over the inside
+  nodes: the potentials are only C^{1,1} across the outline (their
+  density stops there), so differences straddling it would err by O(h);
+  one-sided ones see a smooth function.
+
+No neighbour search, no interpolation: at 161 x 81 nodes the numerics take a
+few milliseconds (benchmarks/grid_peer.py).
+"""
+
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import taichi as ti
+
+from .. import runtime
+from ..errors import AccuracyWarning
+from .decompose import ENERGY_LIMIT, HARMONIC_LIMIT, HHDResult
+from .natural import Grid, convolve_direct, convolve_fft
+
+__all__ = ["NodeGrid", "uniform_steps", "div_curl", "axis_derivative", "stencil_codes",
+           "smoothed", "mls_gradient_stencil", "eroded", "outline_distance", "fill_gaps", "natural_on_nodes", "decompose_nodes",
+           "NodeResult", "NodeFields", "STENCILS", "UNIFORM_RTOL"]
+
+#: an axis is uniform when every step is within this fraction of the mean step
+#: (coordinates written with 6 or more significant digits)
+UNIFORM_RTOL = 1e-5
+
+#: first-derivative stencils on offsets -4 .. 4 (times 1 / step), in order of
+#: preference: the first whose nodes are all available is used at a node.
+#: 0: central, 4th order; 1, 2: one node on one side, 4th order; 3, 4: one-sided
+#: 4th order; 5: central 2nd order; 6, 7: one-sided 2nd order; 8, 9: 1st order
+STENCILS = np.zeros((12, 9))
+for _code, (_offsets, _coefs) in enumerate((
+        ((-2, -1, 1, 2), (1 / 12, -8 / 12, 8 / 12, -1 / 12)),
+        ((-1, 0, 1, 2, 3), (-3 / 12, -10 / 12, 18 / 12, -6 / 12, 1 / 12)),
+        ((-3, -2, -1, 0, 1), (-1 / 12, 6 / 12, -18 / 12, 10 / 12, 3 / 12)),
+        ((0, 1, 2, 3, 4), (-25 / 12, 48 / 12, -36 / 12, 16 / 12, -3 / 12)),
+        ((-4, -3, -2, -1, 0), (3 / 12, -16 / 12, 36 / 12, -48 / 12, 25 / 12)),
+        ((-1, 1), (-0.5, 0.5)),
+        ((0, 1, 2), (-1.5, 2.0, -0.5)),
+        ((-2, -1, 0), (0.5, -2.0, 1.5)),
+        ((0, 1), (-1.0, 1.0)),
+        ((-1, 0), (-1.0, 1.0)))):
+    for _o, _c in zip(_offsets, _coefs):
+        STENCILS[_code, _o + 4] = _c
+#: the nodes each stencil needs (its own node always): offsets -4 .. 4
+_NEEDS = [np.flatnonzero(STENCILS[c] != 0) - 4 for c in range(10)]
+_NEEDS[0] = np.array([-2, -1, 1, 2])
+#: code of a node without a neighbour along the axis: derivative 0
+NO_STENCIL = 10
+#: code of a node not available (no derivative there)
+UNAVAILABLE = 11
+#: the stencils' reach: offsets -PAD .. PAD
+PAD = 4
+
+
+def uniform_steps(x: np.ndarray, y: np.ndarray, rtol: float = UNIFORM_RTOL):
+    """``(hx, hy)`` when the increasing axes ``x``, ``y`` have equal steps (to
+    ``rtol`` of the step), else None."""
+    steps = []
+    for axis in (x, y):
+        d = np.diff(axis)
+        if len(d) == 0:
+            return None
+        h = (axis[-1] - axis[0]) / len(d)
+        if not (h > 0) or np.max(np.abs(d - h)) > rtol * h:
+            return None
+        steps.append(float(h))
+    return tuple(steps)
+
+
+class NodeGrid(Grid):
+    """The cells of a uniform grid's nodes as a :class:`~taichi_hh.hhd.natural.Grid`
+    (no margin: the potentials are wanted at the nodes only): ``nx`` x ``ny``
+    cells of ``hx`` x ``hy``, the first centred at ``origin``."""
+
+    def __init__(self, origin, hx: float, hy: float, nx: int, ny: int):
+        self.hx, self.hy = float(hx), float(hy)
+        self.nx, self.ny = int(nx), int(ny)
+        self.origin = np.asarray(origin, dtype=np.float64)
+
+
+def stencil_codes(avail: np.ndarray, axis: int, table=None) -> np.ndarray:
+    """Per node, the index into the stencil table of the derivative along
+    ``axis`` (0: y, rows; 1: x, columns) over the nodes ``avail`` (bool
+    (ny, nx)): the first stencil of the order of preference whose nodes are
+    all available (from the runs of available nodes on each side, up to 4);
+    :data:`NO_STENCIL` where none is (derivative 0), :data:`UNAVAILABLE` where
+    the node itself is not available."""
+    a = np.moveaxis(np.asarray(avail, dtype=bool), axis, 0)
+    n = a.shape[0]
+    pad = np.zeros((n + 2 * PAD,) + a.shape[1:], dtype=bool)
+    pad[PAD:PAD + n] = a
+    runs = []
+    for sign in (-1, 1):
+        run = np.zeros(a.shape, dtype=np.int8)
+        cur = a.copy()
+        for k in range(1, PAD + 1):
+            cur &= pad[PAD + sign * k:PAD + sign * k + n]
+            run += cur
+        runs.append(run)
+    table = _CODE_OF_RUNS if table is None else table
+    codes = table[runs[0] * (PAD + 1) + runs[1]]
+    codes[~a] = UNAVAILABLE
+    return np.moveaxis(codes, 0, axis)
+
+
+def _code_of_runs() -> np.ndarray:
+    """The stencil code for each pair of runs (left, right) of available nodes
+    next to a node, flattened ``left * (PAD + 1) + right``."""
+    table = np.full((PAD + 1) * (PAD + 1), NO_STENCIL, dtype=np.int8)
+    for left in range(PAD + 1):
+        for right in range(PAD + 1):
+            for code in range(10):
+                need = _NEEDS[code]
+                if (-need.min() if need.min() < 0 else 0) <= left and \
+                        (need.max() if need.max() > 0 else 0) <= right:
+                    table[left * (PAD + 1) + right] = code
+                    break
+    return table
+
+
+_CODE_OF_RUNS = _code_of_runs()
+
+
+def _data_code_of_runs() -> np.ndarray:
+    """:func:`_code_of_runs` for the derivatives of measured vectors: next to
+    the outline (fewer than two available nodes on a side) second order, not
+    the one-sided fourth-order stencils, whose coefficients (up to 25/12)
+    amplify the data's noise 3 to 6 times where the central ones' do not."""
+    table = _CODE_OF_RUNS.copy()
+    for four, two in ((1, 5), (2, 5), (3, 6), (4, 7)):
+        table[table == four] = two
+    return table
+
+
+_DATA_CODE_OF_RUNS = _data_code_of_runs()
+
+
+def axis_derivative(F: np.ndarray, avail: np.ndarray, axis: int, h: float) -> np.ndarray:
+    """The derivative along ``axis`` (0: rows, y; 1: columns, x) of ``F``
+    (ny, nx[, k]) with step ``h`` over the nodes ``avail`` by the stencils
+    :func:`stencil_codes` picks (0 where none): numpy, node by stencil; the
+    reference of the Taichi kernels (:func:`_div_curl`, :func:`_components`)."""
+    F = np.asarray(F, dtype=np.float64)
+    codes = stencil_codes(avail, axis)
+    Fm = np.moveaxis(F, axis, 0)
+    n = Fm.shape[0]
+    pad = np.zeros((n + 2 * PAD,) + Fm.shape[1:])
+    pad[PAD:PAD + n] = np.where(np.moveaxis(avail, axis, 0).reshape(
+        (n,) + Fm.shape[1:2] + (1,) * (Fm.ndim - 2)), Fm, 0.0)
+    cm = np.moveaxis(codes, axis, 0)
+    out = np.zeros_like(Fm)
+    for o in range(-PAD, PAD + 1):
+        w = STENCILS[cm.astype(np.intp), o + PAD]
+        out += w.reshape(w.shape + (1,) * (Fm.ndim - 2)) * pad[PAD + o:PAD + o + n]
+    return np.moveaxis(out / h, 0, axis)
+
+
+@ti.func
+def _derivative(F: ti.template(), c, comp: ti.template(), j, i, dj: ti.template(),
+                di: ti.template(), table: ti.template()):
+    """sum_o w_o F[(j, i) + o (dj, di), comp] for the stencil ``c`` of ``table``
+    (times 1 / step): the central one (code 0, nearly every node) unrolled,
+    the others from the table."""
+    acc = ti.f64(0.0)
+    if c == 0:
+        acc = ((F[j - 2 * dj, i - 2 * di, comp] - F[j + 2 * dj, i + 2 * di, comp])
+               + 8.0 * (F[j + dj, i + di, comp] - F[j - dj, i - di, comp])) / 12.0
+    else:
+        for o in ti.static(range(-PAD, PAD + 1)):
+            w = table[c, o + PAD]
+            if w != 0.0:
+                acc += w * F[j + dj * o, i + di * o, comp]
+    return acc
+
+
+@ti.kernel
+def _div_curl(F: ti.types.ndarray(), cx: ti.types.ndarray(), cy: ti.types.ndarray(),
+              table: ti.types.ndarray(), hx: ti.f64, hy: ti.f64, out: ti.types.ndarray()):
+    """out[j, i] = (div F, curl F) by the stencils ``cx``, ``cy``
+    (:func:`stencil_codes`; (0, 0) at the nodes not available)."""
+    ny, nx = F.shape[0], F.shape[1]
+    for j, i in ti.ndrange(ny, nx):
+        div = ti.f64(0.0)
+        curl = ti.f64(0.0)
+        a = ti.cast(cx[j, i], ti.i32)
+        b = ti.cast(cy[j, i], ti.i32)
+        if a != UNAVAILABLE:
+            dudx = _derivative(F, a, 0, j, i, 0, 1, table) / hx
+            dvdx = _derivative(F, a, 1, j, i, 0, 1, table) / hx
+            dudy = _derivative(F, b, 0, j, i, 1, 0, table) / hy
+            dvdy = _derivative(F, b, 1, j, i, 1, 0, table) / hy
+            div = dudx + dvdy
+            curl = dvdx - dudy
+        out[j, i, 0] = div
+        out[j, i, 1] = curl
+
+
+@ti.kernel
+def _components(P: ti.types.ndarray(), V: ti.types.ndarray(), cx: ti.types.ndarray(),
+                cy: ti.types.ndarray(), table: ti.types.ndarray(), hx: ti.f64, hy: ti.f64,
+                d: ti.types.ndarray(), r: ti.types.ndarray(), h: ti.types.ndarray()):
+    """d = grad P[..., 0], r = J grad P[..., 1] = (dpsi/dy, -dpsi/dx) and
+    h = V - d - r by the stencils ``cx``, ``cy`` (NaN at the nodes not
+    available)."""
+    ny, nx = P.shape[0], P.shape[1]
+    for j, i in ti.ndrange(ny, nx):
+        a = ti.cast(cx[j, i], ti.i32)
+        b = ti.cast(cy[j, i], ti.i32)
+        if a != UNAVAILABLE:
+            px = _derivative(P, a, 0, j, i, 0, 1, table) / hx
+            py = _derivative(P, b, 0, j, i, 1, 0, table) / hy
+            sx = _derivative(P, a, 1, j, i, 0, 1, table) / hx
+            sy = _derivative(P, b, 1, j, i, 1, 0, table) / hy
+            d[j, i, 0] = px
+            d[j, i, 1] = py
+            r[j, i, 0] = sy
+            r[j, i, 1] = -sx
+            h[j, i, 0] = V[j, i, 0] - px - sy
+            h[j, i, 1] = V[j, i, 1] - py + sx
+        else:
+            for c in ti.static(range(2)):
+                d[j, i, c] = ti.math.nan
+                r[j, i, c] = ti.math.nan
+                h[j, i, c] = ti.math.nan
+
+
+def div_curl(F: np.ndarray, avail: np.ndarray, hx: float, hy: float, codes=None) -> np.ndarray:
+    """(ny, nx, 2): div F and curl F of ``F`` (ny, nx, 2) at the nodes ``avail``
+    (0 elsewhere) by the differences over them (fourth order where two nodes
+    are available on each side, :func:`stencil_codes`; ``codes``: those of x
+    and y if made already): one Taichi kernel."""
+    runtime.ensure_init()
+    cx, cy = codes if codes is not None else (stencil_codes(avail, 1), stencil_codes(avail, 0))
+    out = np.empty(F.shape[:2] + (2,))
+    _div_curl(np.ascontiguousarray(F, dtype=np.float64), cx, cy, STENCILS, float(hx),
+              float(hy), out)
+    return out
+
+
+def smoothed(F: np.ndarray, avail: np.ndarray) -> np.ndarray:
+    """``F`` (ny, nx[, k]) smoothed over the nodes ``avail`` by the binomial
+    filter [1, 2, 1] / 4 along x, then along y (each pass renormalised by the
+    weight of the available nodes; NaN off ``avail``).  One pass is what the
+    scattered path's cubic moving-least-squares divergence does to a field's
+    differences: on pivpy's noisy samples the differences smoothed so differ
+    from it by 16-22% (wing tip, soap film; 31-54% unsmoothed)."""
+    F = np.asarray(F, dtype=np.float64)
+    w = avail.astype(np.float64)
+    if F.ndim == 3:
+        w = w[..., None]
+    G = np.where(w > 0, F, 0.0) * w
+    for axis in (1, 0):
+        num, den = np.zeros_like(G), np.zeros_like(w)
+        n = G.shape[axis]
+        for o, c in ((-1, 1.0), (0, 2.0), (1, 1.0)):
+            src = [slice(None)] * G.ndim
+            dst = [slice(None)] * G.ndim
+            src[axis] = slice(max(o, 0), n + min(o, 0))
+            dst[axis] = slice(max(-o, 0), n - max(o, 0))
+            num[tuple(dst)] += c * G[tuple(src)]
+            den[tuple(dst[:w.ndim])] += c * w[tuple(src[:w.ndim])]
+        G = np.where(den > 0, num / np.maximum(den, 1e-300), 0.0)
+        G = G * (w > 0)
+    return np.where(w > 0, G, np.nan)
+
+
+def mls_gradient_stencil(hx: float, hy: float, support: float) -> tuple:
+    """The scattered path's ``cubic`` gradient (:mod:`taichi_hh.sph.operators`:
+    the weighted least-squares cubic fit of f_j - f_i, weights the Wendland C2
+    kernel of support ``support``) at a grid node whose neighbours within the
+    support are all there: ``(oy, ox, wx, wy)``, the offsets in steps and the
+    weights of d/dx and d/dy (a fixed stencil on a uniform grid)."""
+    Ry, Rx = int(support // hy), int(support // hx)
+    oy, ox = np.mgrid[-Ry:Ry + 1, -Rx:Rx + 1]
+    oy, ox = oy.ravel(), ox.ravel()
+    X, Y = ox * hx, oy * hy
+    r = np.hypot(X, Y)
+    keep = (r < support) & (r > 0)
+    oy, ox, X, Y, r = oy[keep], ox[keep], X[keep], Y[keep], r[keep]
+    q = 2.0 * r / support                                   # h = support / 2
+    w = (1.0 - q / 2.0) ** 4 * (2.0 * q + 1.0)
+    x, y = X / support, Y / support
+    P = np.stack([x, y, x * x, x * y, y * y, x ** 3, x * x * y, x * y * y, y ** 3], axis=1)
+    M = (P * w[:, None]).T @ P
+    coef = np.linalg.solve(M, (P * w[:, None]).T)           # (9, n): fit of f_j - f_i
+    return oy, ox, coef[0] / support, coef[1] / support
+
+
+def eroded(mask: np.ndarray, ky: int, kx: int) -> np.ndarray:
+    """The nodes of ``mask`` whose (2 ky + 1) x (2 kx + 1) block is all in
+    ``mask`` (the grid's outside counted out)."""
+    ny, nx = mask.shape
+    pad = np.zeros((ny + 2 * ky, nx + 2 * kx), dtype=bool)
+    pad[ky:ky + ny, kx:kx + nx] = mask
+    rows = pad[:, 0:nx].copy()
+    for o in range(1, 2 * kx + 1):
+        rows &= pad[:, o:o + nx]
+    out = rows[0:ny].copy()
+    for o in range(1, 2 * ky + 1):
+        out &= rows[o:o + ny]
+    return out
+
+
+def outline_distance(nodes: np.ndarray, inside: np.ndarray, hx: float, hy: float,
+                     reach: float) -> tuple:
+    """The distance from the grid's ``nodes`` (bool (ny, nx), a subset of
+    ``inside``) to the outline of the cells ``inside``, and the outward normal
+    there, for the nodes closer than ``reach``: ``(rows, cols, distance,
+    normal)``, the nodes (rows, cols) those within the reach's block of a node
+    not inside (the others are farther), ``distance`` (inf beyond the reach).
+
+    The outline (:mod:`taichi_hh.geometry.raster`) runs half way between a
+    node inside and one not (or the grid's edge): a node's distance to it is
+    that to the nearest node not inside less the part of the segment between
+    them that lies in that node's cell; the normal points to that node (the
+    mean direction where several are as near, one of them where those cancel).
+    Exact along straight edges; at the 45-degree cuts of the outline's corners
+    within a cell of the exact distance, from below but for nodes less than a
+    step from the outline."""
+    kx, ky = int(math.ceil(reach / hx)) + 1, int(math.ceil(reach / hy)) + 1
+    jj, ii = np.nonzero(nodes & ~eroded(inside, ky, kx))
+    out = np.pad(~inside, ((ky, ky), (kx, kx)), constant_values=True)
+    oy, ox = np.mgrid[-ky:ky + 1, -kx:kx + 1]
+    oy, ox = oy.ravel(), ox.ravel()
+    step = np.maximum(np.abs(ox), np.abs(oy))
+    r = np.hypot(ox * hx, oy * hy)
+    dist = r - 0.5 * r / np.maximum(step, 1)
+    near = (step > 0) & (dist < reach)     # a node whose nearest is farther: out of reach
+    oy, ox, r, dist = oy[near], ox[near], r[near], dist[near]
+    hit = out[jj[:, None] + ky + oy[None, :], ii[:, None] + kx + ox[None, :]]      # (C, K)
+    d_all = np.where(hit, dist[None, :], np.inf)
+    best = d_all.min(axis=1) if d_all.shape[1] else np.full(jj.size, np.inf)
+    nearest = hit & (d_all <= best[:, None] + 1e-12 * r[None, :])
+    unit = np.c_[ox * hx / r, oy * hy / r]
+    normal = nearest.astype(np.float64) @ unit
+    length = np.linalg.norm(normal, axis=1)
+    flat = np.isfinite(best) & (length < 1e-9)   # opposite nearest nodes (a strip): either
+    if flat.any():
+        normal[flat] = unit[np.argmax(nearest[flat], axis=1)]
+        length[flat] = 1.0
+    normal /= np.maximum(length, 1e-300)[:, None]
+    return jj, ii, best, normal
+
+
+#: the gap fill's window: nodes within this many steps each way
+FILL_REACH = 3
+
+
+def fill_gaps(u: np.ndarray, valid: np.ndarray, gaps: np.ndarray, hx: float,
+              hy: float) -> np.ndarray:
+    """``u`` (ny, nx, k) with the nodes ``gaps`` set from a weighted quadratic
+    least-squares fit to the ``valid`` nodes within :data:`FILL_REACH` steps
+    (Wendland weights on the distance in steps over FILL_REACH + 1; exact on
+    quadratics); the mean of the valid nodes there where fewer than 6 are (or
+    their layout cannot carry a quadratic), 0 where none is."""
+    out = np.array(u, dtype=np.float64)
+    jj, ii = np.nonzero(gaps)
+    if jj.size == 0:
+        return out
+    ny, nx = valid.shape
+    R = FILL_REACH
+    oy, ox = np.mgrid[-R:R + 1, -R:R + 1]
+    oy, ox = oy.ravel(), ox.ravel()
+    q = np.hypot(oy, ox) / (R + 1.0)
+    w0 = np.where(q < 1.0, (1.0 - q) ** 4 * (1.0 + 4.0 * q), 0.0)
+    B = np.stack([np.ones_like(q), ox, oy, ox * ox, ox * oy, oy * oy], axis=1)   # (s, 6)
+    J_ = jj[:, None] + oy[None, :]
+    I_ = ii[:, None] + ox[None, :]
+    inb = (J_ >= 0) & (J_ < ny) & (I_ >= 0) & (I_ < nx)
+    Jc, Ic = np.clip(J_, 0, ny - 1), np.clip(I_, 0, nx - 1)
+    ok = inb & valid[Jc, Ic]
+    W = ok * w0[None, :]                                            # (g, s)
+    vals = np.where(ok[..., None], out[Jc, Ic], 0.0)                # (g, s, k)
+    M = np.einsum("gs,si,sj->gij", W, B, B)
+    M += 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(6)
+    rhs = np.einsum("gs,si,gsk->gik", W, B, vals)
+    count = ok.sum(axis=1)
+    wsum = W.sum(axis=1)
+    mean = (W[..., None] * vals).sum(axis=1) / np.maximum(wsum, 1e-300)[:, None]
+    fit = mean.copy()
+    enough = count >= 6
+    if enough.any():
+        Me = M[enough]
+        # a layout that cannot carry a quadratic (a line of nodes) keeps the mean
+        cond = np.linalg.cond(Me)
+        good = np.isfinite(cond) & (cond < 1e10)
+        idx = np.flatnonzero(enough)[good]
+        if idx.size:
+            fit[idx] = np.linalg.solve(M[idx], rhs[idx])[:, 0, :]
+    fit[wsum == 0] = 0.0
+    out[jj, ii] = fit
+    return out
+
+
+def natural_on_nodes(hx: float, hy: float, u: np.ndarray, v: np.ndarray, inside: np.ndarray,
+                     used: np.ndarray, length: float = 1.0, origin=(0.0, 0.0),
+                     evaluation: str = "fft") -> dict:
+    """The natural decomposition of the field ``u``, ``v`` (ny, nx; finite on
+    ``used``) over the cells of the nodes ``inside`` (bool (ny, nx); ``used``
+    a subset: the nodes with vectors, the others inside are gaps filled by
+    :func:`fill_gaps`), on the uniform grid of steps ``hx``, ``hy``.
+
+    ``length``: the unit of length of the Green's function ln(|x| / length) /
+    (2 pi) (the scattered path's unit frame: the potentials then agree with
+    its; the gradients do not depend on it).  ``evaluation``: ``fft``, or
+    ``direct`` (:func:`~taichi_hh.hhd.natural.convolve_direct`, O(M^2): the
+    same sum's exact reference).
+
+    Returns a dict of (ny, nx) arrays (NaN off ``inside``; ``divergence``,
+    ``curl``: div v, curl v on the inside nodes, the gaps' from their fill):
+    ``phi``, ``psi``, ``curl_free`` and ``div_free`` ((ny, nx, 2)),
+    ``harmonic`` (v - d - r on ``used``, NaN elsewhere), ``h_divergence``,
+    ``h_curl`` (div h and curl h), ``codes`` (the stencils along x and y
+    of the potentials, :func:`stencil_codes`), ``data_codes`` (those of the
+    vectors: second order next to the outline), ``grid`` (:class:`NodeGrid`) and ``seconds`` per stage."""
+    seconds = {}
+    clock = [time.perf_counter()]
+
+    def lap(stage):
+        now = time.perf_counter()
+        seconds[stage] = now - clock[0]
+        clock[0] = now
+
+    ny, nx = inside.shape
+    vec = np.zeros((ny, nx, 2))
+    vec[used, 0] = u[used]
+    vec[used, 1] = v[used]
+    gaps = inside & ~used
+    if gaps.any():
+        vec = fill_gaps(vec, used, gaps, hx, hy)
+    runtime.ensure_init()
+    cx, cy = stencil_codes(inside, 1), stencil_codes(inside, 0)
+    vx = stencil_codes(inside, 1, _DATA_CODE_OF_RUNS)
+    vy = stencil_codes(inside, 0, _DATA_CODE_OF_RUNS)
+    lap("fill")
+    dc = np.empty((ny, nx, 2))
+    _div_curl(vec, vx, vy, STENCILS, float(hx), float(hy), dc)
+    div, curl = dc[..., 0], dc[..., 1]
+    lap("divergence")
+    grid = NodeGrid(origin, hx, hy, nx, ny)
+    dens = np.stack([div.T, -curl.T])                   # the Grid's (nx, ny) layout
+    if evaluation == "fft":
+        pot = convolve_fft(grid, dens)
+    else:
+        pot = np.stack([convolve_direct(grid, q) for q in dens])
+    # ln(|x| / length): minus ln(length) / (2 pi) times each density's integral
+    shift = math.log(length) / (2.0 * math.pi) * hx * hy
+    P = np.empty((ny, nx, 2))
+    P[..., 0] = pot[0].T
+    P[..., 1] = pot[1].T
+    P[..., 0] -= shift * float(div.sum())
+    P[..., 1] += shift * float(curl.sum())
+    lap("convolve")
+    d, r, h = np.empty((ny, nx, 2)), np.empty((ny, nx, 2)), np.empty((ny, nx, 2))
+    _components(P, vec, cx, cy, STENCILS, float(hx), float(hy), d, r, h)
+    lap("gradient")
+    # div h and curl h over the same nodes (how harmonic h is; h at the gaps
+    # from their fill)
+    hdc = np.empty((ny, nx, 2))
+    _div_curl(h, vx, vy, STENCILS, float(hx), float(hy), hdc)   # h read at inside nodes only
+    lap("checks")
+    out = {"phi": P[..., 0], "psi": P[..., 1], "divergence": dc[..., 0], "curl": dc[..., 1],
+           "curl_free": d, "div_free": r, "codes": (cx, cy), "data_codes": (vx, vy)}
+    if not inside.all():
+        out_mask = ~inside
+        P[out_mask] = np.nan
+        dc[out_mask] = np.nan
+    if not used.all():
+        h[~used] = np.nan
+    out["harmonic"] = h
+    out["h_divergence"], out["h_curl"] = hdc[..., 0], hdc[..., 1]
+    out["grid"] = grid
+    lap("gather")
+    out["seconds"] = seconds
+    return out
+
+
+# --------------------------------------------------------------------------- the grid's result
+@dataclass
+class NodeFields:
+    """A decomposition on a uniform grid's nodes, on the grid: the increasing
+    axes ``x``, ``y``, steps ``hx``, ``hy``, the nodes ``inside`` the domain
+    and ``used`` (decomposed), the input ``u``, ``v`` (ny, nx), and on every
+    node (ny, nx[, 2], NaN off ``inside``) ``phi``, ``psi``, ``curl_free``,
+    ``div_free``, ``divergence``, ``curl``, and ``harmonic`` (NaN off
+    ``used``); ``codes``: the difference stencils along x and y
+    (:func:`stencil_codes`); ``spacing``: sqrt(area / nodes used);
+    ``domain``: the outline; ``stats`` and ``options``: the decomposition's;
+    ``frame``: the unit frame its potentials' logarithm took its length from.
+    What its critical points are found from
+    (:func:`~taichi_hh.hhd.critical.find_grid_critical_points`)."""
+    x: np.ndarray
+    y: np.ndarray
+    hx: float
+    hy: float
+    inside: np.ndarray
+    used: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    phi: np.ndarray
+    psi: np.ndarray
+    curl_free: np.ndarray
+    div_free: np.ndarray
+    harmonic: np.ndarray
+    divergence: np.ndarray
+    curl: np.ndarray
+    codes: tuple
+    data_codes: tuple
+    spacing: float
+    domain: object
+    stats: dict
+    options: object
+    frame: object
+
+    @property
+    def vectors(self) -> np.ndarray:
+        """(ny, nx, 2) the input's vectors, NaN off ``used``."""
+        out = np.stack([self.u, self.v], axis=-1)
+        out[~self.used] = np.nan
+        return out
+
+    def div_curl(self, w: np.ndarray) -> np.ndarray:
+        """(ny, nx, 2): div w and curl w of a field ``w`` (ny, nx, 2) finite on
+        the inside nodes, by the decomposition's differences (NaN off them)."""
+        out = div_curl(w, self.inside, self.hx, self.hy, self.codes)
+        out[~self.inside] = np.nan
+        return out
+
+    def result(self) -> "NodeResult":
+        """The decomposition of the used nodes (in the grid's row order) as an
+        :class:`NodeResult`."""
+        idx = np.flatnonzero(self.used.ravel())
+        X, Y = np.meshgrid(self.x, self.y)
+        n_all = self.used.size
+
+        def take(a):
+            a = np.asarray(a)
+            return a.reshape((n_all,) + a.shape[2:])[idx]
+        return NodeResult(points=np.c_[take(X), take(Y)], vectors=np.c_[take(self.u),
+                                                                        take(self.v)],
+                          curl_free=take(self.curl_free), div_free=take(self.div_free),
+                          harmonic=take(self.harmonic), phi=take(self.phi), psi=take(self.psi),
+                          divergence=take(self.divergence), curl=take(self.curl),
+                          stats=self.stats, options=self.options,
+                          valid=np.ones(idx.size, dtype=bool), frame=self.frame,
+                          domain=self.domain, lattice=self)
+
+
+@dataclass
+class NodeResult(HHDResult):
+    """An :class:`~taichi_hh.hhd.decompose.HHDResult` of the nodes a uniform
+    grid's natural decomposition used (``points`` in row order of the grid),
+    with ``lattice`` (:class:`NodeFields`): its critical points are found on
+    the grid (no neighbour search)."""
+    lattice: NodeFields = field(repr=False, default=None)
+
+
+def decompose_nodes(xs: np.ndarray, ys: np.ndarray, steps: tuple, u: np.ndarray,
+                    v: np.ndarray, inside: np.ndarray, used: np.ndarray, domain, opts,
+                    chosen: dict, progress=None) -> NodeFields:
+    """The natural decomposition (:func:`natural_on_nodes`) of the grid with
+    increasing axes ``xs``, ``ys`` and steps ``steps`` = (hx, hy) over the
+    nodes ``inside`` (the cells that make ``domain``), the vectors on
+    ``used``, as a :class:`NodeFields` whose ``stats`` are those
+    :func:`~taichi_hh.hhd.decompose.decompose` gives (``chosen``: the
+    condition chosen and the boundary flux), the energy and the harmonicity
+    flagged alike."""
+    from .inputs import check_point_count
+    from .units import Frame
+    t_start = time.perf_counter()
+    say = progress or (lambda stage: None)
+    hx, hy = steps
+    full = bool(used.all())
+    n = used.size if full else int(used.sum())
+    stats = {}
+    check_point_count(n, stats, stacklevel=4)
+    idx = None if full else np.flatnonzero(used.ravel())
+
+    def take(a):                          # the used nodes' rows of a grid array
+        a = a.reshape((used.size,) + a.shape[2:])
+        return a if idx is None else a[idx]
+    vec = np.stack([take(u), take(v)], axis=1)
+    frame = Frame.of(domain.bounds, vec)
+    flags = []
+    if (vec == 0.0).any():               # blocks of exact zeros named (PIV's invalid mark)
+        X, Y = np.meshgrid(xs, ys)
+        _flag_zero_vectors(vec, np.c_[take(X), take(Y)], np.flatnonzero(used.ravel()), flags)
+    say("natural potentials")
+    nat = natural_on_nodes(hx, hy, u, v, inside, used, frame.length, (xs[0], ys[0]),
+                           opts.natural_evaluation)
+    spacing = math.sqrt(domain.area / n)
+    seconds = {f"natural_{k}": s for k, s in nat["seconds"].items()}
+    seconds["natural"] = sum(nat["seconds"].values())
+    stats.update(n_points=n, n_boundary=0, n_ghosts=0, support=opts.support_ratio * spacing,
+                 spacing=spacing, natural_grid=nat["grid"].shape, grid_native=True)
+    stats["flags"] = flags + stats.get("flags", [])
+    d, r, h = take(nat["curl_free"]), take(nat["div_free"]), take(nat["harmonic"])
+    _energy_check(stats, vec, d, r, h, opts)
+    div_v, curl_v = take(nat["divergence"]), take(nat["curl"])
+    scale = float(np.hypot(div_v, curl_v).mean())
+    ratios = {}
+    for name in ("divergence", "curl"):
+        mean = float(np.abs(take(nat[f"h_{name}"])).mean())
+        ratios[name] = mean / scale if scale > 0 else (0.0 if mean == 0 else math.inf)
+        stats[f"h_{name}"] = ratios[name]
+    worst = max(ratios, key=ratios.get)
+    if not ratios[worst] <= HARMONIC_LIMIT:
+        msg = (f"h is not harmonic: mean |{'div' if worst == 'divergence' else 'curl'} h| is "
+               f"{ratios[worst]:.3g} of the field's mean derivative (limit {HARMONIC_LIMIT:g}); "
+               f"with boundary_condition={opts.boundary_condition!r}")
+        if not stats.get("energy_ratio", 1.0) <= ENERGY_LIMIT:
+            msg += "; the operators are inconsistent on these points (see the energy flag)"
+        stats["flags"].append(msg)
+        warnings.warn(msg, AccuracyWarning, stacklevel=3)
+    stats.update(chosen)
+    stats["n_invalid"] = 0
+    stats["frame"] = frame.as_dict()
+    seconds["total"] = time.perf_counter() - t_start
+    stats["seconds"] = seconds
+    return NodeFields(x=xs, y=ys, hx=hx, hy=hy, inside=inside, used=used, u=u, v=v,
+                      phi=nat["phi"], psi=nat["psi"], curl_free=nat["curl_free"],
+                      div_free=nat["div_free"], harmonic=nat["harmonic"],
+                      divergence=nat["divergence"], curl=nat["curl"], codes=nat["codes"],
+                      data_codes=nat["data_codes"],
+                      spacing=spacing, domain=domain, stats=stats, options=opts, frame=frame)
+
+
+def _energy_check(stats: dict, v, d, r, h, opts) -> None:
+    """``stats["energy_ratio"]`` (|d|^2 + |r|^2 + |h|^2 over |v|^2, the nodes'
+    volumes equal) as :func:`~taichi_hh.hhd.decompose.decompose` measures it,
+    flagged above :data:`~taichi_hh.hhd.decompose.ENERGY_LIMIT` in its words
+    (the default method's operators: the grid-native path runs with them)."""
+    def energy(x):
+        return float(np.einsum("ij,ij->", x, x))
+    total = energy(v)
+    ratio = (energy(d) + energy(r) + energy(h)) / total if total > 0 else 1.0
+    stats["energy_ratio"] = ratio
+    stats.setdefault("flags", [])
+    if not np.isfinite(ratio) or ratio > ENERGY_LIMIT:
+        msg = (f"decomposition components carry {ratio:.3g} times the field's energy "
+               "(|d|^2 + |r|^2 + |h|^2 over |v|^2; 1 for an exact decomposition): the "
+               "components cancel each other: the data are too few or too noisy for the "
+               "operators at this resolution, or the boundary condition "
+               f"({opts.boundary_condition!r}) forces large opposite parts near the boundary "
+               "(boundary_condition='natural' imposes none); the components are unreliable")
+        stats["flags"].append(msg)
+        warnings.warn(msg, AccuracyWarning, stacklevel=4)
+
+
+def _flag_zero_vectors(vec, points, rows, flags: list) -> None:
+    """Name exactly zero vectors when there are enough of them to be an
+    instrument's mark for invalid ones rather than still fluid (as
+    :func:`~taichi_hh.hhd.decompose.decompose` does; ``rows``: the nodes'
+    flat indices on the grid)."""
+    from .inputs import ZERO_FRACTION, ZERO_ROWS
+    zero = (vec == 0.0).all(axis=1)
+    count = int(zero.sum())
+    if count < max(ZERO_ROWS, ZERO_FRACTION * zero.size) or count == zero.size:
+        return
+    where = rows[zero]
+    lo, hi = points[zero].min(axis=0), points[zero].max(axis=0)
+    msg = (f"{count} of {zero.size} vectors are exactly zero (rows {where[0]}"
+           f"{', ' + str(where[1]) if count > 1 else ''}, ...; within x {lo[0]:.6g}..{hi[0]:.6g},"
+           f" y {lo[1]:.6g}..{hi[1]:.6g}): they are decomposed as still fluid. PIV software "
+           "(DaVis text, Insight .vec) writes invalid vectors as zeros; if these are invalid, "
+           "mark them missing (NaN, or False in valid)")
+    flags.append(msg)
+    warnings.warn(msg, AccuracyWarning, stacklevel=4)
