@@ -335,7 +335,10 @@ def test_read_field_csv_variants(tmp_path):
     p.write_text("x,y,u,v\n1,2,3,4\n1,2,3\n")
     with pytest.raises(thh.InputError, match="line 3: expected 4 columns"):
         thio.read_field(p)
-    p = tmp_path / "field.txt"
+    p = tmp_path / "field.txt"                   # text: the PIV readers take it
+    p.write_text("1,2,3,4\n")
+    assert thio.read_field(p)[0].tolist() == [[1.0, 2.0]]
+    p = tmp_path / "field.xyz"
     p.write_text("1,2,3,4\n")
     with pytest.raises(thh.InputError, match="unknown field format"):
         thio.read_field(p)

@@ -112,7 +112,10 @@ def _add_common(p, command):
                     help="the vector field: a .npz file with arrays 'points' (N,2) and "
                          "'vectors' (N,2), or a .csv file with columns x,y,u,v (header "
                          "naming them in any order, extra columns ignored; or no header "
-                         "and exactly 4 columns)")
+                         "and exactly 4 columns); or a PIV file: TSI Insight .vec, "
+                         "OpenPIV or DaVis text, any delimited x y u v text (.txt, .dat, "
+                         ".tsv), DaVis .vc7 (lvpyio) or PIVlab .mat (h5py/scipy), its "
+                         "invalid vectors left out")
     io.add_argument("--domain", metavar="x0,y0,x1,y1|FILE.json|bbox|hull|alpha",
                     help="the domain: a box x0,y0,x1,y1 (write --domain=-1,-1,1,1 when it "
                          "starts with a minus sign), a JSON polygon {\"outer\": [[x,y],...], "
@@ -131,7 +134,7 @@ def _add_common(p, command):
                          f"pieces joined) (default: {ALPHA:g})")
     io.add_argument("--units", metavar="UNIT", default=None,
                     help="the coordinates' unit for the figures' axis labels (e.g. mm, m, "
-                         "km, deg)")
+                         "km, deg; default: the unit a PIV file's header names)")
     io.add_argument("-o", "--out", metavar="DIR",
                     help=f"output directory, created if needed (default: "
                          f"outputs/<FIELD stem>_{command})")
@@ -320,7 +323,10 @@ def _read_inputs(args, say, *, domain_kind_as_name: bool = False):
         raise InputError(f"--alpha {args.alpha:g} (the alpha shape's radius) applies only with "
                          f"--domain alpha, not {given}")
     say(f"reading {args.field}")
-    points, vectors = io.read_field(args.field)
+    got = io.read_field_file(args.field)
+    points, vectors = got.points, got.vectors
+    if getattr(args, "units", None) is None and got.length_unit:
+        args.units = got.length_unit             # the figures' axes in the file's units
     if kind in DOMAINS_FROM_POINTS:
         alpha = ALPHA if args.alpha is None else args.alpha
         if domain_kind_as_name:

@@ -121,7 +121,16 @@ VALID_WORDS = {"1": True, "0": False, "true": True, "false": False, "1.0": True,
 
 
 def read_field(path):
-    """Read a sampled 2D vector field: ``(points, vectors)``, two (N, 2) float64 arrays.
+    """Read a sampled 2D vector field: ``(points, vectors)``, two (N, 2) float64
+    arrays (:func:`read_field_file` with the units and the format)."""
+    got = read_field_file(path)
+    return got.points, got.vectors
+
+
+def read_field_file(path):
+    """Read a sampled 2D vector field: a
+    :class:`~taichi_hh.app.piv_files.VectorFile` (``points``, ``vectors``,
+    ``format``, ``length_unit``, ``velocity_unit``).
 
     ``.npz``: arrays ``points`` (N, 2) and ``vectors`` (N, 2), and optionally
     ``valid`` (N,) (False or 0: an invalid vector).
@@ -133,6 +142,13 @@ def read_field(path):
     Missing vectors (NaN, an empty ``u`` or ``v`` cell, or ``valid`` false)
     come back as NaN rows of ``vectors``: the decomposition leaves them out.
 
+    PIV files and other text (:mod:`taichi_hh.app.piv_files`): TSI Insight
+    and Tecplot-style ``.vec``/``.dat``, OpenPIV and DaVis text exports
+    (``.txt``, ``.vec``), text with semicolons, tabs or whitespace between
+    its columns (``.txt``, ``.dat``, ``.tsv``, and ``.csv`` without commas),
+    DaVis ``.vc7`` (lvpyio) and PIVlab ``.mat`` (h5py or scipy), with the
+    instrument's invalid vectors as NaN.
+
     Raises :class:`~taichi_hh.errors.InputError` naming the problem (and the
     line of a CSV file) for a missing or unreadable file, an unknown format,
     missing arrays or columns, wrong shapes, non-numeric or infinite values.
@@ -143,13 +159,32 @@ def read_field(path):
         raise InputError(f"{path}: no such file")
     if os.path.isdir(path):
         raise InputError(f"{path}: is a directory, not a field file")
+    from .piv_files import BINARY_EXTENSIONS, TEXT_EXTENSIONS, VectorFile, read_vector_file
     ext = os.path.splitext(path)[1].lower()
     if ext == ".npz":
-        return _read_field_npz(path)
-    if ext == ".csv":
-        return _read_field_csv(path)
-    raise InputError(f"{path}: unknown field format {ext or '(no extension)'!r}; "
-                     f"give a .npz (arrays points, vectors) or .csv (columns x,y,u,v) file")
+        return VectorFile(*_read_field_npz(path), format="npz")
+    if ext == ".csv" and _commas_first(path):
+        return VectorFile(*_read_field_csv(path), format="CSV")
+    if ext in TEXT_EXTENSIONS + BINARY_EXTENSIONS:
+        return read_vector_file(path)
+    raise InputError(f"{path}: unknown field format {ext or '(no extension)'!r}; give a .npz "
+                     "(arrays points, vectors), .csv (columns x,y,u,v), PIV text (.txt, .vec, "
+                     ".dat, .tsv: Insight, OpenPIV, DaVis or any delimited x y u v), DaVis "
+                     ".vc7 or PIVlab .mat file")
+
+
+def _commas_first(path) -> bool:
+    """Whether a .csv file's first line that is not blank or a ``#`` comment
+    is comma separated (else it is read as delimited text: semicolons, with
+    decimal commas or not, or tabs)."""
+    try:
+        with open(path, encoding="utf-8-sig", errors="replace") as fh:
+            for line in fh:
+                if line.strip() and not line.lstrip().startswith("#"):
+                    return "," in line and ";" not in line and "\t" not in line
+    except OSError:
+        return True                           # the CSV reader names the problem
+    return True
 
 
 def _read_field_npz(path):
