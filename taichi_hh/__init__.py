@@ -22,6 +22,8 @@ def __getattr__(name):
     elif name in ("decompose_grid", "GridResult"):
         from .hhd import grid
         value = getattr(grid, name)
+    elif name == "decompose_dataset":
+        from .app.xarray_io import decompose_dataset as value
     elif name in ("project", "ProjectionResult"):
         from .hhd import project as projection
         value = getattr(projection, name)
@@ -31,4 +33,4 @@ def __getattr__(name):
     return value
 
 
-__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "decompose_grid", "GridResult", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError", "AccuracyWarning"]
+__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "decompose_grid", "GridResult", "decompose_dataset", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError", "AccuracyWarning"]
