@@ -108,8 +108,11 @@ def _add_common(p, command):
     from ..sph.kernels import KERNELS
     from ..sph.operators import GRADIENT_VARIANTS, LAPLACIAN_VARIANTS
     io = p.add_argument_group("input and output")
-    io.add_argument("field", metavar="FIELD",
-                    help="the vector field: a .npz file with arrays 'points' (N,2) and "
+    io.add_argument("field", metavar="FIELD", nargs="+" if command == "decompose" else None,
+                    help=("the vector field (several files: a series of snapshots on the "
+                          "same points, decomposed in one process into DIR/series.npz and, "
+                          "with xarray, DIR/series.nc): " if command == "decompose" else
+                          "the vector field: ") + "a .npz file with arrays 'points' (N,2) and "
                          "'vectors' (N,2), or a .csv file with columns x,y,u,v (header "
                          "naming them in any order, extra columns ignored; or no header "
                          "and exactly 4 columns); or a PIV file: TSI Insight .vec, "
@@ -229,6 +232,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="rows with NaN vectors (or points), an empty u or v cell, or a false "
              "'valid' column: missing (the default: left out, NaN in the outputs) or "
              "error (refused)")
+    dec.add_argument_group("series").add_argument(
+        "--figures", default="first", metavar="WHICH",
+        help="with several FIELD files: the snapshots drawn, first, all, none or 0-based "
+             "indices N,M (negative from the end) (default: first)")
     dec.set_defaults(func=_cmd_decompose)
 
     pro = sub.add_parser(
@@ -458,27 +465,23 @@ class _WrittenOnSuccess:
 def _cmd_decompose(args) -> int:
     import numpy as np
     from . import io
-    from ..hhd.decompose import decompose, options_for
+    from .series import decompose_field
+    from ..hhd.decompose import options_for
+    files = list(args.field)
+    args.field = files[0]
     say = _Progress("decompose", args.quiet)
     overrides = _numeric_overrides(args)
     options_for(args.method, **overrides)           # bad combinations fail before any work
+    if len(files) > 1:
+        return _decompose_series(args, files, say, overrides)
     out = _out_dir(args)
     _prepare_out(out)
     points, vectors, domain = _read_inputs(args, say, domain_kind_as_name=True)
     st = _init(args, say)
-    res = None
-    if args.domain is None:
-        # a field listed node by node on a rectilinear grid (PIV, model output):
-        # the domain from its valid nodes, the natural condition by default
-        from ..hhd.grid import decompose_grid_rows
-        if args.invalid == "error" and np.isnan(vectors).any():
-            res = None                       # the scattered path refuses them, by row
-        else:
-            res = decompose_grid_rows(points, vectors, method=args.method, progress=say,
-                                      **overrides)
-    if res is None:
-        res = decompose(points, vectors, domain, method=args.method, progress=say,
-                        invalid=args.invalid, **overrides)
+    # a field listed node by node on a rectilinear grid (PIV, model output):
+    # the domain from its valid nodes, the natural condition by default
+    res = decompose_field(points, vectors, domain, method=args.method, invalid=args.invalid,
+                          progress=say, overrides=overrides, grid_first=args.domain is None)
     domain = res.domain
     say("critical points")
     critical = res.critical_points(threshold=args.critical_threshold)
@@ -529,6 +532,42 @@ def _cmd_decompose(args) -> int:
         f"Critical points: {len(critical)}{' (' + found + ')' if found else ''}. "
         f"Wrote {', '.join(written)}."))
     return 0
+
+
+def _decompose_series(args, files, say, overrides) -> int:
+    """``decompose`` of several files: :mod:`taichi_hh.app.series`."""
+    from .series import decompose_field, decompose_series, figure_indices
+    figure_indices(args.figures, len(files))          # a bad --figures fails before any work
+    out = _out_dir(args)
+    _prepare_out(out)
+    st = _init(args, say)
+    quiet = _Progress("decompose", True)
+
+    def read(path):
+        args.field = path
+        return _read_inputs(args, quiet, domain_kind_as_name=True)
+
+    def decompose_one(points, vectors, domain):
+        return decompose_field(points, vectors, domain, method=args.method,
+                               invalid=args.invalid, progress=None, overrides=overrides,
+                               grid_first=args.domain is None)
+
+    def draw(res, directory):
+        if args.no_figures:
+            return []
+        from .figures import decomposition_figures
+        critical = res.critical_points(threshold=args.critical_threshold)
+        return decomposition_figures(res, res.domain, directory, critical=critical,
+                                     units=args.units)
+
+    with _WrittenOnSuccess(out):
+        written, done, interrupted = decompose_series(files, read, decompose_one, draw, out,
+                                                      say, args.figures)
+    print(_paragraph(
+        f"Decomposed {done} of {len(files)} snapshots ({st.arch}/{st.precision}) in "
+        f"{say.elapsed:.2f} s{' (interrupted: the snapshots done are written)' if interrupted else ''}. "
+        f"Wrote {', '.join(written)}."))
+    return 130 if interrupted else 0
 
 
 def _condition_said(stats: dict) -> str:
