@@ -310,7 +310,8 @@ def _numeric_overrides(args) -> dict:
 def _out_dir(args) -> str:
     if args.out:
         return args.out
-    stem = os.path.splitext(os.path.basename(os.path.normpath(args.field)))[0] or "field"
+    field = args.field[0] if isinstance(args.field, list) else args.field   # a series: the first
+    stem = os.path.splitext(os.path.basename(os.path.normpath(field)))[0] or "field"
     return os.path.join("outputs", f"{stem}_{args.command}")
 
 
