@@ -175,9 +175,7 @@ MAX_MODULE_LINES = 700
 SHORT_MODULE_TREES = ("linalg",)
 #: modules still over the limit, each with the split that will bring it under:
 #: an entry is removed when its split lands (the test fails on a stale entry)
-PENDING_SPLITS = {
-    "taichi_hh/linalg/multilevel.py": "issue 30: Level records, one set-up, to poisson/",
-}
+PENDING_SPLITS = {}
 
 
 def test_modules_stay_short():

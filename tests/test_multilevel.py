@@ -82,11 +82,11 @@ def test_coarser_levels_are_galerkin_operators(square48, cells):
 def test_galerkin_levels_do_not_depend_on_the_parallel_split(square48, monkeypatch):
     """The CSR levels are built in parallel runs of rows, each with its own
     marker window: the same entries, bit for bit, as one serial run."""
-    from taichi_hh.linalg import multilevel
+    from taichi_hh.linalg.multilevel import galerkin
     ps, A, b = square48
     split = MultilevelPreconditioner(A, cells=0.5, weak=0.5)
-    assert split.level_sizes[0] // multilevel.GALERKIN_CHUNK_ROWS > 1
-    monkeypatch.setattr(multilevel, "GALERKIN_CHUNK_ROWS", 10 ** 9)
+    assert split.level_sizes[0] // galerkin.GALERKIN_CHUNK_ROWS > 1
+    monkeypatch.setattr(galerkin, "GALERKIN_CHUNK_ROWS", 10 ** 9)
     whole = MultilevelPreconditioner(A, cells=0.5, weak=0.5)
     for k in range(len(split.level_sizes)):
         a, b_ = split.level_matrix(k), whole.level_matrix(k)

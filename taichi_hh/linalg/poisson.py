@@ -24,6 +24,7 @@ gather too: the neighbour relation is symmetric, and ``reverse[k]`` indexes
 pair (j, i) for pair k = (i, j).
 """
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 import taichi as ti
@@ -209,6 +210,25 @@ DIRECT_MAX = 2000
 REFINEMENT_STEP = 1e-3
 #: sweeps before a refinement that stops gaining is given up
 MAX_REFINEMENTS = 12
+
+
+class PairRows(NamedTuple):
+    """The rows of a :class:`PoissonMatrix` over its particles, as a
+    preconditioner reads them: row ``i`` is ``diagonal[i] x_i + sum_k values[k]
+    x[neighbours[k]]``, k in ``offsets[i] .. offsets[i + 1]`` (Taichi arrays;
+    a border unknown is not among them).  Where the rows live: the particles'
+    ``positions``, the kernel ``support`` (the largest) and per-particle
+    ``supports`` (None: fixed), and ``grid``, the pair list's neighbour grid
+    when the particles are sorted by its cells (else None)."""
+    n: int
+    offsets: object
+    neighbours: object
+    values: object
+    diagonal: object
+    positions: object
+    support: float
+    supports: object
+    grid: object
 
 
 class PoissonMatrix:
@@ -397,6 +417,13 @@ class PoissonMatrix:
             B[n, n] = self.border_c
             A = A + B.tocsr()
         return A.tocsr()
+
+    def pair_rows(self) -> PairRows:
+        """The particle rows as arrays (:class:`PairRows`)."""
+        ops, pr = self.ops, self.ops.pairs
+        return PairRows(self.n_particles, pr.offsets, pr.neighbours, self.K, self.D,
+                        ops.particles.position, ops.support, getattr(ops, "supports", None),
+                        getattr(pr, "grid", None))
 
     # ---- solve ---------------------------------------------------------------------
     def multilevel(self, **options):
