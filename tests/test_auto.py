@@ -184,3 +184,19 @@ def test_the_split_whose_energy_is_closer_to_the_fields_wins():
     assert not energy_closer(0.0, 3.0)
     assert natural_cancels(CANCELLING_RATIO * 1.01) and not natural_cancels(CANCELLING_RATIO)
     assert natural_cancels(float("nan"))
+
+
+def test_the_grid_path_gives_way_to_the_orthogonal_split_too():
+    x = np.linspace(0.0, 1.0, 61)
+    X, Y = np.meshgrid(x, x)
+    vec = _straddling_dipole(np.c_[X.ravel(), Y.ravel()])
+    u, v = vec[:, 0].reshape(X.shape), vec[:, 1].reshape(X.shape)
+    g = thh.decompose_grid(x, x, u, v)
+    s = g.stats
+    assert s["boundary_condition"] == ORTHOGONAL_CONDITION
+    assert s["natural_energy_ratio"] > CANCELLING_RATIO
+    assert abs(s["energy_ratio"] - 1.0) < 0.05
+    natural = thh.decompose_grid(x, x, u, v, boundary_condition="natural")
+    assert natural.stats["energy_ratio"] == s["natural_energy_ratio"]
+    ref = thh.decompose_grid(x, x, u, v, boundary_condition=ORTHOGONAL_CONDITION)
+    assert np.array_equal(g.div_free, ref.div_free, equal_nan=True)

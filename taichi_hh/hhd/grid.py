@@ -36,6 +36,7 @@ from ..checks import as_real_array
 from ..errors import AccuracyWarning, InputError
 from ..geometry.polygon import Polygon
 from ..geometry.raster import cell_outlines, check_axis
+from .auto import ORTHOGONAL_CONDITION, energy_closer, natural_cancels
 
 __all__ = ["decompose_grid", "GridResult", "HOLE_SIZE"]
 
@@ -248,9 +249,27 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE,
             chosen = _auto_condition(xs, ys, used, inside, u_s, v_s, domain, steps,
                                      opts.boundary)
         if chosen["boundary_condition"] == "natural":
-            res = decompose_nodes(xs, ys, steps, u_s, v_s, inside, used, domain,
-                                  replace(opts, boundary_condition="natural"), chosen,
-                                  progress)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                res = decompose_nodes(xs, ys, steps, u_s, v_s, inside, used, domain,
+                                      replace(opts, boundary_condition="natural"), chosen,
+                                      progress)
+            if "boundary_flux" in chosen and natural_cancels(res.stats["energy_ratio"]):
+                # auto's window split whose parts cancel: the orthogonal one if
+                # its energy is closer to the field's (hhd/auto.py)
+                orthogonal, orthogonal_warnings = _orthogonal_attempt(
+                    nodes()[used.ravel()], np.c_[u_s[used], v_s[used]], domain, method,
+                    progress, options)
+                if energy_closer(orthogonal.stats["energy_ratio"], res.stats["energy_ratio"]):
+                    orthogonal.stats.update(
+                        boundary_condition=ORTHOGONAL_CONDITION,
+                        boundary_flux=chosen["boundary_flux"],
+                        natural_energy_ratio=res.stats["energy_ratio"])
+                    res, caught = orthogonal, orthogonal_warnings
+                else:
+                    res.stats["orthogonal_energy_ratio"] = orthogonal.stats["energy_ratio"]
+            for w in caught:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     if res is None:
         # the default condition as decompose()'s (auto): natural for a window, which
         # every measured PIV field is, no-flux where the flow does not cross the outline
@@ -285,6 +304,18 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE,
                       divergence=on_grid("divergence"), curl=on_grid("curl"),
                       used=used[sl], inside=inside[sl], domain=domain, stats=stats,
                       lattice=lattice, _scattered=None if lattice is not None else res)
+
+
+def _orthogonal_attempt(points, vectors, domain, method, progress, options):
+    """``(result, warnings)``: the scattered decomposition under ``auto``'s
+    orthogonal condition, its warnings kept back (it is an attempt: the
+    caller may drop it)."""
+    from .decompose import decompose
+    options = dict(options, boundary_condition=ORTHOGONAL_CONDITION)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = decompose(points, vectors, domain, method=method, progress=progress, **options)
+    return res, caught
 
 
 def _auto_condition(xs, ys, used, inside, u, v, domain, steps, boundary: str) -> dict:
