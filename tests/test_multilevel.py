@@ -321,3 +321,39 @@ def test_weak_rows_share_the_cells_of_their_strongest_neighbour():
         fine = M.level_matrix(k).toarray()
         assert np.abs(M.level_matrix(k + 1).toarray() - P.T @ fine @ P).max() \
             < 1e-12 * np.abs(fine).sum()
+
+
+def test_pair_rows_are_the_particle_block_and_levels_read_like_pyamg(square48):
+    """The preconditioner's whole view of the matrix is ``pair_rows()``: they
+    rebuild its particle block exactly.  On the host the hierarchy is a list
+    of Level(matrix, aggregation), one per cell level."""
+    from taichi_hh.linalg.multilevel import Level
+    ps, A, b = square48
+    rows = A.pair_rows()
+    n = rows.n
+    off = rows.offsets.to_numpy()[: n + 1].astype(np.int64)
+    B = sp.csr_matrix((rows.values.to_numpy()[: off[-1]],
+                       rows.neighbours.to_numpy()[: off[-1]], off), shape=(n, n)) \
+        + sp.diags(rows.diagonal.to_numpy()[:n])
+    assert abs(B - A.to_scipy()[:n, :n]).max() == 0
+    M = MultilevelPreconditioner(A, cells=0.5)
+    assert len(M.levels) == len(M.level_sizes) == M.n_levels - 1
+    for k, level in enumerate(M.levels):
+        assert isinstance(level, Level)
+        assert level.matrix.shape == (M.level_sizes[k],) * 2
+        assert level.aggregation.max() < M.level_sizes[k]
+        assert len(level.aggregation) == (n if k == 0 else M.level_sizes[k - 1])
+
+
+def test_the_preconditioner_keeps_the_rows_not_the_matrix():
+    """A cached cycle must not keep its matrix alive (the matrix caches the
+    cycle; a cycle back to it kept both until the garbage collector ran)."""
+    import gc
+    import weakref
+    ps, A, b = _matrix(24)
+    M = MultilevelPreconditioner(A)
+    gone = weakref.ref(A)
+    del A
+    gc.collect()
+    assert gone() is None
+    assert M.describe().startswith("W-cycle")

@@ -72,8 +72,6 @@ class MultilevelPreconditioner:
 
     name = "multilevel"
 
-    name = "multilevel"
-
     #: the cycle runs on several columns at once (:mod:`taichi_hh.linalg.columns`)
     accepts_columns = True
 
