@@ -338,7 +338,7 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     in_rad = (r_off < rad) & (r_off > 0)                  # the others within radius
     sigma = None
     rows = None
-    out = []
+    found = []              # (refined place, node, kind, strength, significance, coherence)
     for pot, fld, comp, kinds, signs in (
             (pots[..., 0], lat.curl_free, comps[..., 0], ("source", "sink"), (1, -1)),
             (pots[..., 1], lat.div_free, comps[..., 1], ("cw_vortex", "ccw_vortex"), (-1, 1))):
@@ -403,17 +403,26 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
                 z = -math.inf
                 discs = np.stack([disc & (sub_r <= radius_i * ell)
                                   for radius_i in SIGNIFICANCE_RADII])
-                norms = rows.mean_row_norms(discs, win)
-                for inner, norm in zip(discs, norms):
-                    mean = sign * float(sub_comp[inner].mean())
+                norms = rows.cached_mean_row_norms(discs, win, used)
+                counts = discs.reshape(len(discs), -1).sum(axis=1)
+                sums = discs.reshape(len(discs), -1) @ np.nan_to_num(sub_comp).ravel()
+                for mean, norm in zip(sign * sums / np.maximum(counts, 1), norms):
                     spread = sigma * norm
                     z = max(z, mean / spread if spread > 0 else
                             (math.inf if mean > 0 else -math.inf))
                 if z < significance:
                     continue
-            x, y = _grid_refine(lat, pot, j, i, win, disc, sub_r, rad)
-            out.append(CriticalPoint(float(x), float(y), kind, strength[j, i], z,
-                                     float(c_all[k])))
+            found.append((_grid_refine(lat, pot, j, i, win, disc, sub_r, rad),
+                          (float(lat.x[i]), float(lat.y[j])), kind, strength[j, i], z,
+                          float(c_all[k])))
+    if found and lat.domain is not None:
+        # a refined place outside the outline falls back to its node (one
+        # vectorised test for all)
+        moved = np.array([f[0] for f in found], dtype=np.float64)
+        inside = lat.domain.contains(moved)
+        found = [(f[0] if ok else f[1],) + f[1:] for f, ok in zip(found, inside)]
+    out = [CriticalPoint(float(p[0][0]), float(p[0][1]), p[2], p[3], p[4], p[5])
+           for p in found]
     out.sort(key=lambda p: -p.strength)
     return out
 
@@ -442,8 +451,8 @@ def _window(j, i, Ry, Rx, ny, nx):
 def _grid_refine(lat, pot, j, i, win, disc, sub_r, rad):
     """The stationary point of the quadratic least-squares fit of ``pot`` over
     the used nodes within ``rad`` of node (j, i) (the node kept where it falls
-    farther than ``rad`` or outside the domain's outline)."""
-    from ..geometry.rings import point_in_ring
+    farther than ``rad``; the caller keeps it where it falls outside the
+    domain's outline)."""
     gy, gx = np.nonzero(disc)
     X = lat.x[win[0][1]][gx] - lat.x[i]
     Y = lat.y[win[0][0]][gy] - lat.y[j]
@@ -462,14 +471,7 @@ def _grid_refine(lat, pot, j, i, win, disc, sub_r, rad):
     step = (-(c * coef[1] - b * coef[2]) / det, -(a * coef[2] - b * coef[1]) / det)
     if not all(math.isfinite(t) for t in step) or math.hypot(*step) > rad:
         return here
-    p = (here[0] + float(step[0]), here[1] + float(step[1]))
-    dom = lat.domain
-    if dom is not None:
-        rings = getattr(dom, "rings", ())
-        if rings and (not point_in_ring(p, rings[0])
-                      or any(point_in_ring(p, h) for h in rings[1:])):
-            return here
-    return p
+    return (here[0] + float(step[0]), here[1] + float(step[1]))
 
 
 def grid_noise_sigma(lat, samples: int = NOISE_SAMPLES) -> float:
@@ -526,6 +528,28 @@ class _GridRows:
         self.inside = lat.inside
         self.table, self.pad = STENCILS, PAD
         self.hx, self.hy = lat.hx, lat.hy
+        self._interior = {}          # discs' shape -> the norms of an interior window
+
+    def cached_mean_row_norms(self, discs, win, used) -> np.ndarray:
+        """:meth:`mean_row_norms`, computed once for every window of the
+        grid's interior: a window of used nodes, unclipped, whose nodes and
+        the filter's reach around them are inside and take the central
+        stencils has the same discs and the same rows wherever it lies."""
+        gs = win[0]
+        ny, nx = self.inside.shape
+        j0, j1, i0, i1 = gs[0].start - 1, gs[0].stop + 1, gs[1].start - 1, gs[1].stop + 1
+        interior = (win[1] == discs.shape[1:] and j0 >= 0 and i0 >= 0 and j1 <= ny
+                    and i1 <= nx and used[gs].all())
+        if interior:
+            grown = (slice(j0, j1), slice(i0, i1))
+            interior = (self.inside[grown].all() and not self.cx[grown].any()
+                        and not self.cy[grown].any())
+        if not interior:
+            return self.mean_row_norms(discs, win)
+        key = discs.shape
+        if key not in self._interior:
+            self._interior[key] = self.mean_row_norms(discs, win)
+        return self._interior[key]
 
     def mean_row_norms(self, discs, win) -> np.ndarray:
         """2-norms of the means of the smoothed divergence rows of the nodes
