@@ -236,6 +236,12 @@ class MultilevelPreconditioner:
         return self.levels[k].aggregation
 
     @property
+    def S_col(self):
+        """The cell levels' CSR columns, ``cell_levels.cols`` (the name
+        tests/test_flow.py checks the handed-on grid structure by)."""
+        return self.cell_levels.cols
+
+    @property
     def n_levels(self) -> int:
         return 1 + len(self.level_sizes)
 
