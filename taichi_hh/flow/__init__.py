@@ -1,6 +1,7 @@
 """Flow layer: two-phase incompressible SPH by projection.
 
-:mod:`.twophase` the time stepping (:class:`TwoPhaseFlow`), :mod:`.params` its
+:mod:`.twophase` the time stepping (:class:`TwoPhaseFlow`), :mod:`.operators` the
+operators of one step (one record, built in one place), :mod:`.params` its
 settings, :mod:`.walls` the wall-particle conditions, :mod:`.shifting` particle
 shifting, :mod:`.buffers` the per-step work arrays, :mod:`.clock` the stage timing.
 """

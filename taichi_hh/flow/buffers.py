@@ -42,12 +42,14 @@ class FlowBuffers:
     new_position: object
     number_density: object
     volume: object
-    # the self coefficients (per particle) of the gradient and of the viscous
-    # Laplacian, and the per-pair coefficients (grown on demand): the gradient's,
-    # the density-weighted pressure gradient's, the Laplacian's and the
-    # density-weighted (Poisson) Laplacian's
+    # the self coefficients (per particle) of the gradient, of the viscous
+    # Laplacian and of a Poisson Laplacian computed on its own, and the per-pair
+    # coefficients (grown on demand): the gradient's, the density-weighted
+    # pressure gradient's, the Laplacian's and the density-weighted (Poisson)
+    # Laplacian's
     gradient_self: object
     laplacian_self: object
+    poisson_self: object
     gradient_pairs: object = None
     pair_gradient: object = None
     laplacian_pairs: object = None

@@ -1,7 +1,11 @@
 """Two-phase incompressible SPH by projection (Petronetto et al. 2010 Sec. 6d,
 Colin et al. 2006 Sec. 3.7): :class:`TwoPhaseFlow`.
 
-One time step (:meth:`TwoPhaseFlow.step`), after the neighbour search:
+One time step (:meth:`TwoPhaseFlow.step`), after the neighbour search and the
+step's operators (:func:`taichi_hh.flow.operators.build_step_operators`: the
+viscous Laplacian, the gradient, the pressure gradient and the Poisson matrix
+as one :class:`~taichi_hh.flow.operators.StepOperators` record, which the
+phases below read):
 
 1. predict   v* = v + dt (g + nu lap v)                  (explicit viscosity)
 2. project   solve div(grad q / rho) = div w,  w <- w - grad q / rho,
@@ -14,6 +18,10 @@ One time step (:meth:`TwoPhaseFlow.step`), after the neighbour search:
              :mod:`taichi_hh.hhd.project` with the mass-weighted norm (below)
 3. advect    x <- x + dt v  (optionally plus a particle-shifting displacement,
              :mod:`taichi_hh.flow.shifting`)
+
+The velocity w stays on the Taichi side through the step (``buffers.velocity``);
+:attr:`TwoPhaseFlow.step_callback` sees the step at the points of
+:data:`STEP_EVENTS` (instrumentation, e.g. :mod:`taichi_hh.validation.conditioning`).
 
 Density-weighted projection: with two densities the pressure equation is
 div(grad p / rho) = div v* / dt and the correction v* - dt grad p / rho; a
@@ -62,22 +70,34 @@ from .. import runtime
 from ..errors import BlowUp, InputError, SolverError
 from ..geometry.walls import box_wall_lattice
 from ..linalg import krylov as solvers
-from ..linalg.poisson import PoissonMatrix
 from ..sph.adjoint import NormalOperator
 from ..sph.kernels import kernel_numpy
 from ..sph.neighbors import GridSpec, PairList, bin_particles
-from ..sph.operators import GradientStencil, Operators, number_density, \
-    weight_gradient_by_mean_density
+from ..sph.operators import Operators, number_density
 from ..sph.particles import FLUID, WALL, Particles
 from .buffers import FlowBuffers
 from .clock import STAGES, StageClock
+from .operators import StepOperators, build_step_operators
 from .params import WALL_CONDITIONS, WARM_STARTS, FlowParams, WallVelocity
 from . import update
 from .shifting import concentration_gradient, shifting_coefficients
 from .walls import wall_rhs, wall_velocity
 
 __all__ = ["TwoPhaseFlow", "FlowParams", "BlowUpError", "StageClock", "STAGES",
-           "WALL_CONDITIONS", "WallVelocity"]
+           "WALL_CONDITIONS", "WallVelocity", "StepOperators", "STEP_EVENTS"]
+
+#: The points of a step at which :attr:`TwoPhaseFlow.step_callback` is called, in
+#: order, with what its ``data`` dict holds (the flow's own objects: read them,
+#: copy what you keep, change nothing):
+#:
+#: * ``"operators"``: ``operators`` (the step's :class:`StepOperators`), ``dt``
+#: * ``"projected"``: ``operators``, ``dt``, ``iterations`` (per pass),
+#:   ``norm_before`` (||D v*||, the predicted field's measured divergence)
+#: * ``"clean_up"`` (with ``exact_projection``, before the clean-up):
+#:   ``operators``, ``velocity`` (w, numpy, by slot), ``divergence`` (D w, 0 on
+#:   the walls), ``norm_before``
+#: * ``"advected"``: ``info`` (the step's diagnostics, before ``seconds``)
+STEP_EVENTS = ("operators", "projected", "clean_up", "advected")
 
 
 class BlowUpError(BlowUp):
@@ -132,8 +152,17 @@ class TwoPhaseFlow:
         lo = np.array([x0, y0]) - self.support
         hi = np.array([x1, y1]) + self.support
         self.spec = GridSpec.covering(lo, hi, self.support)
+        # the neighbour grid (binned on first use), the pair list and the
+        # operators on it: the same objects every step
+        self.grid = None
         self.pairs = PairList()
+        self.ops = Operators(p, self.pairs, self.support, params.kernel)
         self.buffers = FlowBuffers.allocate(p.capacity)
+        # the last step's operators (its Poisson matrix's arrays serve the next one)
+        self.step_operators: StepOperators | None = None
+        self.last_dt = 0.0                     # the last step's dt (0: no step yet)
+        # C_0, the number density of the initial lattice (volume_error)
+        self._c0 = _lattice_number_density(params.kernel, self.dx, self.support)
         # the last pressure impulse and the one before, by particle id (Taichi
         # arrays: buffers.q_by_id, q_prev_by_id), and the time steps of both (the
         # solve's first guess)
@@ -142,6 +171,10 @@ class TwoPhaseFlow:
         self.border = 0.0
         self._gx, self._gy = (float(c) for c in params.gravity)
         self.clock = StageClock()
+        #: None, or ``callback(flow, event, data)`` called at each of
+        #: :data:`STEP_EVENTS` inside :meth:`step` (instrumentation: it must not
+        #: change the flow; what it costs is charged to the step's stages)
+        self.step_callback = None
 
     @property
     def q_by_id(self) -> np.ndarray:
@@ -219,14 +252,12 @@ class TwoPhaseFlow:
     def _number_density_ratio(self) -> np.ndarray:
         """C_i / C_0 per particle slot (:meth:`volume_error`)."""
         p = self.particles
-        if not hasattr(self, "ops"):
+        if self.grid is None:         # no neighbour search yet
             self._neighbours()
         c, scratch = self.buffers.number_density, self.buffers.volume
         number_density(self.ops.kernel_id, p.position, p.volume, p.n, self.pairs.offsets,
                        self.pairs.neighbours, *self.ops.support_args(), c, scratch)
         C = c.to_numpy()[: p.n]
-        if not hasattr(self, "_c0"):
-            self._c0 = _lattice_number_density(self.params.kernel, self.dx, self.support)
         return C / self._c0
 
     def kinetic_energy(self) -> float:
@@ -253,8 +284,7 @@ class TwoPhaseFlow:
             self.clock.abort()          # only if _step raised (it stops the clock itself)
 
     def _step(self, dt: float | None) -> dict:
-        # The velocity w stays on the Taichi side through the step (buffers.velocity);
-        # the diagnostics come back as kernel return values (module flow.update).
+        # the diagnostics come back as kernel return values (module flow.update)
         self.clock.lap("other", "setup")
         self._neighbours()
         p, buf = self.particles, self.buffers
@@ -262,24 +292,26 @@ class TwoPhaseFlow:
         dt = self.time_step(vmax) if dt is None else float(dt)
         self.clock.lap("other", "setup")
 
-        st_visc = self._predict(dt)                                              # 1.
-        st_grad, st_pressure_grad, A = self._pressure_operators(st_visc)
-        div_before, sq_before, _ = self._divergence_stats(st_grad)
+        last = self.step_operators
+        ops = self.step_operators = build_step_operators(
+            self.params, self.ops, buf, reuse=last.poisson if last is not None else None,
+            lap=self.clock.lap)
+        self._notify("operators", operators=ops, dt=dt)
+        self._predict(ops.viscous, dt)                                           # 1.
+        div_before, sq_before, _ = self._divergence_stats(ops.gradient)
         norm_before = math.sqrt(sq_before)
-        iterations = self._project(A, st_grad, st_pressure_grad, dt)             # 2.
-        div_after, sq_after, speed2 = self._divergence_stats(st_grad)
+        iterations = self._project(ops, dt)                                      # 2.
+        div_after, sq_after, speed2 = self._divergence_stats(ops.gradient)
         self.clock.lap("operators", "divergence")
+        self._notify("projected", operators=ops, dt=dt, iterations=iterations,
+                     norm_before=norm_before)
         cleanup_iterations = 0
         if self.params.exact_projection:                                         # 2b.
-            fluid = p.get("kind") == FLUID
-            w = buf.velocity.to_numpy()[: p.n].astype(np.float64)
-            d = self._measured_divergence(w, st_grad, fluid)
-            w, cleanup_iterations = self._clean_up(w, d, norm_before, st_grad)
+            cleanup_iterations = self._clean_up(norm_before, ops.gradient)
             if cleanup_iterations:
-                _upload_rows(buf.velocity, w)
-                div_after, sq_after, speed2 = self._divergence_stats(st_grad)
+                div_after, sq_after, speed2 = self._divergence_stats(ops.gradient)
                 self.clock.lap("operators", "cleanup")
-        self._advect(dt, math.sqrt(speed2))                                      # 3.
+        self._advect(dt, math.sqrt(speed2), ops.concentration_gradient)          # 3.
 
         self.time += dt
         self.last_dt = dt
@@ -289,105 +321,49 @@ class TwoPhaseFlow:
                 "max_div_before": div_before, "max_div": div_after,
                 "div_norm_before": norm_before, "div_norm": math.sqrt(sq_after),
                 "max_speed": math.sqrt(speed2)}
+        self._notify("advected", info=info)
         self.clock.lap("other", "advect")
         info["seconds"] = self.clock.stop()
         return info
 
+    def _notify(self, event: str, **data) -> None:
+        """Call :attr:`step_callback` (if any) at ``event`` of :data:`STEP_EVENTS`."""
+        if self.step_callback is not None:
+            self.step_callback(self, event, data)
+
     def _neighbours(self):
-        """Bin the particles, build the pair list and the operators on it."""
+        """Bin the particles (reordering them by cell) and build the pair list."""
         p = self.particles
-        self.grid = bin_particles(p, self.spec, grid=getattr(self, "grid", None))
+        self.grid = bin_particles(p, self.spec, grid=self.grid)
         self.clock.lap("neighbours", "bin")
         self.pairs.build(p.position, p.n, p.position, self.grid, self.support)
-        if not hasattr(self, "ops"):        # the same particles and pair list every step
-            self.ops = Operators(p, self.pairs, self.support, self.params.kernel)
         self.clock.lap("neighbours", "pairs")
 
-    def _predict(self, dt):
+    def _predict(self, viscous, dt):
         """Step 1: w = v + dt (g + nu lap v) on the fluid, 0 on the walls (into
-        ``buffers.velocity``), the walls carrying the viscous condition (``walls``).
-        Returns the viscous Laplacian's stencil (None when nu = 0)."""
+        ``buffers.velocity``), the walls carrying the viscous condition (``walls``)
+        for the viscous Laplacian's stencil ``viscous`` (None when nu = 0)."""
         params, p, ops, buf = self.params, self.particles, self.ops, self.buffers
-        mode = WallVelocity.FREE_SLIP if params.walls == "free-slip" else WallVelocity.NO_SLIP
-        st_visc = self._weighted = None
-        if params.nu > 0:
+        if viscous is not None:
+            mode = WallVelocity.FREE_SLIP if params.walls == "free-slip" else WallVelocity.NO_SLIP
             wall_velocity(ops.kernel_id, p.n, self.pairs.offsets, self.pairs.neighbours,
                           p.position, p.volume, p.kind, self.support, p.velocity, mode, p.normal,
                           buf.wall_velocity)
-            self.clock.lap("operators", "predict")
-            into = self.buffers.laplacian_arrays(self.pairs.n_pairs)
-            if (params.viscous_laplacian == params.gradient == params.pressure_laplacian
-                    == "corrected" and params.pair_density_gradient):
-                # the default: the gradient's coefficients, both density-weighted
-                # copies (the Poisson Laplacian, the pressure gradient) and the
-                # shifting's concentration gradient from the same pair passes
-                buf.grow_pairs(self.pairs.n_pairs)
-                st_visc, *self._weighted = ops.laplacian_coefficients(
-                    "corrected", row_kinds=(FLUID,), into=into,
-                    gradient_into=(buf.gradient_pairs, buf.gradient_self,
-                                   buf.weighted_laplacian, buf.pair_gradient,
-                                   buf.concentration_gradient))
-            else:
-                st_visc = ops.laplacian_coefficients(params.viscous_laplacian,
-                                                     row_kinds=(FLUID,), into=into)
-            self.clock.lap("operators", "viscous_coefficients")
-            ops.laplacian(st_visc, buf.wall_velocity, buf.velocity_laplacian)
-        update.predict(p.n, p.kind, p.velocity, buf.velocity_laplacian, int(params.nu > 0),
+            ops.laplacian(viscous, buf.wall_velocity, buf.velocity_laplacian)
+        update.predict(p.n, p.kind, p.velocity, buf.velocity_laplacian, int(viscous is not None),
                        float(params.nu), dt, self._gx, self._gy, buf.velocity)
         self.clock.lap("operators", "predict")
-        return st_visc
 
-    def _pressure_operators(self, st_visc):
-        """The projection's operators: the gradient stencil of the fluid rows (the
-        divergence ``D``), the pressure gradient's (times 2 / (rho_i + rho_j) with
-        ``pair_density_gradient``) and the bordered, density-weighted Poisson matrix."""
-        params, p, ops = self.params, self.particles, self.ops
-        if self._weighted is not None:      # built with the viscous Laplacian
-            st_grad, st_poisson, st_pressure_grad = self._weighted
-            A = PoissonMatrix(ops, laplacian=st_poisson, gradient=st_grad, kappa=0.0,
-                              bordered=True, reuse=getattr(self, "_poisson", None))
-            self._poisson = A           # its arrays serve the next step's matrix
-            self.clock.lap("operators", "poisson_assembly")
-            return st_grad, st_pressure_grad, A
-        st_grad = ops.gradient_coefficients(params.gradient, row_kinds=(FLUID,),
-                                            into=self.buffers.gradient_arrays(self.pairs.n_pairs))
-        st_pressure_grad = st_grad
-        if params.pair_density_gradient:
-            # the same coefficients times 2 / (rho_i + rho_j): what
-            # gradient_coefficients(..., density_weighted=True) computes, without
-            # building the (correction-matrix) coefficients a second time
-            G = self.buffers.pair_gradient
-            weight_gradient_by_mean_density(p.n, self.pairs.offsets, self.pairs.neighbours,
-                                            p.density, st_grad.G, G)
-            st_pressure_grad = GradientStencil(G, st_grad.s, st_grad.variant, st_grad.row_kinds,
-                                               st_grad.source_kinds)
-        self.clock.lap("operators", "gradient_coefficients")
-        # The flow has no BOUNDARY particles (its walls are Shepard rows) and no
-        # near-boundary term, so the Neumann gradient of the Poisson rows is
-        # multiplied by zero: any stencil at hand gives the identical matrix.  The
-        # pressure Laplacian is the viscous one weighted by the pair densities
-        # when the variants agree (the default): computed once.
-        if params.nu > 0 and params.viscous_laplacian == params.pressure_laplacian:
-            A = PoissonMatrix(ops, laplacian=ops.density_weighted(
-                                  st_visc, into=self.buffers.weighted_laplacian), gradient=st_grad,
-                              kappa=0.0, bordered=True, reuse=getattr(self, "_poisson", None))
-        else:
-            A = PoissonMatrix(ops, laplacian=params.pressure_laplacian, gradient=st_grad,
-                              kappa=0.0, bordered=True, density_weighted=True,
-                              reuse=getattr(self, "_poisson", None))
-        self._poisson = A           # its arrays serve the next step's matrix
-        self.clock.lap("operators", "poisson_assembly")
-        return st_grad, st_pressure_grad, A
-
-    def _project(self, A, st_grad, st_pressure_grad, dt):
+    def _project(self, ops: StepOperators, dt):
         """Step 2, the iterated density-weighted projection of w (``buffers.velocity``):
-        up to ``projection_passes`` solves of A q = div w (the wall rows: ``wall_rhs``),
-        each followed by w <- w - grad q / rho on the fluid.  Stores the summed q by
-        particle id (the next step's first guess); returns the solver iterations
-        per pass."""
+        up to ``projection_passes`` solves of A q = div w (A = ``ops.poisson``, the
+        wall rows: ``wall_rhs``), each followed by w <- w - grad q / rho on the
+        fluid.  Stores the summed q by particle id (the next step's first guess);
+        returns the solver iterations per pass."""
         params, p, buf = self.params, self.particles, self.buffers
+        A = ops.poisson
         iterations = []
-        b = self._pressure_rhs(st_grad, (dt * self._gx, dt * self._gy))
+        b = self._pressure_rhs(ops.gradient, (dt * self._gx, dt * self._gy))
         self.clock.lap("operators", "divergence")
         M = A.preconditioner_for(params.preconditioner, "bicgstab",
                                  {"cycle": params.multilevel_cycle})
@@ -405,12 +381,12 @@ class TwoPhaseFlow:
             if k == 0:
                 self.border = float(border)
             # the solver's own array of x (its first n entries are q): no host copy
-            self.ops.gradient(st_pressure_grad, res.x_ndarray, buf.pressure_gradient)
+            self.ops.gradient(ops.pressure_gradient, res.x_ndarray, buf.pressure_gradient)
             update.correct(p.n, p.kind, p.density, buf.pressure_gradient, buf.velocity)
             if k + 1 == params.projection_passes:
                 self.clock.lap("operators", "correction")
                 break           # the next pass's right-hand side would go unused
-            b = self._pressure_rhs(st_grad, (0.0, 0.0))     # gravity is balanced by now
+            b = self._pressure_rhs(ops.gradient, (0.0, 0.0))  # gravity is balanced by now
             self.clock.lap("operators", "correction")
             if update.divergence_stats(p.n, p.kind, b, buf.velocity)[0] * dt < params.div_tol:
                 break
@@ -459,29 +435,31 @@ class TwoPhaseFlow:
         self.ops.divergence(st, buf.velocity, buf.measured_divergence)
         return update.divergence_stats(p.n, p.kind, buf.measured_divergence, buf.velocity)
 
-    def _measured_divergence(self, w, st, fluid=None) -> np.ndarray:
-        """D w (module doc): the divergence of stencil ``st`` (the corrected gradient
-        of the fluid rows) with the wall particles at rest; 0 on wall rows
-        (``fluid``: the fluid rows' mask, read from the particles when None)."""
+    def _measured_divergence(self, st) -> np.ndarray:
+        """D w of w = ``buffers.velocity`` (module doc): the divergence of stencil
+        ``st`` (the corrected gradient of the fluid rows), w being 0 on the walls
+        (so D sees them at rest); numpy, by slot, 0 on wall rows."""
         p, buf = self.particles, self.buffers
-        if fluid is None:
-            fluid = p.get("kind") == FLUID
-        buf.measured_velocity.from_numpy(np.where(fluid[:, None], w, 0.0)
-                                         .astype(runtime.np_real()))
-        self.ops.divergence(st, buf.measured_velocity, buf.measured_divergence)
+        self.ops.divergence(st, buf.velocity, buf.measured_divergence)
+        fluid = p.get("kind") == FLUID
         return np.where(fluid, buf.measured_divergence.to_numpy()[: p.n].astype(np.float64), 0.0)
 
-    def _clean_up(self, w, d, norm_before, st):
+    def _clean_up(self, norm_before, st) -> int:
         """Step 2b, the orthogonal clean-up (module doc): the mass-weighted projection
-        of ``w`` onto ``D u = 0`` over the fluid, walls at rest.  ``d = D w`` (fluid
-        rows, 0 on walls); ``norm_before``: ||D w*|| of the predicted field.  Solves
-        (D M^-1 D^T) lam = D w by Jacobi-CG to ||D w_final|| <= cleanup_tol *
-        ||D w*|| (2-norms over the fluid rows; skipped when already there) and
-        returns (w - M^-1 D^T lam, CG iterations); (w, 0) when skipped."""
+        of w = ``buffers.velocity`` (0 on the walls) onto ``D u = 0`` over the
+        fluid, walls at rest, in place.  ``norm_before``: ||D w*|| of the predicted
+        field.  Solves (D M^-1 D^T) lam = D w by Jacobi-CG to ||D w_final|| <=
+        cleanup_tol * ||D w*|| (2-norms over the fluid rows; skipped when already
+        there), then w <- w - M^-1 D^T lam on the fluid.  Returns the CG
+        iterations, 0 when skipped (w unchanged)."""
         params, p, buf = self.params, self.particles, self.buffers
         real = runtime.np_real()
         fluid = p.get("kind") == FLUID
         ids = p.get("original_index")
+        d = self._measured_divergence(st)
+        w = buf.velocity.to_numpy()[: p.n].astype(np.float64)
+        self._notify("clean_up", operators=self.step_operators, velocity=w, divergence=d,
+                     norm_before=norm_before)
         norm = math.sqrt(float((d ** 2).sum()))
         # never chase rounding: the divergence of a field varying by its own size
         # over one spacing, times 1e3 machine epsilons
@@ -490,7 +468,7 @@ class TwoPhaseFlow:
         tol = params.solver_tol if params.cleanup_tol is None else params.cleanup_tol
         target = max(tol * norm_before, floor)
         if norm <= target:
-            return w, 0
+            return 0
         S = NormalOperator(self.ops, self.pairs, st, p.mass, p.n, rows=(FLUID,), cols=(FLUID,),
                            scratch=self.buffers.cleanup_scratch)
         x0 = self.lam_by_id[ids] if params.cleanup_warm_start else None
@@ -506,24 +484,23 @@ class TwoPhaseFlow:
         lam = res.x[: p.n].astype(np.float64)
         lam[~fluid] = 0.0
         self.lam_by_id[ids] = lam
-        lam_pad = np.zeros(buf.multiplier.shape[0], dtype=real)
-        lam_pad[: p.n] = lam
-        buf.multiplier.from_numpy(lam_pad)
+        _upload_rows(buf.multiplier, lam.astype(real))
         S.correction(buf.multiplier, buf.cleanup_correction)
-        w = w.copy()
-        w[fluid] -= buf.cleanup_correction.to_numpy()[: p.n][fluid].astype(np.float64)
-        return w, res.iterations
+        update.remove(p.n, p.kind, buf.cleanup_correction, buf.velocity)
+        return res.iterations
 
-    def _advect(self, dt, vmax) -> None:
+    def _advect(self, dt, vmax, have_concentration_gradient: bool = False) -> None:
         """Step 3: x <- x + dt w (+ the shifting displacement) on the fluid; the new
         positions and velocities go to the particles.  Raises :class:`BlowUpError`
         on non-finite values or many particles pushed out of the box (a few are put
-        back just inside: the walls are impermeable)."""
+        back just inside: the walls are impermeable).  With shifting, the
+        concentration gradient is computed unless the step's operators came with
+        it (``have_concentration_gradient``)."""
         params, p, buf = self.params, self.particles, self.buffers
         diffusion, cap = 0.0, 0.0
         if params.shifting > 0:
             self.clock.lap("other", "advect")
-            if self._weighted is None:     # else built with the coefficients (_predict)
+            if not have_concentration_gradient:
                 concentration_gradient(self.ops.kernel_id, p.n, self.pairs.offsets,
                                        self.pairs.neighbours, p.position, p.mass, p.density,
                                        p.kind, self.support, buf.concentration_gradient)
@@ -568,7 +545,7 @@ class TwoPhaseFlow:
         fluid = kind == FLUID
         order = np.argsort(ids[fluid])
         fluid_ids = ids[fluid][order]
-        dt = getattr(self, "last_dt", 0.0)
+        dt = self.last_dt
         return {"position": p.get("position")[fluid][order],
                 "velocity": p.get("velocity")[fluid][order],
                 "phase": p.get("phase")[fluid][order], "id": fluid_ids,

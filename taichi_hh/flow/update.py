@@ -58,6 +58,14 @@ def correct(n: ti.i32, kind: ti.types.ndarray(), rho: ti.types.ndarray(),
 
 
 @ti.kernel
+def remove(n: ti.i32, kind: ti.types.ndarray(), c: ti.types.ndarray(), w: ti.types.ndarray()):
+    """w <- w - c on the fluid rows (the clean-up's correction M^-1 D^T lam)."""
+    for i in range(n):
+        if kind[i] == FLUID:
+            w[i] -= c[i]
+
+
+@ti.kernel
 def advect(n: ti.i32, kind: ti.types.ndarray(), pos: ti.types.ndarray(),
            w: ti.types.ndarray(), shifting: ti.i32, grad_c: ti.types.ndarray(),
            diffusion: float, cap: float, dt: float, x0: float, y0: float, x1: float,

@@ -32,19 +32,22 @@ def advance(points, phases, spacing, params, t_end: float):
     return flow.state_dict(), flow.volume_error(), float(np.median(seconds[1:]))
 
 
-class _CleanUpRecorder(TwoPhaseFlow):
-    """A flow that keeps what its clean-up saw (white-box: the flow has no
-    public hook inside a step)."""
-
-    def _clean_up(self, w, d, norm_before, st):
-        p = self.particles
+def _record_cleanup(seen: dict):
+    """A :attr:`TwoPhaseFlow.step_callback` that keeps in ``seen`` what the
+    clean-up sees (its ``"clean_up"`` event) and the pairs and particles it
+    works on."""
+    def record(flow, event, data):
+        if event != "clean_up":
+            return
+        p, st = flow.particles, data["operators"].gradient
         n = p.n
-        offsets = self.pairs.offsets.to_numpy()[: n + 1]
-        self.seen = dict(w=w.copy(), d=d.copy(), norm_before=norm_before,
-                         G=st.G.to_numpy()[: offsets[-1]], s=st.s.to_numpy()[:n],
-                         offsets=offsets, nbrs=self.pairs.neighbours.to_numpy()[: offsets[-1]],
-                         kind=p.get("kind"), mass=p.get("mass"), pos=p.get("position"))
-        return super()._clean_up(w, d, norm_before, st)
+        offsets = flow.pairs.offsets.to_numpy()[: n + 1]
+        seen.update(w=data["velocity"].copy(), d=data["divergence"].copy(),
+                    norm_before=data["norm_before"], G=st.G.to_numpy()[: offsets[-1]],
+                    s=st.s.to_numpy()[:n], offsets=offsets,
+                    nbrs=flow.pairs.neighbours.to_numpy()[: offsets[-1]],
+                    kind=p.get("kind"), mass=p.get("mass"), pos=p.get("position"))
+    return record
 
 
 def capture_cleanup(state: dict, params):
@@ -53,16 +56,18 @@ def capture_cleanup(state: dict, params):
     coefficients ``G``, ``s``, pairs ``offsets``, ``nbrs``, particle ``kind``,
     ``mass``, ``pos``, plus its CG ``iterations`` and ``seconds`` from the
     flow's clock; the spacing)."""
-    flow = _CleanUpRecorder.from_state(state, replace(params, exact_projection=True,
-                                                      cleanup_warm_start=False))
+    flow = TwoPhaseFlow.from_state(state, replace(params, exact_projection=True,
+                                                  cleanup_warm_start=False))
     flow.lam_by_id[:] = 0.0
+    seen = {}
+    flow.step_callback = _record_cleanup(seen)
     before = dict(flow.clock.detail)
     info = flow.step()
     after = flow.clock.detail
-    flow.seen["iterations"] = info["cleanup_iterations"]
-    flow.seen["seconds"] = sum(after.get(k, 0.0) - before.get(k, 0.0)
-                               for k in ("operators.cleanup", "solve.cleanup"))
-    return flow.seen, flow.dx
+    seen["iterations"] = info["cleanup_iterations"]
+    seen["seconds"] = sum(after.get(k, 0.0) - before.get(k, 0.0)
+                          for k in ("operators.cleanup", "solve.cleanup"))
+    return seen, flow.dx
 
 
 def assemble(seen):
