@@ -585,3 +585,35 @@ def test_step_callback_sees_the_named_events_and_changes_nothing():
     assert all(np.array_equal(a, b) for a, b in zip(runs[0][0], runs[1][0]))
     assert runs[0][1] == runs[1][1]
 
+
+def test_vorticity_on_the_flows_own_pairs():
+    """TwoPhaseFlow.vorticity, the frames' colouring: the corrected curl on the
+    flow's pair list (no neighbour search of its own), in id order.  Exact on a
+    rigid rotation up to the walls; after a step, on that step's pairs (found
+    before the particles moved), it matches a fresh search to 1e-4 of its
+    largest value; against the stand-alone render.vorticity (a fresh search and
+    summation-density volumes, V = dx^2 / C_i, where the flow's are dx^2) it
+    agrees to 1% of the largest value away from the walls (measured 0.2%; up to
+    8% at the walls, where the fluid-only summation density is one-sided)."""
+    from taichi_hh.app import render
+    pts, dx = tank(16, 32)
+    omega = 1.3
+    rigid = omega * np.c_[-(pts[:, 1] - 1.0), pts[:, 0] - 0.5]
+    flow = TwoPhaseFlow(pts, np.zeros(len(pts), int), dx, FlowParams(box=(0, 0, 1, 2)),
+                        velocity=rigid)
+    assert np.abs(flow.vorticity() - 2 * omega).max() < 1e-9
+    phases = np.where(np.linalg.norm(pts - [0.5, 0.6], axis=1) < 0.25, 0, 1)
+    flow = TwoPhaseFlow(pts, phases, dx, FlowParams(box=(0, 0, 1, 2), densities=(1.0, 2.0)))
+    for _ in range(10):
+        flow.step()
+    pos, vel, _, ids = flow.fluid_state()
+    assert np.array_equal(ids, np.arange(len(pts)))
+    w = flow.vorticity()
+    a = np.abs(w).max()
+    assert a > 0.1
+    ref = render.vorticity(pos, vel, flow.dx, flow.support)
+    inner = np.all((pos > flow.support) & (pos < [1 - flow.support, 2 - flow.support]), axis=1)
+    assert np.abs(w - ref)[inner].max() < 1e-2 * a
+    assert np.abs(w - ref).max() < 0.2 * a
+    flow._neighbours()                  # a fresh search at the particles' new positions
+    assert np.abs(flow.vorticity() - w).max() < 1e-4 * a

@@ -179,7 +179,9 @@ def _draw_smooth_field(px, colour, radius: float, full: float, stride: int, imag
 
 
 def vorticity(positions, velocities, spacing: float, support: float) -> np.ndarray:
-    """Vorticity ``dv_y/dx - dv_x/dy`` of each particle, from the particles alone.
+    """Vorticity ``dv_y/dx - dv_x/dy`` of each particle, from the particles alone
+    (a neighbour search of its own: particles with no flow at hand; a flow's
+    frames take :meth:`taichi_hh.flow.TwoPhaseFlow.vorticity`, on its pairs).
 
     The corrected SPH curl (:meth:`taichi_hh.PointSet.curl`, Bonet & Lok 1999:
     exact on linear velocity fields, so a rigid rotation at angular velocity
@@ -197,15 +199,18 @@ def vorticity(positions, velocities, spacing: float, support: float) -> np.ndarr
     return points.curl(vel, "corrected")
 
 
-def frame_colouring(color: str, positions, velocities, spacing: float, support: float):
+def frame_colouring(color: str, positions, velocities, spacing: float, support: float, *,
+                    vorticity_values=None):
     """What a frame coloured by ``color`` (one of :data:`COLOURINGS`) shows:
     ``(scalar per particle or None, vmin, vmax, colour bar name)``.
 
     ``"phase"``: no scalar (the phase palette).  ``"speed"``: ``|v|`` over
-    ``[0, max]``.  ``"vorticity"``: :func:`vorticity` over symmetric limits
-    ``[-a, a]``, ``a`` its largest magnitude, so zero sits at the diverging
-    colormap's white centre.  Limits are per frame (a frame's colours compare
-    within it; the colour bar gives the scale)."""
+    ``[0, max]``.  ``"vorticity"``: ``vorticity_values`` (per particle, e.g.
+    the flow's :meth:`~taichi_hh.flow.TwoPhaseFlow.vorticity`; default
+    :func:`vorticity` of the particles) over symmetric limits ``[-a, a]``,
+    ``a`` its largest magnitude, so zero sits at the diverging colormap's white
+    centre.  Limits are per frame (a frame's colours compare within it; the
+    colour bar gives the scale)."""
     if color == "phase":
         return None, 0.0, 1.0, ""
     vel = np.asarray(velocities, dtype=np.float64)
@@ -213,7 +218,8 @@ def frame_colouring(color: str, positions, velocities, spacing: float, support: 
         scalar = np.linalg.norm(vel, axis=1)
         return scalar, 0.0, float(scalar.max()) if scalar.size else 1.0, "speed"
     if color == "vorticity":
-        scalar = vorticity(positions, vel, spacing, support)
+        scalar = (vorticity(positions, vel, spacing, support) if vorticity_values is None
+                  else np.asarray(vorticity_values, dtype=np.float64))
         finite = scalar[np.isfinite(scalar)]
         a = float(np.abs(finite).max()) if finite.size else 0.0
         a = a if a > 0 else 1.0

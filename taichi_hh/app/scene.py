@@ -337,7 +337,9 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
         t0, waited0 = time.perf_counter(), outputs.waited
         data = flow.particle_data()
         position = data.pop("position")
-        colouring = frame_colouring(args.color, position, data["velocity"], flow.dx, flow.support)
+        colouring = frame_colouring(
+            args.color, position, data["velocity"], flow.dx, flow.support,
+            vorticity_values=flow.vorticity() if args.color == "vorticity" else None)
         outputs.frame(int(round(t / args.output_interval)), t, position, data, colouring)
         result.frames += 1
         t1 = time.perf_counter()

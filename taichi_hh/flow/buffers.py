@@ -50,21 +50,29 @@ class FlowBuffers:
     gradient_self: object
     laplacian_self: object
     poisson_self: object
+    # the vorticity of the frames (TwoPhaseFlow.vorticity): the fluid-only
+    # gradient's self coefficients and the curl
+    vorticity_self: object
+    vorticity: object
     gradient_pairs: object = None
     pair_gradient: object = None
     laplacian_pairs: object = None
     weighted_laplacian: object = None
+    # the fluid-only gradient's pair coefficients, grown on demand apart from the
+    # step's (a flow whose frames show no vorticity never allocates them)
+    vorticity_pairs: object = None
 
     @classmethod
     def allocate(cls, capacity: int) -> "FlowBuffers":
         size = max(capacity, 1)
         vectors = {"wall_velocity", "velocity_laplacian", "velocity", "velocity_with_walls",
                    "pressure_gradient", "measured_velocity", "cleanup_correction", "cleanup_scratch",
-                   "concentration_gradient", "new_position", "gradient_self"}
+                   "concentration_gradient", "new_position", "gradient_self",
+                   "vorticity_self"}
         bordered = {"divergence", "first_guess"}       # the bordered system's length
         return cls(**{f.name: (_vectors if f.name in vectors else _scalars)(
                           size + (f.name in bordered))
-                      for f in fields(cls) if f.name not in _PER_PAIR})
+                      for f in fields(cls) if f.name not in _PER_PAIR + ("vorticity_pairs",)})
 
     def grow_pairs(self, n_pairs: int) -> None:
         """Every per-pair array at least ``n_pairs`` rows (grown by a quarter when
@@ -84,6 +92,12 @@ class FlowBuffers:
         """``(C, s)`` for :meth:`Operators.laplacian_coefficients`."""
         self.grow_pairs(n_pairs)
         return self.laplacian_pairs, self.laplacian_self
+
+    def vorticity_arrays(self, n_pairs: int):
+        """``(G, s)`` of the vorticity's gradient (grown like the step's arrays)."""
+        if self.vorticity_pairs is None or self.vorticity_pairs.shape[0] < n_pairs:
+            self.vorticity_pairs = _vectors(max(n_pairs + n_pairs // 4, 1))
+        return self.vorticity_pairs, self.vorticity_self
 
 
 #: the per-pair arrays of :class:`FlowBuffers`

@@ -260,6 +260,29 @@ class TwoPhaseFlow:
         C = c.to_numpy()[: p.n]
         return C / self._c0
 
+    def vorticity(self) -> np.ndarray:
+        """Vorticity ``dv_y/dx - dv_x/dy`` of each fluid particle, in id order (the
+        order of :meth:`fluid_state` and :meth:`particle_data`): the corrected SPH
+        curl (Bonet & Lok 1999: exact on linear velocity fields) over the fluid
+        neighbours, on the flow's own pair list, without a neighbour search of
+        its own (only before the first step does it search, as
+        :meth:`volume_error` does).  The pairs are the last step's, found before
+        it advected the particles by at most ``cfl`` spacings: a neighbour that
+        came within the support since is missed until the next step, where its
+        kernel weight is near zero.  Walls are left out: at a no-slip wall the
+        value is the one-sided estimate from the fluid side."""
+        p, buf = self.particles, self.buffers
+        if self.grid is None:         # no neighbour search yet
+            self._neighbours()
+        st = self.ops.gradient_coefficients("corrected", row_kinds=(FLUID,),
+                                            source_kinds=(FLUID,),
+                                            into=buf.vorticity_arrays(self.pairs.n_pairs))
+        self.ops.curl(st, p.velocity, buf.vorticity)
+        ids = p.get("original_index")
+        fluid = p.get("kind") == FLUID
+        order = np.argsort(ids[fluid])
+        return buf.vorticity.to_numpy()[: p.n][fluid][order].astype(np.float64)
+
     def kinetic_energy(self) -> float:
         p = self.particles
         fluid = p.get("kind") == FLUID
