@@ -12,11 +12,15 @@ inside and outside, a stream); target 1M points in 4 s warm on a quiet
 includes compiling), then ``--repeats`` warm calls: their median and least
 wall seconds, the process CPU seconds of the median call (both threads of
 the Taichi kernels counted), the stages of ``stats["seconds"]`` (setup:
-checks, particles, neighbours, densities; divergence: the cubic MLS stencil
-and div v, curl v; natural: the potentials; other: the checks after them)
-and the natural step's own stages (coverage, bins, reconstruct, density,
-convolve, interpolate, boundary_fit, gather: from
-:func:`taichi_hh.hhd.natural.natural_potentials`), the errors of d, r, h
+the data's reach of the boundary; divergence: div v and curl v, fitted at
+the grid nodes and interpolated to the points; natural: the rest of the
+natural step; checks: energy and harmonic checks; other: input checks, the
+default's choice of condition, the caller's units)
+and the natural step's own stages (``natural_*`` of ``stats["seconds"]``:
+coverage, bins, fit (v fitted at the grid nodes), density, convolve,
+interpolate, boundary_fit, divergence (div v and curl v at the points),
+gather, harmonic (the harmonic check's fits of h); from
+:func:`taichi_hh.hhd.natural.natural_decomposition`), the errors of d, r, h
 against the expected split (% of mean |v|), and the load average when the
 size started (the machines are shared: compare rows of one run, and CPU
 seconds across runs).  ``--kernels`` also times every Taichi kernel launch
@@ -37,8 +41,9 @@ import _common
 
 _common.add_repo_to_path()
 
-NATURAL_STAGES = ("coverage", "bins", "reconstruct", "density", "convolve", "interpolate",
-                  "boundary_fit", "gather")
+NATURAL_STAGES = ("coverage", "bins", "fit", "density", "convolve", "interpolate",
+                  "boundary_fit", "divergence", "gather", "harmonic")
+STAGES = ("setup", "divergence", "natural", "checks")
 
 
 def _kernel_timer():
@@ -71,23 +76,11 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     import numpy as np
     import taichi_hh as thh
-    from taichi_hh.hhd import decompose as dec
     from taichi_hh.validation.windows import window_field
 
     warnings.simplefilter("ignore")
     thh.init()
     kernels = _kernel_timer() if args.kernels else None
-    # the natural step's own breakdown, recorded as decompose() calls it
-    stages: dict = {}
-    natural_potentials = dec.natural_potentials
-
-    def recorded(*a, **k):
-        out = natural_potentials(*a, **k)
-        stages.clear()
-        stages.update(out.get("seconds", {}))
-        return out
-
-    dec.natural_potentials = recorded
     F = window_field()
     rows = []
     for n in _common.parse_list(args.sizes, int):
@@ -109,7 +102,9 @@ def main(argv=None) -> int:
             res = thh.decompose(pts, ex.v, F.domain)
             wall, cpu = time.perf_counter() - t, time.process_time() - c
             kern = ({k: tuple(v) for k, v in kernels.items()} if kernels is not None else {})
-            warm.append((wall, cpu, dict(res.stats["seconds"]), dict(stages), kern))
+            sec = dict(res.stats["seconds"])
+            nat = {k[len("natural_"):]: v for k, v in sec.items() if k.startswith("natural_")}
+            warm.append((wall, cpu, sec, nat, kern))
         warm.sort(key=lambda w: w[0])
         wall, cpu, sec, nat, kern = warm[len(warm) // 2]
         row = {"n": n, "condition": res.stats.get("boundary_condition", ""),
@@ -117,10 +112,9 @@ def main(argv=None) -> int:
                "load": load, "first_s": first,
                "warm_median_s": statistics.median(w[0] for w in warm),
                "warm_min_s": warm[0][0], "cpu_s": cpu}
-        for key in ("setup", "divergence", "natural"):
+        for key in STAGES:
             row[f"{key}_s"] = sec.get(key, float("nan"))
-        row["other_s"] = sec["total"] - sum(sec.get(k, 0.0) for k in
-                                            ("setup", "divergence", "natural"))
+        row["other_s"] = wall - sum(sec.get(k, 0.0) for k in STAGES)
         for key in NATURAL_STAGES:
             row[f"nat_{key}_s"] = nat.get(key, float("nan"))
         if kern:
@@ -133,17 +127,17 @@ def main(argv=None) -> int:
         if kern:
             for name, (calls, w, c) in sorted(kern.items(), key=lambda kv: -kv[1][1])[:12]:
                 print(f"    {w:7.3f} s wall {c:7.3f} s cpu {calls:3d}x {name}")
-    names = ["n", "condition", "grid", "load", "first_s", "warm_median_s", "warm_min_s", "cpu_s",
-             "setup_s", "divergence_s", "natural_s", "other_s"] \
+    names = ["n", "condition", "grid", "load", "first_s", "warm_median_s", "warm_min_s", "cpu_s"] \
+        + [f"{k}_s" for k in STAGES] + ["other_s"] \
         + [f"nat_{k}_s" for k in NATURAL_STAGES] \
         + (["kernels_s", "kernels_cpu_s"] if kernels is not None else []) \
         + ["err_d_pct", "err_r_pct", "err_h_pct"]
     header = ["N", "grid", "load", "first s", "warm s", "cpu s", "setup", "div", "natural",
-              "other", "err d, r, h %"]
+              "checks", "other", "err d, r, h %"]
     table = [[str(r["n"]), r["grid"], f"{r['load']:.1f}", f"{r['first_s']:.2f}",
-              f"{r['warm_median_s']:.2f}", f"{r['cpu_s']:.2f}", f"{r['setup_s']:.2f}",
-              f"{r['divergence_s']:.2f}", f"{r['natural_s']:.2f}", f"{r['other_s']:.2f}",
-              ", ".join(f"{r[k]:.2g}" for k in ("err_d_pct", "err_r_pct", "err_h_pct"))]
+              f"{r['warm_median_s']:.2f}", f"{r['cpu_s']:.2f}"]
+             + [f"{r[f'{k}_s']:.2f}" for k in STAGES + ("other",)]
+             + [", ".join(f"{r[k]:.2g}" for k in ("err_d_pct", "err_r_pct", "err_h_pct"))]
              for r in rows]
     print(_common.format_table(header, table))
     nat_header = ["N"] + list(NATURAL_STAGES)

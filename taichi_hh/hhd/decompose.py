@@ -35,7 +35,10 @@ default ``auto``, which chooses from the data (:mod:`taichi_hh.hhd.auto`):
                      over the domain with the free-space Green's function, no
                      condition imposed (:mod:`taichi_hh.hhd.natural`); d and r
                      are what the sources and vortices inside induce, h the
-                     influence of everything outside.
+                     influence of everything outside.  With the default
+                     method's operator options div v and curl v come from
+                     fits of v at the grid's nodes (no particles, no
+                     neighbour search: :func:`_natural_unit`).
 
 Steps (a)-(e): particles and boundary or fake particles, div v and curl v,
 the two Poisson problems of Eq. 5 with the boundary rows of Eq. 6, their
@@ -65,7 +68,7 @@ from .inputs import (INVALID_MODES, Data, check_data_near_boundary, check_data_r
 from .auto import (ORTHOGONAL_CONDITION, choose_boundary_condition, energy_closer,
                    natural_cancels)
 from .corners import check_corners
-from .natural import natural_potentials
+from .natural import natural_decomposition, natural_potentials
 from .options import (BOUNDARY_CONDITIONS, BOUNDARY_METHODS, METHODS, PRECONDITIONERS,
                       HHDOptions, options_for)
 from .rotation import J
@@ -437,6 +440,8 @@ NO_FLUX_PARTS = (("phi", "neumann"), ("psi", "normal-parallel"))
 
 def _decompose_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
     """Steps (a)-(e) on the valid rows in the unit frame."""
+    if _natural_at_nodes(opts):
+        return _natural_unit(data, opts, progress)
     t_start = time.perf_counter()
     say = progress or (lambda stage: None)
     if opts.boundary_condition == "no-flux":
@@ -496,6 +501,113 @@ def _decompose_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
                      phi=phi, psi=psi, divergence=div_slots[ps.slot_of],
                      curl=curl_slots[ps.slot_of], stats=stats, options=opts, pointset=ps,
                      domain=problems.domain)
+
+
+#: the options of the SPH operator at the points: the natural decomposition
+#: with all of them at the default's values takes div v and curl v from fits
+#: of v at its grid nodes instead (:func:`_natural_at_nodes`)
+POINT_OPERATOR_OPTIONS = ("kernel", "support_ratio", "adaptive_support", "support_neighbours",
+                          "divergence", "boundary", "remove_mean")
+
+
+def _natural_at_nodes(opts: HHDOptions) -> bool:
+    """Whether the natural decomposition takes div v and curl v from fits of v
+    at its grid nodes (:func:`~taichi_hh.hhd.natural.natural_decomposition`:
+    no operator at the points, no neighbour search): with the default
+    method's point operator (:data:`POINT_OPERATOR_OPTIONS` as
+    ``METHODS["default"]`` has them).  Any other kernel, support or
+    divergence variant, the ``petronetto`` fake particles or ``remove_mean``
+    asks for the SPH operator at the points (its div v and curl v
+    reconstructed at the nodes, :func:`~taichi_hh.hhd.natural.natural_potentials`)."""
+    default = METHODS["default"]
+    return opts.boundary_condition == "natural" and all(
+        getattr(opts, name) == getattr(default, name) for name in POINT_OPERATOR_OPTIONS)
+
+
+class _LazyPointSet:
+    """The decomposition's :class:`~taichi_hh.sph.pointset.PointSet`, built on
+    first use (the natural decomposition at the nodes needs none; the
+    critical points and diagnostics read one)."""
+
+    def __init__(self, make):
+        self._make, self._ps = make, None
+
+    def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        if self._ps is None:
+            self._ps = self._make()
+        return getattr(self._ps, name)
+
+
+def _check_natural_reach(pts, domain, spacing: float, opts: HHDOptions, data: Data) -> None:
+    """The data reach the boundary (:func:`~taichi_hh.hhd.inputs.check_data_near_boundary`)
+    within the fixed support (``support_ratio`` mean spacings); failing that,
+    with an adaptive support, within the largest of the points' supports
+    (the reach the point set's operators would have had)."""
+    try:
+        check_data_near_boundary(pts, domain, spacing, opts.support_ratio * spacing, data)
+    except InputError:
+        if not opts.adaptive_support:
+            raise
+        from ..sph.support import adaptive_supports
+        supports = adaptive_supports(pts, opts.support_ratio, opts.support_neighbours,
+                                     domain.area)
+        check_data_near_boundary(pts, domain, spacing, float(supports.max()), data)
+
+
+def _natural_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
+    """:func:`_decompose_unit` of the natural decomposition at the grid nodes
+    (:func:`_natural_at_nodes`): no point set (one is built if the result's
+    ``pointset`` is read), div v and curl v from the nodes' fits of v, the
+    energy check with the points' cell areas
+    (:class:`~taichi_hh.hhd.natural.NaturalSplit`), the harmonic check with
+    the nodes' fits of h."""
+    t_start = time.perf_counter()
+    say = progress or (lambda stage: None)
+    pts, vec, domain = data.unit_points, data.unit_vectors, data.unit_domain
+    n = len(pts)
+    refuse_too_few(n)
+    spacing = math.sqrt(domain.area / n)
+    support = opts.support_ratio * spacing
+    seconds = {}
+    say("setup")
+    t = time.perf_counter()
+    _check_natural_reach(pts, domain, spacing, opts, data)
+    stats = {"n_points": n, "n_boundary": 0, "n_ghosts": 0, "support": support,
+             "spacing": spacing}
+    check_point_count(n, stats, stacklevel=5)
+    seconds["setup"] = time.perf_counter() - t
+    say("natural potentials")
+    t = time.perf_counter()
+    split = natural_decomposition(pts, vec, domain, spacing, evaluation=opts.natural_evaluation)
+    # "divergence": div v and curl v (the nodes' fits and the points' values)
+    seconds["divergence"] = sum(split.seconds.get(k, 0.0) for k in ("fit", "divergence"))
+    seconds["natural"] = time.perf_counter() - t - seconds["divergence"]
+    stats["natural_grid"] = split.grid.shape
+    stats["mean_neighbours"] = split.mean_fit_points
+    say("checks")
+    t = time.perf_counter()
+    d, r = split.d, J(split.grad_psi)
+    h = vec - d - r
+    _check_energy(stats, vec, d, r, h, split.volume, opts, stacklevel=5)
+    _flag_harmonic(stats, dict(zip(("divergence", "curl"), split.harmonic_ratios(h))), opts)
+    seconds["checks"] = time.perf_counter() - t
+    seconds.update({f"natural_{k}": v for k, v in split.seconds.items()})
+    seconds["total"] = time.perf_counter() - t_start
+    stats["seconds"] = seconds
+
+    def pointset():
+        return PointSet(pts, kernel=opts.kernel, support_ratio=opts.support_ratio,
+                        support=None if opts.adaptive_support else support, area=domain.area,
+                        support_neighbours=opts.support_neighbours if opts.adaptive_support
+                        else None)
+
+    runtime.release_launch_arguments(n)
+    return HHDResult(points=pts, vectors=vec, curl_free=d, div_free=r, harmonic=h,
+                     phi=split.phi, psi=split.psi, divergence=split.divergence,
+                     curl=split.curl, stats=stats, options=opts,
+                     pointset=_LazyPointSet(pointset), domain=domain)
 
 
 def _checked_problems(data: Data, opts: HHDOptions, progress, *,
@@ -598,8 +710,6 @@ def _check_harmonic(stats, problems, h) -> None:
     """How harmonic h is: ``stats["h_divergence"]``, ``stats["h_curl"]`` (mean |div h|
     and |curl h| over the mean of sqrt(div v^2 + curl v^2), the divergence operator
     over the data points); above :data:`HARMONIC_LIMIT` flagged as _check_energy does."""
-    import warnings
-    from ..errors import AccuracyWarning
     ps, opts = problems.ps, problems.opts
     if opts.boundary == "petronetto" or opts.remove_mean:
         # the right-hand sides are not div v and curl v over the data alone there
@@ -614,6 +724,16 @@ def _check_harmonic(stats, problems, h) -> None:
     for name, values in zip(("divergence", "curl"), _divergence_curl(ps, st, h)):
         mean = float(np.abs(values).mean())
         ratios[name] = mean / scale if scale > 0 else (0.0 if mean == 0 else math.inf)
+    _flag_harmonic(stats, ratios, opts)
+
+
+def _flag_harmonic(stats, ratios: dict, opts: HHDOptions) -> None:
+    """``stats["h_divergence"]``, ``stats["h_curl"]`` from ``ratios`` (by
+    ``divergence``, ``curl``); above :data:`HARMONIC_LIMIT` flagged (stats and
+    an AccuracyWarning)."""
+    import warnings
+    from ..errors import AccuracyWarning
+    for name in ("divergence", "curl"):
         stats[f"h_{name}"] = ratios[name]
     stats.setdefault("flags", [])
     worst = max(ratios, key=ratios.get)
@@ -628,14 +748,14 @@ def _check_harmonic(stats, problems, h) -> None:
                     "Neumann condition cannot put into d or r (boundary_condition="
                     "'normal-parallel' or 'natural' can)")
         stats["flags"].append(msg)
-        warnings.warn(msg, AccuracyWarning, stacklevel=4)
+        warnings.warn(msg, AccuracyWarning, stacklevel=5)
 
 
 #: components with more than this many times the field's energy are flagged
 ENERGY_LIMIT = 4.0
 
 
-def _check_energy(stats, v, d, r, h, vol, opts) -> None:
+def _check_energy(stats, v, d, r, h, vol, opts, *, stacklevel: int = 4) -> None:
     """The decomposition is L2-orthogonal (Petronetto Eq. 16), so
     |d|^2 + |r|^2 + |h|^2 = |v|^2 (volume-weighted sums) for an exact one; an
     accurate discrete one stays within a few percent (docs/notes/hhd.md).
@@ -669,7 +789,7 @@ def _check_energy(stats, v, d, r, h, vol, opts) -> None:
                f"(|d|^2 + |r|^2 + |h|^2 over |v|^2; 1 for an exact decomposition): {why}; "
                "the components are unreliable")
         stats["flags"].append(msg)
-        warnings.warn(msg, AccuracyWarning, stacklevel=4)
+        warnings.warn(msg, AccuracyWarning, stacklevel=stacklevel)
 
 
 def _ghosts_with_data(ps, reach: float = 0.8) -> np.ndarray:
