@@ -565,7 +565,7 @@ def test_step_callback_sees_the_named_events_and_changes_nothing():
     """The public step callback (instrumentation, e.g. the conditioning study's
     record of the clean-up): called at every STEP_EVENTS point in order, with
     the step's operator record; a run with it is bit-identical to one without."""
-    from taichi_hh.flow.twophase import STEP_EVENTS, StepOperators
+    from taichi_hh.flow import STEP_EVENTS, StepOperators
     seen = []
 
     def record(flow, event, data):

@@ -7,7 +7,8 @@ shifting, :mod:`.buffers` the per-step work arrays, :mod:`.clock` the stage timi
 """
 from .clock import STAGES, StageClock
 from .params import WALL_CONDITIONS, FlowParams, WallVelocity
-from .twophase import BlowUpError, TwoPhaseFlow
+from .operators import StepOperators
+from .twophase import STEP_EVENTS, BlowUpError, TwoPhaseFlow
 
 __all__ = ["TwoPhaseFlow", "FlowParams", "BlowUpError", "StageClock", "STAGES",
-           "WALL_CONDITIONS", "WallVelocity"]
+           "WALL_CONDITIONS", "WallVelocity", "StepOperators", "STEP_EVENTS"]
