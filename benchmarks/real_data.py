@@ -50,9 +50,10 @@ Readers (pivpy 0.4.0) and what they deliver:
   chosen), zero or negative for a vector removed by validation (-1) or not
   computed at the frame's edge (-3); pivpy's own plots only drop CHC == 0.
 
-Per dataset and boundary condition (``natural``, :func:`decompose_grid`'s
-default, and ``neumann``): the grid, valid and invalid nodes, the nodes
-decomposed; from ``result.scattered.stats`` the energy ratio (|d|^2 + |r|^2 +
+Per dataset and boundary condition (``default``: :func:`decompose_grid`'s
+``auto``, the condition it chose in ``condition_used``;
+``natural``; ``neumann``): the grid, valid and invalid nodes, the nodes
+decomposed; from ``result.stats`` the energy ratio (|d|^2 + |r|^2 +
 |h|^2 over |v|^2, 1 for an exact decomposition), h's harmonicity
 (``h_divergence``, ``h_curl``) and the flags; the critical points
 (``result.critical_points()``, the filters for measured data on: boundary
@@ -77,7 +78,7 @@ rejected), a tighter masking rule.  Columns ``e_d``, ``e_r``, ``e_h``,
 decomposed (unweighted): where an energy ratio away from 1 comes from.
 
 Writes ``outputs/benchmarks/real_data.csv`` and ``docs/figures/real_<name>.png``
-(v, d, r, h arrows and the critical points, natural condition).
+(v, d, r, h arrows and the critical points, the default condition).
 """
 from __future__ import annotations
 
@@ -124,10 +125,11 @@ DATASETS = (
             "px", "CHC <= 0"),
 )
 BY_NAME = {d.name: d for d in DATASETS}
-CONDITIONS = ("natural", "neumann")
+CONDITIONS = ("default", "natural", "neumann")
 #: extra rows: a condition tried on the instrument's field besides CONDITIONS
 EXTRA_CONDITIONS = ("normal-parallel",)
-FIELDS = ["dataset", "variant", "condition", "format", "grid", "n_valid", "n_invalid", "n_used",
+FIELDS = ["dataset", "variant", "condition", "condition_used", "format", "grid", "n_valid",
+          "n_invalid", "n_used",
           "energy_ratio", "h_divergence", "h_curl", "n_critical", "n_unfiltered", "n_outside",
           "targets", "seconds", "critical_seconds", "critical_kinds", "e_d", "e_r", "e_h", "e_rh", "flags", "invalid_rule", "units", "flow", "file"]
 
@@ -262,7 +264,7 @@ def run_one(thh, np, spec, variant, condition, x, y, u, v):
                    critical_kinds="", flags=f"error: {exc}"[:300])
         row.update(e_d=float("nan"), e_r=float("nan"), e_h=float("nan"), e_rh=float("nan"))
         return row, None, None
-    s = res.scattered.stats
+    s = res.stats
     from taichi_hh.hhd.critical import critical_points
     res.critical_points()                        # warm-up
     t = time.perf_counter()
@@ -272,7 +274,8 @@ def run_one(thh, np, spec, variant, condition, x, y, u, v):
     n_out = outside(np, res, critical)
     met = s["energy_ratio"] <= ENERGY_TARGET and n_out == 0 and critical_seconds < seconds
     kinds = [c.kind for c in critical]
-    row.update(n_used=int(res.used.sum()), energy_ratio=float(s["energy_ratio"]),
+    row.update(condition_used=s.get("boundary_condition", ""),
+               n_used=int(res.used.sum()), energy_ratio=float(s["energy_ratio"]),
                h_divergence=float(s["h_divergence"]), h_curl=float(s["h_curl"]),
                n_critical=len(critical), n_unfiltered=len(unfiltered), n_outside=n_out,
                targets="met" if met else "MISSED", seconds=seconds,
@@ -372,14 +375,14 @@ def main(argv=None) -> int:
                        if k not in ("flags", "invalid_rule", "units", "flow", "file",
                                     "critical_kinds")},
                       flush=True)
-                if res is not None and variant == "instrument" and condition == "natural" \
+                if res is not None and variant == "instrument" and condition == "default" \
                         and not args.no_figures:
                     os.makedirs(args.fig_dir, exist_ok=True)
                     figure(res, critical, spec, os.path.join(args.fig_dir, f"real_{name}.png"))
     if not rows:
         print("real_data: no dataset ran")
         return 0
-    cols = ["dataset", "variant", "condition", "grid", "n_valid", "n_invalid", "n_used",
+    cols = ["dataset", "variant", "condition", "condition_used", "grid", "n_valid", "n_invalid", "n_used",
             "energy_ratio", "h_divergence", "h_curl", "n_critical", "n_unfiltered", "n_outside",
             "targets", "seconds", "critical_seconds", "e_d", "e_r", "e_h", "e_rh", "flags"]
 
