@@ -591,7 +591,7 @@ def _natural_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
     d, r = split.d, J(split.grad_psi)
     h = vec - d - r
     _check_energy(stats, vec, d, r, h, split.volume, opts, stacklevel=5)
-    _flag_harmonic(stats, dict(zip(("divergence", "curl"), split.harmonic_ratios(h))), opts)
+    flag_harmonic(stats, dict(zip(("divergence", "curl"), split.harmonic_ratios(h))), opts)
     seconds["checks"] = time.perf_counter() - t
     seconds.update({f"natural_{k}": v for k, v in split.seconds.items()})
     seconds["total"] = time.perf_counter() - t_start
@@ -724,10 +724,10 @@ def _check_harmonic(stats, problems, h) -> None:
     for name, values in zip(("divergence", "curl"), _divergence_curl(ps, st, h)):
         mean = float(np.abs(values).mean())
         ratios[name] = mean / scale if scale > 0 else (0.0 if mean == 0 else math.inf)
-    _flag_harmonic(stats, ratios, opts)
+    flag_harmonic(stats, ratios, opts)
 
 
-def _flag_harmonic(stats, ratios: dict, opts: HHDOptions) -> None:
+def flag_harmonic(stats, ratios: dict, opts: HHDOptions) -> None:
     """``stats["h_divergence"]``, ``stats["h_curl"]`` from ``ratios`` (by
     ``divergence``, ``curl``); above :data:`HARMONIC_LIMIT` flagged (stats and
     an AccuracyWarning)."""

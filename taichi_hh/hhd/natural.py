@@ -280,29 +280,29 @@ def _mls_add(M, rhs, d, v):
 
 
 @ti.func
-def _cholesky6(M, rhs, dt: ti.template(), floor: ti.template()):
-    """x with M x = rhs for the symmetric positive 6 x 6 ``M`` and 6 x 2 ``rhs``
+def _cholesky_solve(M, rhs, n: ti.template(), dt: ti.template(), floor: ti.template()):
+    """x with M x = rhs for the symmetric positive n x n ``M`` and n x 2 ``rhs``
     in precision ``dt`` (Cholesky, the diagonal raised by 1e-12 of the trace
     and ``floor``)."""
     tr = ti.cast(0.0, dt)
-    for a in ti.static(range(6)):
+    for a in ti.static(range(n)):
         tr += M[a, a]
-    for a in ti.static(range(6)):
+    for a in ti.static(range(n)):
         M[a, a] += 1e-12 * tr + floor
     # Cholesky M = L L^T, then L y = rhs, L^T x = y
-    L = ti.Matrix.zero(dt, 6, 6)
-    for jj in ti.static(range(6)):
+    L = ti.Matrix.zero(dt, n, n)
+    for jj in ti.static(range(n)):
         s = M[jj, jj]
         for kk in ti.static(range(jj)):
             s -= L[jj, kk] * L[jj, kk]
         L[jj, jj] = ti.sqrt(ti.max(s, 1e-30))
-        for ii in ti.static(range(jj + 1, 6)):
+        for ii in ti.static(range(jj + 1, n)):
             s2 = M[ii, jj]
             for kk in ti.static(range(jj)):
                 s2 -= L[ii, kk] * L[jj, kk]
             L[ii, jj] = s2 / L[jj, jj]
-    y = ti.Matrix.zero(dt, 6, 2)
-    for ii in ti.static(range(6)):
+    y = ti.Matrix.zero(dt, n, 2)
+    for ii in ti.static(range(n)):
         r0 = rhs[ii, 0]
         r1 = rhs[ii, 1]
         for kk in ti.static(range(ii)):
@@ -310,12 +310,12 @@ def _cholesky6(M, rhs, dt: ti.template(), floor: ti.template()):
             r1 -= L[ii, kk] * y[kk, 1]
         y[ii, 0] = r0 / L[ii, ii]
         y[ii, 1] = r1 / L[ii, ii]
-    x = ti.Matrix.zero(dt, 6, 2)
-    for q in ti.static(range(6)):
-        ii = ti.static(5 - q)
+    x = ti.Matrix.zero(dt, n, 2)
+    for q in ti.static(range(n)):
+        ii = ti.static(n - 1 - q)
         r0 = y[ii, 0]
         r1 = y[ii, 1]
-        for kk in ti.static(range(ii + 1, 6)):
+        for kk in ti.static(range(ii + 1, n)):
             r0 -= L[kk, ii] * x[kk, 0]
             r1 -= L[kk, ii] * x[kk, 1]
         x[ii, 0] = r0 / L[ii, ii]
@@ -361,7 +361,7 @@ def _mls_nodes(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, x0: float, y
                                               ti.Vector([vals[k, 0], vals[k, 1]]))
                 if count >= MLS_MIN_POINTS or a == _N_RADII - 1:
                     done = True
-        x = _cholesky6(M, rhs, float, 1e-30)
+        x = _cholesky_solve(M, rhs, 6, float, 1e-30)
         out[t, 0] = x[0, 0]
         out[t, 1] = x[0, 1]
 
@@ -479,48 +479,6 @@ _GRAM = {p: [[_MOMENTS[p].index((a + c, b + d)) for (c, d) in _MONO[p]] for (a, 
 _RHS = {p: [_MOMENTS[p].index(m) for m in _MONO[p]] for p in (1, 2, 3)}
 
 
-@ti.func
-def _cholesky_solve(M, rhs, n: ti.template()):
-    """x with M x = rhs for the symmetric positive n x n ``M`` and n x 2 ``rhs``
-    (Cholesky; the diagonal raised by 1e-12 of the trace and 1e-30)."""
-    tr = ti.cast(0.0, ti.f64)
-    for a in ti.static(range(n)):
-        tr += M[a, a]
-    for a in ti.static(range(n)):
-        M[a, a] += 1e-12 * tr + 1e-30
-    L = ti.Matrix.zero(ti.f64, n, n)
-    for jj in ti.static(range(n)):
-        s = M[jj, jj]
-        for kk in ti.static(range(jj)):
-            s -= L[jj, kk] * L[jj, kk]
-        L[jj, jj] = ti.sqrt(ti.max(s, 1e-30))
-        for ii in ti.static(range(jj + 1, n)):
-            s2 = M[ii, jj]
-            for kk in ti.static(range(jj)):
-                s2 -= L[ii, kk] * L[jj, kk]
-            L[ii, jj] = s2 / L[jj, jj]
-    y = ti.Matrix.zero(ti.f64, n, 2)
-    for ii in ti.static(range(n)):
-        r0 = rhs[ii, 0]
-        r1 = rhs[ii, 1]
-        for kk in ti.static(range(ii)):
-            r0 -= L[ii, kk] * y[kk, 0]
-            r1 -= L[ii, kk] * y[kk, 1]
-        y[ii, 0] = r0 / L[ii, ii]
-        y[ii, 1] = r1 / L[ii, ii]
-    x = ti.Matrix.zero(ti.f64, n, 2)
-    for q in ti.static(range(n)):
-        ii = ti.static(n - 1 - q)
-        r0 = y[ii, 0]
-        r1 = y[ii, 1]
-        for kk in ti.static(range(ii + 1, n)):
-            r0 -= L[kk, ii] * x[kk, 0]
-            r1 -= L[kk, ii] * x[kk, 1]
-        x[ii, 0] = r0 / L[ii, ii]
-        x[ii, 1] = r1 / L[ii, ii]
-    return x
-
-
 @ti.kernel
 def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f64,
                    ly: ti.f64, hx: ti.f64, hy: ti.f64, start: ti.types.ndarray(),
@@ -619,7 +577,7 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
                     rhs[m, 1] = r1[m]
                     for l in ti.static(range(nq)):
                         M[m, l] = mom[ti.static(_GRAM[p][m][l])]
-                x = _cholesky_solve(M, rhs, nq)
+                x = _cholesky_solve(M, rhs, nq, ti.f64, 1e-30)
                 g = ti.Vector([x[1, 0], x[2, 0], x[1, 1], x[2, 1]]) / R
                 solved = True
         for c in ti.static(range(4)):
@@ -963,7 +921,7 @@ def _one_sided(u: ti.types.ndarray(), inside: ti.types.ndarray(), pts: ti.types.
         for c in ti.static(range(4)):
             out[p, c] = ti.math.nan
         if count >= ONE_SIDED_MIN_NODES:
-            x = _cholesky6(M, rhs, ti.f64, 0.0)
+            x = _cholesky_solve(M, rhs, 6, ti.f64, 0.0)
             out[p, 0] = x[1, 0] / hx
             out[p, 1] = x[2, 0] / hy
             out[p, 2] = x[1, 1] / hx

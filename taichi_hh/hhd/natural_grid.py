@@ -40,7 +40,7 @@ import taichi as ti
 
 from .. import runtime
 from ..errors import AccuracyWarning
-from .decompose import ENERGY_LIMIT, HARMONIC_LIMIT, HHDResult
+from .decompose import ENERGY_LIMIT, HHDResult, flag_harmonic
 from .natural import Grid, convolve_direct, convolve_fft
 
 __all__ = ["NodeGrid", "uniform_steps", "div_curl", "axis_derivative", "stencil_codes",
@@ -633,16 +633,7 @@ def decompose_nodes(xs: np.ndarray, ys: np.ndarray, steps: tuple, u: np.ndarray,
     for name in ("divergence", "curl"):
         mean = float(np.abs(take(nat[f"h_{name}"])).mean())
         ratios[name] = mean / scale if scale > 0 else (0.0 if mean == 0 else math.inf)
-        stats[f"h_{name}"] = ratios[name]
-    worst = max(ratios, key=ratios.get)
-    if not ratios[worst] <= HARMONIC_LIMIT:
-        msg = (f"h is not harmonic: mean |{'div' if worst == 'divergence' else 'curl'} h| is "
-               f"{ratios[worst]:.3g} of the field's mean derivative (limit {HARMONIC_LIMIT:g}); "
-               f"with boundary_condition={opts.boundary_condition!r}")
-        if not stats.get("energy_ratio", 1.0) <= ENERGY_LIMIT:
-            msg += "; the operators are inconsistent on these points (see the energy flag)"
-        stats["flags"].append(msg)
-        warnings.warn(msg, AccuracyWarning, stacklevel=3)
+    flag_harmonic(stats, ratios, opts)
     stats.update(chosen)
     stats["n_invalid"] = 0
     stats["frame"] = frame.as_dict()
