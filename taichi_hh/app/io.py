@@ -180,7 +180,8 @@ def _commas_first(path) -> bool:
     try:
         with open(path, encoding="utf-8-sig", errors="replace") as fh:
             for line in fh:
-                if line.strip() and not line.lstrip().startswith("#"):
+                # a comment the CSV reader skips: "#..." or a quoted "\"#...\""
+                if line.strip() and not line.lstrip().lstrip('"').startswith("#"):
                     return "," in line and ";" not in line and "\t" not in line
     except OSError:
         return True                           # the CSV reader names the problem

@@ -1205,7 +1205,7 @@ def _local_spacing(cells: _Cells, binned: "_Binned") -> tuple:
     or sparse, as the SPH operators' adaptive supports); ``edge``: the cells within
     LOCAL_CELLS + 2 of a cell not wholly inside the domain."""
     grid = cells.grid
-    count = np.diff(binned.start).reshape(grid.shape).astype(np.float64)
+    count = _shared_counts(grid, binned.points)
     frac = cells.frac.reshape(grid.shape)
     area = _box_sum(frac, LOCAL_CELLS) * (grid.hx * grid.hy)
     spacing = np.sqrt(area / np.maximum(_box_sum(count, LOCAL_CELLS), 1.0))
@@ -1213,6 +1213,28 @@ def _local_spacing(cells: _Cells, binned: "_Binned") -> tuple:
     spacing = np.where(spacing > SPARSE_RATIO * cell, spacing, cell)
     edge = _box_sum((frac < 1.0).astype(np.float64), LOCAL_CELLS + 2) > 0.5
     return spacing.ravel(), edge.ravel()
+
+
+def _shared_counts(grid: "Grid", points) -> np.ndarray:
+    """(nx, ny) the points per cell, each point shared between the four cell
+    centres around it bilinearly (cloud in cell): a count that moves
+    continuously with the points.  Binned whole, a point on a cell's edge (the
+    extreme points of data whose bounding box is the domain lie on the
+    outermost cells' edges) moved the local spacing by 4% under a move of
+    1e-16, and the fits' radii with it (the fuzz suite's units property)."""
+    t = (np.asarray(points, dtype=np.float64) - grid.origin) / np.array([grid.hx, grid.hy])
+    low = np.floor(t)
+    f = t - low
+    low = low.astype(np.int64)
+    out = np.zeros(grid.nx * grid.ny)
+    for di in (0, 1):
+        ii = np.clip(low[:, 0] + di, 0, grid.nx - 1)
+        wx = f[:, 0] if di else 1.0 - f[:, 0]
+        for dj in (0, 1):
+            jj = np.clip(low[:, 1] + dj, 0, grid.ny - 1)
+            wy = f[:, 1] if dj else 1.0 - f[:, 1]
+            out += np.bincount(ii * grid.ny + jj, weights=wx * wy, minlength=out.size)
+    return out.reshape(grid.shape)
 
 
 def _volumes(cells: _Cells, binned: "_Binned") -> np.ndarray:
