@@ -228,3 +228,13 @@ def test_pivpys_samples_read_as_pivpy_reads_them():
         want = np.c_[u.ravel(), v.ravel()]
         assert np.array_equal(np.isnan(got.vectors), np.isnan(want)), spec.name
         assert np.array_equal(got.vectors[~np.isnan(want)], want[~np.isnan(want)]), spec.name
+
+
+def test_a_header_and_rows_with_different_separators_are_refused(tmp_path):
+    path = _write(tmp_path / "mixed.csv", "x;y;u;v\n0,0,1,2\n1,0,1,2\n0,1,1,2\n")
+    with pytest.raises(InputError, match="line 1: the header separates its columns by "
+                                         "semicolons, the data rows \\(line 2\\) by commas"):
+        io.read_field_file(path)
+    # a whitespace header over tab-separated rows is one kind of separator
+    got = io.read_field_file(_write(tmp_path / "tabs.txt", "# x y u v\n0\t0\t1\t2\n"))
+    assert got.vectors.tolist() == [[1.0, 2.0]]

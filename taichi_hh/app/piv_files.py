@@ -254,7 +254,7 @@ def _read_davis_text(path, lines) -> VectorFile:
 def _read_delimited(path, lines) -> VectorFile:
     """Delimited or whitespace text, a header line (commented or not) naming
     the columns, or none and x y u v first (OpenPIV, spreadsheets)."""
-    header, header_line, start = None, None, None
+    header, header_line, start, header_delimiter = None, None, None, None
     for k, (n, line) in enumerate(lines):
         s = line.strip()
         if not s:
@@ -272,6 +272,7 @@ def _read_delimited(path, lines) -> VectorFile:
             names = [_name_and_unit(c)[0] for c in cells]
             if all(c in names for c in COLUMNS):
                 header, header_line = [_name_and_unit(c) for c in cells], n
+                header_delimiter = delimiter
             elif not s.startswith("#"):
                 found = ", ".join(cells[:8])
                 raise InputError(f"{path}, line {n}: not a header naming x, y, u, v, nor a row "
@@ -289,6 +290,11 @@ def _read_delimited(path, lines) -> VectorFile:
         return _field(path, data, dict(zip(COLUMNS, range(4))),
                       "OpenPIV text" if width in (5, 6) and delimiter in (None, "\t")
                       else "delimited text (x y u v)", {})
+    words = {",": "commas", ";": "semicolons", "\t": "tabs", None: "spaces"}
+    if header_delimiter != delimiter and {header_delimiter, delimiter} & {",", ";"}:
+        raise InputError(f"{path}, line {header_line}: the header separates its columns by "
+                         f"{words[header_delimiter]}, the data rows (line {rows[0][0]}) by "
+                         f"{words[delimiter]}; use one separator throughout")
     names = [name for name, _ in header]
     cols = _columns_of(path, header_line, names)
     data = _numbers(path, rows, delimiter, decimal_comma, max(cols.values()) + 1)
