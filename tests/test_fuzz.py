@@ -1699,6 +1699,12 @@ def test_units_long(case):
                "seed": 1, "field": "smooth", "magnitude": 1e300, "header": "plain",
                "cells": "repr", "damage": "none", "domain": "none", "options": [],
                "figures": True, "vtk": False})
+# fixed: "text-unprintable" (random bytes named as they are in the message)
+@example(case={'command': 'decompose', 'format': 'csv', 'points': 'jittered', 'n': 56,
+               'seed': 32558, 'field': 'noise', 'magnitude': 1e+300, 'header': 'bom',
+               'cells': 'repr', 'damage': 'random_bytes', 'domain': 'box_margin',
+               'options': [('--method', 'petronetto2010'), ('--method', 'colin2006')],
+               'figures': False, 'vtk': False})
 # fixed: "csv-quoted-comment"
 @example(case={'command': 'decompose', 'format': 'csv', 'points': 'uniform', 'n': 6,
                'seed': 18769, 'field': 'smooth', 'magnitude': 1e-20, 'header': 'comments',

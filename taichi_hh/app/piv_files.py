@@ -174,7 +174,7 @@ def _columns_of(path, n, names) -> dict:
     missing = [c for c in COLUMNS if c not in found]
     if missing:
         raise InputError(f"{path}, line {n}: the header lacks column(s) {', '.join(missing)}; "
-                         f"need x, y, u, v (found: {', '.join(names)})")
+                         f"need x, y, u, v (found: {_shown(names)})")
     return found
 
 
@@ -274,7 +274,7 @@ def _read_delimited(path, lines) -> VectorFile:
                 header, header_line = [_name_and_unit(c) for c in cells], n
                 header_delimiter = delimiter
             elif not s.startswith("#"):
-                found = ", ".join(cells[:8])
+                found = _shown(cells[:8])
                 raise InputError(f"{path}, line {n}: not a header naming x, y, u, v, nor a row "
                                  f"of numbers (found: {found})")
     if start is None:
@@ -301,6 +301,12 @@ def _read_delimited(path, lines) -> VectorFile:
     units = {name: unit for name, unit in header}
     openpiv = names[:6] == ["x", "y", "u", "v", "flags", "mask"]
     return _field(path, data, cols, "OpenPIV text" if openpiv else "delimited text", units)
+
+
+def _shown(cells) -> str:
+    """Cells for a message: an unprintable one (a binary file's bytes) as its
+    repr, so that the message prints on one clean line."""
+    return ", ".join(c if c.isprintable() else repr(c) for c in cells)
 
 
 def _header_cells(line: str, delimiter) -> list:
