@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import taichi_hh as thh
-from taichi_hh.hhd import natural
+from taichi_hh.hhd import free_space, natural, node_fits
 from taichi_hh.validation.windows import window_field
 
 BOX = thh.Box((0.0, 0.0), (2.0, 1.0))
@@ -26,8 +26,8 @@ def _cubic(p):
 
 
 def _binned(pts, cell):
-    grid = natural.Grid(BOX, cell)
-    return grid, natural._Binned(grid, pts)
+    grid = free_space.Grid(BOX, cell)
+    return grid, node_fits.PointBins(grid, pts)
 
 
 def test_node_fit_is_exact_on_cubics_inside_and_on_quadratics_at_the_boundary():
@@ -44,16 +44,16 @@ def test_node_fit_is_exact_on_cubics_inside_and_on_quadratics_at_the_boundary():
     inside = (targets[:, 0] >= 0) & (targets[:, 0] <= 2) & (targets[:, 1] >= 0) \
         & (targets[:, 1] <= 1)
     vals, _ = _cubic(b.points)
-    g, count = natural.fit_gradients(grid, b, vals, targets, counts=True)
+    g, count = node_fits.fit_gradients(grid, b, vals, targets, counts=True)
     _, exact = _cubic(targets)
-    R0 = natural.FIT_RADII[0] * max(grid.hx, grid.hy)
+    R0 = node_fits.FIT_RADII[0] * max(grid.hx, grid.hy)
     within = (np.linalg.norm(targets[:, None] - pts[None], axis=2) < R0).sum(axis=1)
-    first = inside & (within >= natural.FIT_MIN_POINTS)
+    first = inside & (within >= node_fits.FIT_MIN_POINTS)
     assert first.sum() > 300
     assert np.abs(g - exact)[first].max() < 1e-6 * np.abs(exact).max()
     x, y = b.points[:, 0], b.points[:, 1]
     quad = np.c_[1 + x * x - 3 * x * y + 0.5 * y, y * y + 2 * x * y - x]
-    g = natural.fit_gradients(grid, b, quad, targets)
+    g = node_fits.fit_gradients(grid, b, quad, targets)
     tx, ty = targets[:, 0], targets[:, 1]
     exact = np.stack([np.c_[2 * tx - 3 * ty, -3 * tx + 0.5],
                       np.c_[2 * ty - 1, 2 * ty + 2 * tx]], axis=1)
@@ -68,7 +68,7 @@ def test_node_fit_with_few_points_falls_to_a_lower_degree():
     grid, b = _binned(pts, 0.5)
     x, y = b.points[:, 0], b.points[:, 1]
     vals = np.c_[x * x + 2 * x * y, y * y - x]
-    g, count = natural.fit_gradients(grid, b, vals, [[1.0, 0.5]], counts=True)
+    g, count = node_fits.fit_gradients(grid, b, vals, [[1.0, 0.5]], counts=True)
     assert count[0] == 8
     assert np.allclose(g[0], [[2.0 + 1.0, 2.0], [-1.0, 1.0]], atol=1e-9)
 
@@ -84,7 +84,7 @@ def test_node_fit_is_the_same_in_any_input_order():
     for p in (pts, pts[perm]):
         grid, b = _binned(p, cell)
         c = grid.centres()
-        out.append(natural.fit_gradients(grid, b, np.sin(3 * b.points), c[BOX.contains(c)]))
+        out.append(node_fits.fit_gradients(grid, b, np.sin(3 * b.points), c[BOX.contains(c)]))
     assert np.abs(out[0] - out[1]).max() < 1e-9 * np.abs(out[0]).max()
 
 

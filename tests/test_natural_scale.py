@@ -6,7 +6,7 @@ numpy's stable sort."""
 import numpy as np
 
 import taichi_hh as thh
-from taichi_hh.hhd import natural
+from taichi_hh.hhd import free_space, grid_sampling, natural
 from taichi_hh.sph.knn import KNearest
 
 RECT = thh.Box((0.1, -0.2), (2.1, 0.8))
@@ -17,7 +17,7 @@ RECT_POLY = thh.Polygon([[0.1, -0.2], [1.3, -0.2], [2.1, -0.2], [2.1, 0.8], [0.1
 
 def test_rectangle_coverage_is_the_polygon_subsamples():
     for cell in (0.037, 0.05, 0.1):
-        grid = natural.Grid(RECT, cell)
+        grid = free_space.Grid(RECT, cell)
         a = grid.coverage(RECT, 16, centroids=True, inside=True)
         b = grid.coverage(RECT_POLY, 16, centroids=True, inside=True)
         assert np.array_equal(a[0], b[0])
@@ -40,24 +40,24 @@ def test_natural_potentials_same_on_a_rectangle_and_its_polygon():
 
 def test_spline_prefilter_kernel_is_the_numpy_filter():
     u = np.random.default_rng(0).standard_normal((37, 23, 3))
-    a = natural.spline_coefficients(u)
-    b = natural.spline_coefficients_numpy(u)
+    a = grid_sampling.spline_coefficients(u)
+    b = grid_sampling.spline_coefficients_numpy(u)
     assert np.abs(a - b).max() < 1e-13 * np.abs(b).max()
-    assert np.abs(natural.spline_coefficients(u[..., 0]) - b[..., 0]).max() < 1e-13 * 10
+    assert np.abs(grid_sampling.spline_coefficients(u[..., 0]) - b[..., 0]).max() < 1e-13 * 10
 
 
 def test_batched_fft_convolution_is_each_single_one():
-    grid = natural.Grid(RECT, 0.04)
+    grid = free_space.Grid(RECT, 0.04)
     d = np.random.default_rng(1).standard_normal((2,) + grid.shape)
-    both = natural.convolve_fft(grid, d)
+    both = free_space.convolve_fft(grid, d)
     for m in range(2):
-        one = natural.convolve_fft(grid, d[m])
+        one = free_space.convolve_fft(grid, d[m])
         assert np.abs(both[m] - one).max() < 1e-13 * np.abs(one).max()
 
 
 def _one_sided_numpy(grid, u, inside, pts):
     """The boundary fit as first written (numpy, LU solve)."""
-    R = natural.ONE_SIDED_REACH
+    R = grid_sampling.ONE_SIDED_REACH
     offs = np.arange(-R, R + 1)
     oi, oj = np.meshgrid(offs, offs, indexing="ij")
     oi, oj = oi.ravel(), oj.ravel()
@@ -76,22 +76,22 @@ def _one_sided_numpy(grid, u, inside, pts):
     M += 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(6)
     coef = np.linalg.solve(M, np.einsum("mki,mk->mi", BW, u[ii, jj])[..., None])[..., 0]
     out = coef[:, 1:3] / h
-    out[(w > 0).sum(axis=1) < natural.ONE_SIDED_MIN_NODES] = np.nan
+    out[(w > 0).sum(axis=1) < grid_sampling.ONE_SIDED_MIN_NODES] = np.nan
     return out
 
 
 def test_boundary_fit_kernel_is_the_numpy_fit():
-    grid = natural.Grid(RECT, 0.02)
+    grid = free_space.Grid(RECT, 0.02)
     c = grid.centres()
     u = (np.sin(3 * c[:, 0]) * np.cos(2 * c[:, 1]) + c[:, 0] ** 2).reshape(grid.shape)
     inside = RECT.contains(c).reshape(grid.shape)
     pts = RECT.sample_interior(2000, kind="random", seed=4)
-    a = natural.one_sided_gradient(grid, u, inside, pts)
+    a = grid_sampling.one_sided_gradient(grid, u, inside, pts)
     b = _one_sided_numpy(grid, u, inside, pts)
     ok = np.isfinite(b).all(axis=1)
     assert np.array_equal(np.isfinite(a).all(axis=1), ok) and ok.any() and not ok.all()
     assert np.abs(a[ok] - b[ok]).max() < 1e-10 * np.abs(b[ok]).max()
-    both = natural.one_sided_gradient(grid, np.stack([u, 2 * u], -1), inside, pts)
+    both = grid_sampling.one_sided_gradient(grid, np.stack([u, 2 * u], -1), inside, pts)
     assert np.allclose(both[ok, 0], a[ok], rtol=0, atol=1e-12) and \
         np.allclose(both[ok, 1], 2 * a[ok], rtol=0, atol=1e-11)
 

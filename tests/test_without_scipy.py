@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 from taichi_hh.errors import InputError
 from taichi_hh.geometry.box import Box
 from taichi_hh.geometry.poisson_disk import AvoidBins
-from taichi_hh.hhd import natural
+from taichi_hh.hhd import free_space, grid_sampling
 from taichi_hh.sph.knn import k_nearest
 
 HERE = pathlib.Path(__file__).resolve().parent
@@ -53,14 +53,14 @@ def test_spline_interpolation_matches_map_coordinates():
     """The same prefiltered cubic B-spline as map_coordinates(order=3,
     mode="nearest"): round-off apart, at points inside, on and beyond the grid."""
     rng = np.random.default_rng(7)
-    grid = natural.Grid(Box((0.0, 0.0), (1.0, 0.7)), 0.03)
+    grid = free_space.Grid(Box((0.0, 0.0), (1.0, 0.7)), 0.03)
     u = rng.standard_normal(grid.shape + (2,))
     pts = np.r_[rng.random((4000, 2)) * [1.0, 0.7], [[-3.0, 0.2], [0.5, 4.0], grid.origin]]
     coords = (pts - grid.origin) / [grid.hx, grid.hy]
     ref = np.stack([map_coordinates(u[..., m], coords.T, order=3, mode="nearest")
                     for m in range(2)], axis=-1)
-    assert np.abs(natural.at_points(grid, u, pts) - ref).max() < 1e-13
-    assert np.abs(natural.at_points(grid, u[..., 0], pts) - ref[:, 0]).max() < 1e-13
+    assert np.abs(grid_sampling.at_points(grid, u, pts) - ref).max() < 1e-13
+    assert np.abs(grid_sampling.at_points(grid, u[..., 0], pts) - ref[:, 0]).max() < 1e-13
 
 
 def test_k_nearest_refuses_more_neighbours_than_points():

@@ -41,7 +41,7 @@ import taichi as ti
 from .. import runtime
 from ..errors import AccuracyWarning
 from .decompose import ENERGY_LIMIT, HHDResult, flag_harmonic
-from .natural import Grid, convolve_direct, convolve_fft
+from .free_space import Grid, convolve_direct, convolve_fft
 
 __all__ = ["NodeGrid", "uniform_steps", "div_curl", "axis_derivative", "stencil_codes",
            "smoothed", "mls_gradient_stencil", "eroded", "outline_distance", "fill_gaps", "natural_on_nodes", "decompose_nodes",

@@ -1,0 +1,310 @@
+"""The free-space Green's function of the plane on a regular grid of cells
+(Hockney and Eastwood's particle-mesh convolution), the natural
+decomposition's potential solver (:mod:`.natural`):
+
+    u(x_a) = sum_b G(x_a - x_b) q_b,   G(x) = ln|x| / (2 pi),
+
+over the cell centres of a :class:`Grid` covering the domain, by zero-padded
+FFT in O(M log M) for M cells (:func:`convolve_fft`) or by direct summation
+in a Taichi kernel (:func:`convolve_direct`, O(M^2), the exact reference of
+the same sum), the cell's own integral of G on the diagonal; the potentials'
+gradients by fourth-order differences on the grid (:func:`grid_gradient`).
+"""
+import math
+import os
+
+import numpy as np
+import taichi as ti
+
+from .. import runtime
+from ..geometry.box import Box
+
+#: cells beyond the domain's bounding box on each side: room for the
+#: differences and the interpolation at points on the boundary
+MARGIN = 3
+
+
+class Grid:
+    """Cell-centred grid covering ``domain``'s bounding box (whole cells of
+    size ``hx`` x ``hy`` close to ``cell``) plus ``MARGIN`` cells on each side."""
+
+    def __init__(self, domain, cell: float):
+        (x0, y0), (x1, y1) = domain.bounds
+        nx = max(int(math.ceil((x1 - x0) / cell - 1e-9)), 1)
+        ny = max(int(math.ceil((y1 - y0) / cell - 1e-9)), 1)
+        self.hx, self.hy = (x1 - x0) / nx, (y1 - y0) / ny
+        self.nx, self.ny = nx + 2 * MARGIN, ny + 2 * MARGIN
+        self.origin = np.array([x0 - (MARGIN - 0.5) * self.hx, y0 - (MARGIN - 0.5) * self.hy])
+
+    @property
+    def shape(self):
+        return self.nx, self.ny
+
+    def centres(self) -> np.ndarray:
+        """(nx * ny, 2) cell centres, x fastest within each row of constant ... index
+        order ``[i * ny + j]`` for cell (i, j)."""
+        i, j = np.meshgrid(np.arange(self.nx), np.arange(self.ny), indexing="ij")
+        return np.c_[self.origin[0] + i.ravel() * self.hx, self.origin[1] + j.ravel() * self.hy]
+
+    def cell_index(self, points) -> np.ndarray:
+        """(N,) flat index ``i * ny + j`` of the cell holding each point (points
+        beyond the grid in its edge cells)."""
+        lower = self.origin - 0.5 * np.array([self.hx, self.hy])
+        ij = np.floor((points - lower) / [self.hx, self.hy]).astype(np.int64)
+        np.clip(ij[:, 0], 0, self.nx - 1, out=ij[:, 0])
+        np.clip(ij[:, 1], 0, self.ny - 1, out=ij[:, 1])
+        return ij[:, 0] * self.ny + ij[:, 1]
+
+    def coverage(self, domain, sub: int = 4, *, centroids: bool = False, inside: bool = False):
+        """(nx, ny) fraction of each cell inside ``domain``, by ``sub`` x ``sub``
+        subsamples for the cells the boundary may cross; with ``centroids``
+        also (nx, ny, 2) the offset of the inside part's centroid from the
+        cell centre (0 for whole and empty cells), from the same subsamples;
+        with ``inside`` also (nx, ny) whether each cell centre is in the
+        domain (``domain.contains``).
+
+        An axis-aligned rectangle (a :class:`~taichi_hh.geometry.box.Box`)
+        in closed form: its inside subsamples are a product of the inside
+        columns and rows.  Other polygons: the cells the locator decides whole
+        (inside or out) without a distance, the rest by the exact signed
+        distance of the centre and, where the boundary may cross, the
+        subsamples."""
+        rect = axis_rectangle(domain)
+        if rect is not None:
+            frac, offset, centre_in = self._rectangle_coverage(rect, domain.boundary_tolerance,
+                                                               sub)
+        else:
+            frac, offset, centre_in = self._polygon_coverage(domain, sub)
+        out = (frac.reshape(self.shape),)
+        if centroids:
+            out += (offset.reshape(self.shape + (2,)),)
+        if inside:
+            out += (centre_in.reshape(self.shape),)
+        return out[0] if len(out) == 1 else out
+
+    def _subsample_offsets(self, sub: int):
+        s = (np.arange(sub) + 0.5) / sub - 0.5
+        return s * self.hx, s * self.hy
+
+    def _rectangle_coverage(self, rect, eps: float, sub: int):
+        """Rectangle ``((x0, y0), (x1, y1))``: a subsample is inside when its x
+        and its y are (within ``eps``, the domain's boundary tolerance), so a
+        cell's inside subsamples are the product of its inside columns and rows:
+        the fraction is the product of the two counts, the centroid the pair of
+        the two means."""
+        (x0, y0), (x1, y1) = rect
+        sx, sy = self._subsample_offsets(sub)
+        parts = []
+        for n, o, h, lo, hi, s in ((self.nx, self.origin[0], self.hx, x0, x1, sx),
+                                   (self.ny, self.origin[1], self.hy, y0, y1, sy)):
+            c = o + np.arange(n) * h                           # as centres() makes them
+            coords = c[:, None] + s[None, :]
+            ins = (coords >= lo - eps) & (coords <= hi + eps)
+            count = ins.sum(axis=1)
+            mean = np.where(count > 0, (ins * s).sum(axis=1) / np.maximum(count, 1), 0.0)
+            mean[count == sub] = 0.0                       # whole columns: the centre
+            centre_in = (c >= lo - eps) & (c <= hi + eps)
+            parts.append((count, mean, centre_in))
+        (cx, mx, ix), (cy, my, iy) = parts
+        frac = (cx[:, None] * cy[None, :]).astype(np.float64) / (sub * sub)
+        offset = np.zeros(self.shape + (2,))
+        offset[..., 0] = np.where(frac > 0, mx[:, None], 0.0)
+        offset[..., 1] = np.where(frac > 0, my[None, :], 0.0)
+        offset[frac == 1.0] = 0.0
+        return frac.ravel(), offset.reshape(-1, 2), (ix[:, None] & iy[None, :]).ravel()
+
+    def _polygon_coverage(self, domain, sub: int):
+        c = self.centres()
+        half_diag = 0.5 * math.hypot(self.hx, self.hy)
+        # 1: the disc of the half diagonal inside (a whole cell), 0: outside
+        # (an empty cell), 2: the boundary may cross it
+        status = domain.classify_discs(c, half_diag, -np.inf, 0.0)
+        frac = (status == 1).astype(np.float64)
+        centre_in = status == 1
+        offset = np.zeros((len(c), 2))
+        cut = np.flatnonzero(status == 2)
+        if cut.size:
+            centre_in[cut] = domain.contains(c[cut])
+            sx, sy = self._subsample_offsets(sub)
+            ox, oy = np.meshgrid(sx, sy, indexing="ij")
+            offs = np.c_[ox.ravel(), oy.ravel()]
+            sp = (c[cut][:, None, :] + offs[None, :, :]).reshape(-1, 2)
+            inside = domain.contains(sp).reshape(len(cut), -1)
+            frac[cut] = inside.mean(axis=1)
+            count = inside.sum(axis=1)
+            offset[cut] = (inside @ offs) / np.maximum(count, 1)[:, None]
+        return frac, offset, centre_in
+
+    def self_integral(self) -> float:
+        """int over one cell (centred at 0) of G = ln|s| / (2 pi): Gauss-Legendre
+        in polar-free form, the log singularity handled by splitting the cell
+        into four triangles from the centre (each integrable in closed form in r)."""
+        # integral of ln r over the triangle (0,0), (a, -b), (a, b) is, in polar form,
+        # int_{-atan(b/a)}^{atan(b/a)} (R^2 ln R / 2 - R^2 / 4) dt with R = a / cos t
+        total = 0.0
+        x, w = np.polynomial.legendre.leggauss(64)
+        for a, b in ((self.hx / 2, self.hy / 2), (self.hy / 2, self.hx / 2)):
+            t_max = math.atan2(b, a)
+            t = x * t_max
+            R = a / np.cos(t)
+            total += 2.0 * float((w * t_max * (R * R * np.log(R) / 2 - R * R / 4)).sum())
+        return total / (2.0 * math.pi)
+
+    def kernel(self, shape=None) -> np.ndarray:
+        """(2 nx, 2 ny) the Green's function times the cell area at every offset
+        of the zero-padded grid (wrapped: offset -k at index 2n - k), the cell's
+        own integral at offset 0 (Hockney and Eastwood's free-space convolution).
+        ``shape``: a larger padded grid (each side at least 2 n - 2; the offsets
+        wrap at half of it)."""
+        L1, L2 = (2 * self.nx, 2 * self.ny) if shape is None else shape
+        ix = np.arange(L1)
+        iy = np.arange(L2)
+        ix = np.where(ix <= L1 // 2, ix, ix - L1) * self.hx
+        iy = np.where(iy <= L2 // 2, iy, iy - L2) * self.hy
+        r2 = ix[:, None] ** 2 + iy[None, :] ** 2
+        r2[0, 0] = 1.0
+        K = np.log(r2) / (4.0 * math.pi) * (self.hx * self.hy)
+        K[0, 0] = self.self_integral()
+        return K
+
+
+def axis_rectangle(domain):
+    """``((x0, y0), (x1, y1))`` when ``domain`` is an axis-aligned rectangle
+    without holes (a Box, or a Polygon of those four corners), else None."""
+    if isinstance(domain, Box):
+        return domain.lo, domain.hi
+    rings = getattr(domain, "rings", ())
+    if len(rings) != 1 or len(rings[0]) != 4:
+        return None
+    (x0, y0), (x1, y1) = domain.bounds
+    corners = {(x0, y0), (x1, y0), (x1, y1), (x0, y1)}
+    if {(float(x), float(y)) for x, y in rings[0]} != corners:
+        return None
+    return (x0, y0), (x1, y1)
+
+
+def fast_length(n: int) -> int:
+    """The smallest 2^a 3^b 5^c >= n (a length the FFTs factor well)."""
+    best = 1 << max(int(n) - 1, 0).bit_length()
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            q = p35
+            while q < n:
+                q *= 2
+            best = min(best, q)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+def _fft():
+    """``(module, keywords)``: scipy.fft on every core where scipy is installed
+    (a test and benchmark dependency, not a core one), numpy.fft otherwise."""
+    try:
+        import scipy.fft as sfft
+    except ImportError:
+        return np.fft, {}
+    return sfft, {"workers": os.cpu_count() or 1}
+
+
+#: the last grid's kernel spectrum (a decomposition at one size repeated, or a
+#: series of fields on the same points, reuses it)
+_SPECTRA: dict = {}
+
+
+def _kernel_spectrum(grid: Grid, shape, fft, kw) -> np.ndarray:
+    """The transform of :meth:`Grid.kernel` on the padded ``shape``: real (the
+    kernel is even in both offsets), (L1, L2 // 2 + 1)."""
+    key = (grid.nx, grid.ny, grid.hx, grid.hy, tuple(shape), fft.__name__)
+    K = _SPECTRA.get(key)
+    if K is None:
+        K = np.ascontiguousarray(fft.rfft2(grid.kernel(shape), **kw).real)
+        _SPECTRA.clear()
+        _SPECTRA[key] = K
+    return K
+
+
+def convolve_fft(grid: Grid, density: np.ndarray) -> np.ndarray:
+    """(nx, ny) sum over cells of G(x_a - x_b) density_b (times the cell area),
+    by zero-padded FFT (the padding makes the circular convolution free-space);
+    ``density`` (k, nx, ny) gives (k, nx, ny).  The padded sides are lengths
+    the FFT factors well (:func:`fast_length`, at least 2 n - 1), the
+    transforms skip the padding's zero rows on the way in and the unused rows
+    on the way out."""
+    nx, ny = grid.shape
+    d = np.asarray(density, dtype=np.float64)
+    one = d.ndim == 2
+    d = d[None] if one else d
+    fft, kw = _fft()
+    L1, L2 = fast_length(2 * nx - 1), fast_length(2 * ny - 1)
+    K = _kernel_spectrum(grid, (L1, L2), fft, kw)
+    A = fft.rfft(d, n=L2, axis=2, **kw)
+    A = fft.fft(A, n=L1, axis=1, **kw)
+    A *= K
+    A = fft.ifft(A, axis=1, **kw)[:, :nx]
+    out = fft.irfft(A, n=L2, axis=2, **kw)[:, :, :ny]
+    return out[0] if one else out
+
+
+@ti.kernel
+def _direct_sum(n: ti.i32, pos: ti.types.ndarray(), q: ti.types.ndarray(), self_term: float,
+                out: ti.types.ndarray()):
+    # one gather per target: no atomics; the own cell contributes its integral
+    for a in range(n):
+        acc = q[a] * self_term
+        for b in range(n):
+            if b != a:
+                d = pos[a] - pos[b]
+                acc += q[b] * ti.log(d.dot(d)) * (0.25 / math.pi)
+        out[a] = acc
+
+
+def convolve_direct(grid: Grid, density: np.ndarray) -> np.ndarray:
+    """The same sum as :func:`convolve_fft` by direct summation over the cells
+    with nonzero density (a Taichi kernel, O(M^2)): its exact reference."""
+    runtime.ensure_init()
+    dens = np.asarray(density, dtype=np.float64).ravel()
+    c = grid.centres()
+    area = grid.hx * grid.hy
+    # targets: every cell; sources: the cells with density (the others add zero)
+    n = len(c)
+    real = runtime.real_dtype()
+    pos = runtime.array(real, n, vector=2)
+    pos.from_numpy(c.astype(runtime.np_real()))
+    q = runtime.array(real, n)
+    q.from_numpy((dens * area).astype(runtime.np_real()))
+    out = runtime.array(real, n)
+    _direct_sum(n, pos, q, grid.self_integral() / area, out)
+    return out.to_numpy().astype(np.float64).reshape(grid.shape)
+
+
+def grid_gradient(grid: Grid, u: np.ndarray) -> np.ndarray:
+    """(nx, ny, 2) fourth-order central differences (second order on the two
+    outermost cells)."""
+    g = np.empty(u.shape + (2,))
+    for axis, h in ((0, grid.hx), (1, grid.hy)):
+        d = np.gradient(u, h, axis=axis, edge_order=2)
+        v = np.moveaxis(u, axis, 0)
+        inner = np.moveaxis(d, axis, 0)
+        inner[2:-2] = (-v[4:] + 8 * v[3:-1] - 8 * v[1:-3] + v[:-4]) / (12 * h)
+        g[..., axis] = d
+    return g
+
+
+def dipole_density(grid: Grid, dens: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """(nx, ny) -div P of the dipoles P = dens * offset by central differences:
+    each cut cell's dipole scattered to its four neighbours (the cut cells lie
+    at least MARGIN cells inside the grid, where numpy.gradient's differences
+    are these), zero elsewhere."""
+    out = np.zeros(grid.nx * grid.ny)
+    k = np.flatnonzero((offset[..., 0] != 0) | (offset[..., 1] != 0))
+    if k.size == 0:
+        return out.reshape(grid.shape)
+    q = dens.ravel()[k]
+    for axis, step, h in ((0, grid.ny, grid.hx), (1, 1, grid.hy)):
+        p = q * offset.reshape(-1, 2)[k, axis] / (2.0 * h)
+        np.add.at(out, k - step, -p)          # -(P[i+1] - P[i-1]) / 2h at i = cell - 1
+        np.add.at(out, k + step, p)
+    return out.reshape(grid.shape)
