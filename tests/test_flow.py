@@ -120,7 +120,7 @@ def test_clean_up_is_an_idempotent_projection():
     tol = 1e-9
     flow = _droplet(exact_projection=True, solver_tol=tol)
     flow.step()
-    flow._neighbours()
+    flow.update_neighbours()
     st = flow.ops.gradient_coefficients("corrected", row_kinds=(FLUID,))
     p, buf = flow.particles, flow.buffers
     fluid = p.get("kind") == FLUID
@@ -128,19 +128,19 @@ def test_clean_up_is_an_idempotent_projection():
     rng = np.random.default_rng(1)
     w = np.where(fluid[:, None], rng.normal(size=(p.n, 2)), 0.0)
     buf.velocity.from_numpy(np.pad(w, ((0, buf.velocity.shape[0] - p.n), (0, 0))))
-    n0 = np.linalg.norm(flow._measured_divergence(st))
-    its = flow._clean_up(n0, st)                  # in place, on buffers.velocity
+    n0 = np.linalg.norm(flow.measured_divergence(st))
+    its = flow.clean_up(n0, st)                  # in place, on buffers.velocity
     w1 = buf.velocity.to_numpy()[: p.n]
     assert its > 0
     assert np.all(w1[~fluid] == 0.0)
-    d1 = flow._measured_divergence(st)
+    d1 = flow.measured_divergence(st)
     assert np.linalg.norm(d1) <= (1 + 1e-6) * tol * n0
     # the closest divergence-free field in the mass norm: w - w1 = M^-1 D^T lam is
     # M-orthogonal to every u with D u = 0, w1 among them
     energy = float((m[:, None] * w * w).sum())
     assert abs(float((m[:, None] * (w - w1) * w1).sum())) < 1e-6 * energy
     assert float((m[:, None] * w1 * w1).sum()) <= energy
-    assert flow._clean_up(n0, st) == 0
+    assert flow.clean_up(n0, st) == 0
     assert np.array_equal(buf.velocity.to_numpy()[: p.n], w1)
 
 
@@ -225,7 +225,7 @@ def test_step_shortcuts_build_the_same_coefficients():
     phases = np.where(np.linalg.norm(pts - [0.5, 0.5], axis=1) < 0.25, 0, 1)
     flow = TwoPhaseFlow(pts, phases, dx, FlowParams(box=(0, 0, 1, 2), densities=(1.0, 2.0)))
     flow.step()
-    flow._neighbours()
+    flow.update_neighbours()
     ops, p = flow.ops, flow.particles
     full = ops.gradient_coefficients("corrected", row_kinds=(FLUID,), density_weighted=True)
     st = ops.gradient_coefficients("corrected", row_kinds=(FLUID,))
@@ -423,16 +423,16 @@ def test_extrapolated_first_guess_is_exact_for_a_pressure_linear_in_time():
     flow.q_by_id = dt2 * (base + rate * (t1 + dt2))
     flow.dt_history = (dt1, dt2)
     want = dt * (base + rate * (t1 + dt2 + dt))
-    assert np.allclose(flow._first_guess(dt), want[ids], rtol=1e-12)
+    assert np.allclose(flow.first_guess(dt), want[ids], rtol=1e-12)
     again = TwoPhaseFlow.from_state(flow.state_dict(), flow.params)
     assert again.dt_history == (dt1, dt2)
     def by_id(f):       # the first guess by particle id (the slots differ after a restore)
         g = np.empty(f.particles.n)
-        g[f.particles.get("original_index")] = f._first_guess(dt)
+        g[f.particles.get("original_index")] = f.first_guess(dt)
         return g
     assert np.array_equal(by_id(again), by_id(flow))
     flow.params.warm_start = "previous"
-    assert np.array_equal(flow._first_guess(dt), flow.q_by_id[ids])
+    assert np.array_equal(flow.first_guess(dt), flow.q_by_id[ids])
     with pytest.raises(InputError, match="warm_start"):
         _droplet(warm_start="linear")
 
@@ -450,7 +450,7 @@ def test_one_coefficient_kernel_gives_what_the_separate_ones_give():
     phases = np.where(np.linalg.norm(pts - [0.5, 0.5], axis=1) < 0.25, 0, 1)
     flow = TwoPhaseFlow(pts, phases, dx, FlowParams(box=(0, 0, 1, 2), densities=(1.0, 3.0)))
     flow.step()
-    flow._neighbours()
+    flow.update_neighbours()
     ops, p, m = flow.ops, flow.particles, flow.pairs.n_pairs
     real = runtime.real_dtype()
     vec = lambda size: ti.Vector.ndarray(2, real, shape=(size,))    # noqa: E731
@@ -487,7 +487,7 @@ def test_poisson_matrix_reusing_arrays_equals_a_fresh_one():
     pts, dx = tank(8, 16)
     flow = TwoPhaseFlow(pts, np.zeros(len(pts), int), dx, FlowParams(box=(0, 0, 1, 2)))
     flow.step()
-    flow._neighbours()
+    flow.update_neighbours()
     args = dict(laplacian="corrected", kappa=0.0, bordered=True, density_weighted=True)
     old = PoissonMatrix(flow.ops, laplacian="brookshaw", kappa=0.0, bordered=True)
     reused = PoissonMatrix(flow.ops, reuse=old, **args)
@@ -511,7 +511,7 @@ def test_multilevel_on_the_neighbour_grid_reusing_arrays_equals_a_fresh_one():
     pts, dx = tank(16, 32)
     flow = TwoPhaseFlow(pts, np.zeros(len(pts), int), dx, FlowParams(box=(0, 0, 1, 2)))
     flow.step()
-    flow._neighbours()
+    flow.update_neighbours()
     args = dict(laplacian="corrected", kappa=0.0, bordered=True, density_weighted=True)
     A = PoissonMatrix(flow.ops, **args)
     old = MultilevelPreconditioner(PoissonMatrix(flow.ops, laplacian="brookshaw", kappa=0.0,
@@ -544,7 +544,7 @@ def test_advection_puts_a_few_escaped_particles_back_and_refuses_many():
     first = int(np.flatnonzero(fluid)[0])
     w[first] = [-100.0, 0.0]                       # through the left wall
     buf.velocity.from_numpy(np.pad(w, ((0, buf.velocity.shape[0] - p.n), (0, 0))))
-    flow._advect(0.01, 0.0)
+    flow.advect(0.01, 0.0)
     pos, vel = p.get("position"), p.get("velocity")
     moved = fluid.copy()
     moved[first] = False
@@ -556,7 +556,7 @@ def test_advection_puts_a_few_escaped_particles_back_and_refuses_many():
                        (np.where(fluid[:, None], [np.nan, 0.0], 0.0), "non-finite")):
         buf.velocity.from_numpy(np.pad(bad, ((0, buf.velocity.shape[0] - p.n), (0, 0))))
         with pytest.raises(BlowUpError) as info:
-            flow._advect(0.01, 0.0)
+            flow.advect(0.01, 0.0)
         assert info.value.cause == cause
         assert np.array_equal(p.get("position"), pos)
 
@@ -615,5 +615,5 @@ def test_vorticity_on_the_flows_own_pairs():
     inner = np.all((pos > flow.support) & (pos < [1 - flow.support, 2 - flow.support]), axis=1)
     assert np.abs(w - ref)[inner].max() < 1e-2 * a
     assert np.abs(w - ref).max() < 0.2 * a
-    flow._neighbours()                  # a fresh search at the particles' new positions
+    flow.update_neighbours()                  # a fresh search at the particles' new positions
     assert np.abs(flow.vorticity() - w).max() < 1e-4 * a

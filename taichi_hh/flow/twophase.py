@@ -253,7 +253,7 @@ class TwoPhaseFlow:
         """C_i / C_0 per particle slot (:meth:`volume_error`)."""
         p = self.particles
         if self.grid is None:         # no neighbour search yet
-            self._neighbours()
+            self.update_neighbours()
         c, scratch = self.buffers.number_density, self.buffers.volume
         number_density(self.ops.kernel_id, p.position, p.volume, p.n, self.pairs.offsets,
                        self.pairs.neighbours, *self.ops.support_args(), c, scratch)
@@ -273,7 +273,7 @@ class TwoPhaseFlow:
         value is the one-sided estimate from the fluid side."""
         p, buf = self.particles, self.buffers
         if self.grid is None:         # no neighbour search yet
-            self._neighbours()
+            self.update_neighbours()
         st = self.ops.gradient_coefficients("corrected", row_kinds=(FLUID,),
                                             source_kinds=(FLUID,),
                                             into=buf.vorticity_arrays(self.pairs.n_pairs))
@@ -290,6 +290,9 @@ class TwoPhaseFlow:
         return float(0.5 * (p.get("mass")[fluid] * (v ** 2).sum(axis=1)).sum())
 
     # ---- one step ----------------------------------------------------------------
+    # step() runs the phases below in order; update_neighbours, first_guess,
+    # measured_divergence, clean_up and advect are public so that a test or an
+    # instrument can run one phase on a flow's current state.
     def step(self, dt: float | None = None) -> dict:
         """One time step (see the module doc).  Returns its diagnostics: dt, pressure
         solver ``iterations``, projection ``passes``, ``cleanup_iterations`` (0 when
@@ -309,7 +312,7 @@ class TwoPhaseFlow:
     def _step(self, dt: float | None) -> dict:
         # the diagnostics come back as kernel return values (module flow.update)
         self.clock.lap("other", "setup")
-        self._neighbours()
+        self.update_neighbours()
         p, buf = self.particles, self.buffers
         vmax = math.sqrt(update.max_speed2(p.n, p.kind, p.velocity))
         dt = self.time_step(vmax) if dt is None else float(dt)
@@ -330,11 +333,11 @@ class TwoPhaseFlow:
                      norm_before=norm_before)
         cleanup_iterations = 0
         if self.params.exact_projection:                                         # 2b.
-            cleanup_iterations = self._clean_up(norm_before, ops.gradient)
+            cleanup_iterations = self.clean_up(norm_before, ops.gradient)
             if cleanup_iterations:
                 div_after, sq_after, speed2 = self._divergence_stats(ops.gradient)
                 self.clock.lap("operators", "cleanup")
-        self._advect(dt, math.sqrt(speed2), ops.concentration_gradient)          # 3.
+        self.advect(dt, math.sqrt(speed2), ops.concentration_gradient)          # 3.
 
         self.time += dt
         self.last_dt = dt
@@ -354,7 +357,7 @@ class TwoPhaseFlow:
         if self.step_callback is not None:
             self.step_callback(self, event, data)
 
-    def _neighbours(self):
+    def update_neighbours(self):
         """Bin the particles (reordering them by cell) and build the pair list."""
         p = self.particles
         self.grid = bin_particles(p, self.spec, grid=self.grid)
@@ -431,7 +434,7 @@ class TwoPhaseFlow:
                            dt_before if extrapolate else 1.0, self.border, buf.first_guess)
         return buf.first_guess
 
-    def _first_guess(self, dt) -> np.ndarray:
+    def first_guess(self, dt) -> np.ndarray:
         """:meth:`_write_first_guess`'s values of the particles, as numpy."""
         return self._write_first_guess(dt).to_numpy()[: self.particles.n].astype(np.float64)
 
@@ -458,7 +461,7 @@ class TwoPhaseFlow:
         self.ops.divergence(st, buf.velocity, buf.measured_divergence)
         return update.divergence_stats(p.n, p.kind, buf.measured_divergence, buf.velocity)
 
-    def _measured_divergence(self, st) -> np.ndarray:
+    def measured_divergence(self, st) -> np.ndarray:
         """D w of w = ``buffers.velocity`` (module doc): the divergence of stencil
         ``st`` (the corrected gradient of the fluid rows), w being 0 on the walls
         (so D sees them at rest); numpy, by slot, 0 on wall rows."""
@@ -467,7 +470,7 @@ class TwoPhaseFlow:
         fluid = p.get("kind") == FLUID
         return np.where(fluid, buf.measured_divergence.to_numpy()[: p.n].astype(np.float64), 0.0)
 
-    def _clean_up(self, norm_before, st) -> int:
+    def clean_up(self, norm_before, st) -> int:
         """Step 2b, the orthogonal clean-up (module doc): the mass-weighted projection
         of w = ``buffers.velocity`` (0 on the walls) onto ``D u = 0`` over the
         fluid, walls at rest, in place.  ``norm_before``: ||D w*|| of the predicted
@@ -479,7 +482,7 @@ class TwoPhaseFlow:
         real = runtime.np_real()
         fluid = p.get("kind") == FLUID
         ids = p.get("original_index")
-        d = self._measured_divergence(st)
+        d = self.measured_divergence(st)
         w = buf.velocity.to_numpy()[: p.n].astype(np.float64)
         self._notify("clean_up", operators=self.step_operators, velocity=w, divergence=d,
                      norm_before=norm_before)
@@ -512,7 +515,7 @@ class TwoPhaseFlow:
         update.remove(p.n, p.kind, buf.cleanup_correction, buf.velocity)
         return res.iterations
 
-    def _advect(self, dt, vmax, have_concentration_gradient: bool = False) -> None:
+    def advect(self, dt, vmax, have_concentration_gradient: bool = False) -> None:
         """Step 3: x <- x + dt w (+ the shifting displacement) on the fluid; the new
         positions and velocities go to the particles.  Raises :class:`BlowUpError`
         on non-finite values or many particles pushed out of the box (a few are put
