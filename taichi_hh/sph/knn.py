@@ -18,6 +18,7 @@ import taichi as ti
 
 from .. import runtime
 from ..errors import InputError
+from .cell_sort import counting_sort
 from .neighbors import GridSpec, cell_coords
 
 #: the largest k (the k best are kept in registers per query)
@@ -108,30 +109,12 @@ def _k_nearest(k: ti.template(), nq: ti.i32, qpos: ti.types.ndarray(), qorder: t
 
 @ti.kernel
 def _source_cells(pts: ti.types.ndarray(), lo_x: ti.f64, lo_y: ti.f64, inv_cell: ti.f64,
-                  nx: ti.i32, ny: ti.i32, cell: ti.types.ndarray(), count: ti.types.ndarray()):
-    """cell[i]: the flat cell of source i (as :meth:`KNearest.cells`, float64);
-    count[c + 1] += 1 for each."""
+                  nx: ti.i32, ny: ti.i32, cell: ti.types.ndarray()):
+    """cell[i]: the flat cell of source i (as :meth:`KNearest.cells`, float64)."""
     for i in range(pts.shape[0]):
         fx = ti.math.clamp(ti.floor((pts[i, 0] - lo_x) * inv_cell), 0.0, ti.cast(nx - 1, ti.f64))
         fy = ti.math.clamp(ti.floor((pts[i, 1] - lo_y) * inv_cell), 0.0, ti.cast(ny - 1, ti.f64))
-        c = ti.cast(fy, ti.i32) * nx + ti.cast(fx, ti.i32)
-        cell[i] = c
-        ti.atomic_add(count[c + 1], 1)
-
-
-@ti.kernel
-def _place_sources(pts: ti.types.ndarray(), cell: ti.types.ndarray(),
-                   cursor: ti.types.ndarray(), order: ti.types.ndarray(),
-                   pos: ti.types.ndarray()):
-    """The counting sort's stable scatter: source i to the next free slot of
-    its cell, its index to ``order``, its position to ``pos``."""
-    ti.loop_config(serialize=True)
-    for i in range(pts.shape[0]):
-        c = cell[i]
-        k = cursor[c]
-        cursor[c] = k + 1
-        order[k] = i
-        pos[k] = ti.Vector([pts[i, 0], pts[i, 1]], dt=ti.f64)
+        cell[i] = ti.cast(fy, ti.i32) * nx + ti.cast(fx, ti.i32)
 
 
 class KNearest:
@@ -154,13 +137,12 @@ class KNearest:
         # a counting sort by cell (stable: the order of np.argsort(self.cells(pts),
         # kind="stable")), the sorted positions written straight to the kernel's array
         s = self.spec
-        start = np.zeros(s.ncells + 1, dtype=np.int32)
         cell = np.empty(n, dtype=np.int32)
-        _source_cells(pts, s.lo_x, s.lo_y, s.inv_cell, s.nx, s.ny, cell, start)
-        np.cumsum(start, out=start)
-        order = self._order = np.empty(n, dtype=np.int32)
+        _source_cells(pts, s.lo_x, s.lo_y, s.inv_cell, s.nx, s.ny, cell)
+        order, start = counting_sort(cell, s.ncells)
+        self._order = order
         self.pos = runtime.array(ti.f64, n, vector=2, zeroed=False)
-        _place_sources(pts, cell, start[:-1].copy(), order, self.pos)
+        self.pos.from_numpy(pts[order])
         self.order = runtime.array(ti.i32, n, zeroed=False)
         self.order.from_numpy(order)
         self.start = runtime.array(ti.i32, len(start), zeroed=False)
