@@ -6,7 +6,7 @@ resident set size (VmRSS of /proc/self/status) every ``--every`` steps, then
 prints the growth from step 100 (after the kernels compiled and the buffers
 grew to size) to the end.  A step allocates its coefficient and matrix arrays
 in the library (:class:`~taichi_hh.sph.operators.Operators`,
-:class:`~taichi_hh.linalg.poisson.PoissonMatrix`, the Krylov solvers); Taichi 1.7
+:class:`~taichi_hh.poisson.matrix.PoissonMatrix`, the Krylov solvers); Taichi 1.7
 frees dropped vector ndarrays only with the ``__del__`` :mod:`taichi_hh.runtime`
 adds (taichi-dev/taichi#8763).  ``--without-vector-free`` removes it for the run
 to show the leak it prevents.

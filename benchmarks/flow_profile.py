@@ -212,7 +212,7 @@ def apply_throughput(flow, repeats: int = 30) -> dict:
     from taichi_hh.flow.twophase import FLUID
     ops = flow.ops
     st = ops.laplacian_coefficients(flow.params.viscous_laplacian, row_kinds=(FLUID,))
-    from taichi_hh.linalg.poisson import PoissonMatrix
+    from taichi_hh.poisson.matrix import PoissonMatrix
     A = PoissonMatrix(ops, laplacian=ops.density_weighted(st), gradient=ops.gradient_coefficients(
         flow.params.gradient, row_kinds=(FLUID,)), kappa=0.0, bordered=True)
     x = ti.ndarray(runtime.real_dtype(), shape=(A.n,))

@@ -23,7 +23,7 @@ add_repo_to_path()
 import taichi_hh as thh
 from taichi_hh.errors import TaichiHHError
 from taichi_hh.hhd.decompose import poisson_problems
-from taichi_hh.linalg import multilevel
+from taichi_hh.poisson import multilevel
 from taichi_hh.validation import fields, layouts
 
 OUT = REPO_ROOT / "outputs" / "benchmarks"

@@ -12,7 +12,7 @@ import taichi as ti
 import taichi_hh as thh
 from taichi_hh.hhd.decompose import poisson_problems
 from taichi_hh.hhd.options import HHDOptions
-from taichi_hh.linalg.multilevel import MultilevelPreconditioner
+from taichi_hh.poisson.multilevel import MultilevelPreconditioner
 from taichi_hh.validation import fields, layouts
 
 

@@ -98,8 +98,8 @@ class PrecondSetupTimer:
         self._orig = None
 
     def __enter__(self):
-        from taichi_hh.linalg import poisson
-        self._cls = poisson.PoissonMatrix
+        from taichi_hh.poisson.matrix import PoissonMatrix
+        self._cls = PoissonMatrix
         self._orig = getattr(self._cls, "multilevel", None)
         if self._orig is not None:
             orig, outer = self._orig, self

@@ -27,7 +27,7 @@ lattices.  Both potentials
 ``--tol`` (the paper's 1e-6), from zero, by
 
 ``jacobi``        BiCGSTAB with the Jacobi preconditioner (the paper's solver);
-``multilevel``    BiCGSTAB with the multilevel cycle (:mod:`taichi_hh.linalg.multilevel`);
+``multilevel``    BiCGSTAB with the multilevel cycle (:mod:`taichi_hh.poisson.multilevel`);
                   ``setup_s`` is building the hierarchy;
 ``scipy_direct``  SuperLU on the assembled matrix (``A.to_scipy()``): one
                   factorisation (``setup_s``) and two triangular solves;
@@ -124,7 +124,7 @@ def solve_both(A, P, M, tol: float, max_iterations: int):
 
 def run_ours(P, solver: str, tol: float, repeats: int, max_iterations: int):
     import taichi as ti
-    from taichi_hh.linalg.multilevel import MultilevelPreconditioner
+    from taichi_hh.poisson.multilevel import MultilevelPreconditioner
     A = P.A
     runs = []
     for rep in range(repeats + 1):                       # first run: warm-up

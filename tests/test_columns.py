@@ -9,7 +9,7 @@ from taichi_hh.errors import SolverError
 from taichi_hh.hhd.decompose import poisson_problems
 from taichi_hh.linalg import krylov
 from taichi_hh.linalg.csr import CSRMatrix
-from taichi_hh.linalg.poisson import PoissonMatrix
+from taichi_hh.poisson.matrix import PoissonMatrix
 from taichi_hh.validation import fields, layouts
 from test_poisson import neumann_square
 

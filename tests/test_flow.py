@@ -220,7 +220,7 @@ def test_step_shortcuts_build_the_same_coefficients():
     from taichi_hh import runtime
     from taichi_hh.sph.operators import weight_gradient_by_mean_density
     from taichi_hh.sph.particles import FLUID
-    from taichi_hh.linalg.poisson import PoissonMatrix
+    from taichi_hh.poisson.matrix import PoissonMatrix
     pts, dx = tank(8, 16)
     phases = np.where(np.linalg.norm(pts - [0.5, 0.5], axis=1) < 0.25, 0, 1)
     flow = TwoPhaseFlow(pts, phases, dx, FlowParams(box=(0, 0, 1, 2), densities=(1.0, 2.0)))
@@ -483,7 +483,7 @@ def test_one_coefficient_kernel_gives_what_the_separate_ones_give():
 def test_poisson_matrix_reusing_arrays_equals_a_fresh_one():
     """``PoissonMatrix(reuse=previous)`` overwrites the previous matrix's arrays:
     the same rows as a matrix built from scratch."""
-    from taichi_hh.linalg.poisson import PoissonMatrix
+    from taichi_hh.poisson.matrix import PoissonMatrix
     pts, dx = tank(8, 16)
     flow = TwoPhaseFlow(pts, np.zeros(len(pts), int), dx, FlowParams(box=(0, 0, 1, 2)))
     flow.step()
@@ -506,8 +506,8 @@ def test_multilevel_on_the_neighbour_grid_reusing_arrays_equals_a_fresh_one():
     the previous one's arrays is the same linear operator as a fresh one."""
     import taichi as ti
     from taichi_hh import runtime
-    from taichi_hh.linalg.multilevel import MultilevelPreconditioner
-    from taichi_hh.linalg.poisson import PoissonMatrix
+    from taichi_hh.poisson.multilevel import MultilevelPreconditioner
+    from taichi_hh.poisson.matrix import PoissonMatrix
     pts, dx = tank(16, 32)
     flow = TwoPhaseFlow(pts, np.zeros(len(pts), int), dx, FlowParams(box=(0, 0, 1, 2)))
     flow.step()

@@ -21,11 +21,12 @@ TREES = ("taichi_hh", "scenes", "benchmarks", "tests")
 LAYERS = {
     "sph": set(),
     "geometry": set(),
-    "linalg": {"sph"},
-    "hhd": {"sph", "geometry", "linalg"},
-    "flow": {"sph", "geometry", "linalg"},
-    "validation": {"sph", "geometry", "linalg", "hhd", "flow"},
-    "app": {"sph", "geometry", "linalg", "hhd", "flow", "validation"},
+    "linalg": set(),                   # generic: knows nothing of particles
+    "poisson": {"sph", "linalg"},      # the SPH Poisson rows, the multilevel preconditioner
+    "hhd": {"sph", "geometry", "linalg", "poisson"},
+    "flow": {"sph", "geometry", "linalg", "poisson"},
+    "validation": {"sph", "geometry", "linalg", "poisson", "hhd", "flow"},
+    "app": {"sph", "geometry", "linalg", "poisson", "hhd", "flow", "validation"},
 }
 
 
@@ -135,6 +136,37 @@ def _subpackage(module: str):
     return parts[1] if len(parts) > 2 and parts[0] == "taichi_hh" else None
 
 
+def _imported_modules(path: pathlib.Path):
+    """(line, module) of every import in a file: ``from X import a`` gives X and
+    X.a (a may be a module)."""
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            module = _resolve(path, node)
+            yield node.lineno, module
+            for a in node.names:
+                yield node.lineno, f"{module}.{a.name}"
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                yield node.lineno, a.name
+
+
+def test_every_subpackage_has_a_layer():
+    """A new subpackage is placed in LAYERS, so the order is checked for it too."""
+    subpackages = {p.parent.name for p in PACKAGE.glob("*/__init__.py")}
+    assert subpackages == set(LAYERS)
+
+
+def test_linalg_knows_nothing_of_particles():
+    """linalg/ is generic: it imports nothing from sph/ or poisson/ (issue 30:
+    the SPH Poisson rows and the multilevel preconditioner, built on SPH pairs,
+    are the poisson/ layer above it), not even inside a function."""
+    bad = [f"{path.relative_to(ROOT)}:{line} imports {module}"
+           for path in sorted((PACKAGE / "linalg").rglob("*.py"))
+           for line, module in _imported_modules(path)
+           if _subpackage(module) in ("sph", "poisson")]
+    assert bad == []
+
+
 def test_subpackages_import_only_layers_below():
     bad = []
     for path in sorted(PACKAGE.rglob("*.py")):
@@ -143,20 +175,11 @@ def test_subpackages_import_only_layers_below():
         me = _subpackage(_module_name(path)) if path.parent != PACKAGE else None
         if me is None:
             continue
-        tree = ast.parse(path.read_text())
-        for node in ast.walk(tree):
-            targets = []
-            if isinstance(node, ast.ImportFrom):
-                module = _resolve(path, node)
-                targets = [module] + [f"{module}.{a.name}" for a in node.names]
-            elif isinstance(node, ast.Import):
-                targets = [a.name for a in node.names]
-            for target in targets:
-                other = _subpackage(target)
-                if other and other != me and other in LAYERS and other not in LAYERS[me]:
-                    bad.append(f"{path.relative_to(ROOT)}:{node.lineno} ({me}) imports {target}")
-                    break
-    assert bad == []
+        for line, target in _imported_modules(path):
+            other = _subpackage(target)
+            if other and other != me and other in LAYERS and other not in LAYERS[me]:
+                bad.append(f"{path.relative_to(ROOT)}:{line} ({me}) imports {target}")
+    assert sorted(set(bad)) == []
 
 
 @pytest.mark.parametrize("name", ["errors", "runtime"])
@@ -171,11 +194,14 @@ def test_bottom_modules_import_no_subpackage(name):
 #: holds more than one job (issue 30: krylov.py's 1.4k lines held kernels, CSR
 #: matrices, stopping tests and two drivers)
 MAX_MODULE_LINES = 700
-#: subpackages whose modules are held to MAX_MODULE_LINES
-SHORT_MODULE_TREES = ("linalg",)
+#: subpackages whose modules are held to MAX_MODULE_LINES: all of them
+SHORT_MODULE_TREES = tuple(LAYERS)
 #: modules still over the limit, each with the split that will bring it under:
 #: an entry is removed when its split lands (the test fails on a stale entry)
-PENDING_SPLITS = {}
+PENDING_SPLITS = {
+    "taichi_hh/hhd/decompose.py": "825 lines: to be split by job (issue 30)",
+    "taichi_hh/hhd/critical.py": "782 lines: to be split by job (issue 30)",
+}
 
 
 def test_modules_stay_short():

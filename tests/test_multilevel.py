@@ -10,9 +10,9 @@ import scipy.sparse.linalg as spl
 import taichi_hh as thh
 from taichi_hh import runtime
 from taichi_hh.errors import InputError
-from taichi_hh.linalg.multilevel import MultilevelPreconditioner
+from taichi_hh.poisson.multilevel import MultilevelPreconditioner
 from taichi_hh.sph.particles import FLUID
-from taichi_hh.linalg.poisson import PoissonMatrix
+from taichi_hh.poisson.matrix import PoissonMatrix
 from test_poisson import neumann_square
 
 
@@ -82,7 +82,7 @@ def test_coarser_levels_are_galerkin_operators(square48, cells):
 def test_galerkin_levels_do_not_depend_on_the_parallel_split(square48, monkeypatch):
     """The CSR levels are built in parallel runs of rows, each with its own
     marker window: the same entries, bit for bit, as one serial run."""
-    from taichi_hh.linalg.multilevel import galerkin
+    from taichi_hh.poisson.multilevel import galerkin
     ps, A, b = square48
     split = MultilevelPreconditioner(A, cells=0.5, weak=0.5)
     assert split.level_sizes[0] // galerkin.GALERKIN_CHUNK_ROWS > 1
@@ -327,7 +327,7 @@ def test_pair_rows_are_the_particle_block_and_levels_read_like_pyamg(square48):
     """The preconditioner's whole view of the matrix is ``pair_rows()``: they
     rebuild its particle block exactly.  On the host the hierarchy is a list
     of Level(matrix, aggregation), one per cell level."""
-    from taichi_hh.linalg.multilevel import Level
+    from taichi_hh.poisson.multilevel import Level
     ps, A, b = square48
     rows = A.pair_rows()
     n = rows.n

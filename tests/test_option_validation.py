@@ -40,7 +40,7 @@ def test_one_spec_per_field_and_the_bundles_pass_it():
 
 
 def test_multilevel_specs_name_the_preconditioner_keywords():
-    from taichi_hh.linalg.multilevel import MultilevelPreconditioner
+    from taichi_hh.poisson.multilevel import MultilevelPreconditioner
     params = inspect.signature(MultilevelPreconditioner.__init__).parameters
     assert set(MULTILEVEL_OPTION_SPECS) == set(params) - {"self", "A", "reuse"}
 

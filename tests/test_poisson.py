@@ -6,7 +6,7 @@ import scipy.sparse.linalg as spl
 
 import taichi_hh as thh
 from taichi_hh.sph.particles import BOUNDARY, FLUID, GHOST
-from taichi_hh.linalg.poisson import PoissonMatrix
+from taichi_hh.poisson.matrix import PoissonMatrix
 from fieldgen import lattice
 
 
@@ -213,7 +213,7 @@ def test_a_small_system_at_the_cap_is_solved_directly():
     import warnings
     import taichi_hh as thh
     from taichi_hh.errors import SolverError
-    from taichi_hh.linalg.poisson import DIRECT_MAX
+    from taichi_hh.poisson.matrix import DIRECT_MAX
     from taichi_hh.validation import layouts
     from taichi_hh.geometry.domain import Box
     assert DIRECT_MAX >= 118

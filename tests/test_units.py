@@ -101,7 +101,7 @@ def _mean_error(got, want, v):
 def test_single_precision_in_any_units(trig_points):
     """f32 (its own process: one Taichi runtime per process): every boundary
     condition converges with the default tolerance (mixed-precision refinement,
-    linalg.poisson) at every scale and offset, agrees across them, and is as
+    poisson.matrix) at every scale and offset, agrees across them, and is as
     accurate against the exact answer as f64 (this process) up to f32's
     rounding."""
     pts, exact = trig_points

@@ -30,7 +30,7 @@ matrix.  Every array is one of the flow's :class:`~taichi_hh.flow.buffers.FlowBu
 """
 from dataclasses import dataclass
 
-from ..linalg.poisson import PoissonMatrix
+from ..poisson.matrix import PoissonMatrix
 from ..sph.operators import GradientStencil, LaplacianStencil, \
     weight_gradient_by_mean_density
 from ..sph.particles import FLUID

@@ -61,7 +61,7 @@ from ..sph.operators import ALL_KINDS
 from ..sph.particles import BOUNDARY, FLUID, GHOST
 from ..sph.pointset import PointSet
 from ..sph.positive import make_rows_positive
-from ..linalg.poisson import PoissonMatrix
+from ..poisson.matrix import PoissonMatrix
 from .boundary import collocation_particles, far_from
 from .inputs import (INVALID_MODES, Data, check_data_near_boundary, check_data_reach_boundary,
                      check_point_count, prepare_data, refuse_too_few, validate_input)
@@ -647,7 +647,7 @@ def _solve_potentials(problems, say) -> dict:
     """Steps (d): phi and psi per particle slot from the assembled problems.
     With BiCGSTAB (the default) the two are solved together, the matrix and
     the preconditioner read once per iteration for both
-    (:meth:`~taichi_hh.linalg.poisson.PoissonMatrix.solve_columns`).
+    (:meth:`~taichi_hh.poisson.matrix.PoissonMatrix.solve_columns`).
     ``seconds["preconditioner"]``: the preconditioner's set-up;
     ``seconds["solve"]``: the iterations of both."""
     opts, A, stats, seconds = problems.opts, problems.A, problems.stats, problems.seconds

@@ -78,7 +78,7 @@ def _real(low=None, high=None, *, low_open=False, high_open=False, none=False) -
                       none=none)
 
 
-#: the keywords of :class:`~taichi_hh.linalg.multilevel.MultilevelPreconditioner`
+#: the keywords of :class:`~taichi_hh.poisson.multilevel.MultilevelPreconditioner`
 #: that ``multilevel_options`` may set, with the ranges it accepts (None: the
 #: cycle's own default)
 MULTILEVEL_OPTION_SPECS = {

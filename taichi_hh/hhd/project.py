@@ -104,7 +104,7 @@ from ..sph.particles import BOUNDARY, FLUID
 from ..geometry.walls import box_wall_lattice
 from ..sph.adjoint import NormalOperator
 from ..sph.pointset import PointSet
-from ..linalg.poisson import PoissonMatrix
+from ..poisson.matrix import PoissonMatrix
 
 
 @dataclass

@@ -173,7 +173,7 @@ class PointSet:
 
     Boundary and ghost particles get the data points' mass, join the neighbour
     search and the density summation, and are what the Poisson rows of
-    :mod:`taichi_hh.linalg.poisson` use; the numpy operator methods below take values
+    :mod:`taichi_hh.poisson.matrix` use; the numpy operator methods below take values
     at the data points only and sum over data-point neighbours only.
     """
 

@@ -58,7 +58,7 @@ Galerkin operators are formed once per matrix, in kernels; on the host each
 level is a :class:`Level` (its :class:`CellMatrix` and aggregation map; scipy
 is not a run-time dependency).
 
-Bordered systems (:class:`~taichi_hh.linalg.poisson.PoissonMatrix` with
+Bordered systems (:class:`~taichi_hh.poisson.matrix.PoissonMatrix` with
 ``bordered=True``): the border unknown is treated by Jacobi alone.
 
 The modules: :mod:`.preconditioner` (options, the one set-up, ``apply``),

@@ -31,8 +31,8 @@ import taichi as ti
 
 from .. import runtime
 
-from . import krylov as solvers
-from .columns import columns_of, zeros
+from ..linalg import krylov as solvers
+from ..linalg.columns import columns_of, zeros
 from ..errors import InputError, NeighbourError, SolverError
 from ..sph.operators import GradientStencil, LaplacianStencil, shepard_sums, shepard_weight
 from ..sph.particles import BOUNDARY, FLUID
@@ -427,7 +427,7 @@ class PoissonMatrix:
 
     # ---- solve ---------------------------------------------------------------------
     def multilevel(self, **options):
-        """The :class:`~taichi_hh.linalg.multilevel.MultilevelPreconditioner` of this
+        """The :class:`~taichi_hh.poisson.multilevel.MultilevelPreconditioner` of this
         matrix (built on first use, then cached; new ``options`` rebuild it)."""
         from .multilevel import MultilevelPreconditioner
         cached = getattr(self, "_multilevel", None)

@@ -1,7 +1,7 @@
 """The multilevel preconditioner: options, one set-up, the cycle as ``apply``.
 
 The set-up reads the matrix through its pair rows
-(:meth:`~taichi_hh.linalg.poisson.PoissonMatrix.pair_rows`), aggregates them
+(:meth:`~taichi_hh.poisson.matrix.PoissonMatrix.pair_rows`), aggregates them
 (:mod:`.levels`: on the pair list's own grid, or on cells of another side),
 then, whichever the aggregation, scales every cell row by its inverse
 diagonal (zero below the round-off of the first level's entries), inverts
@@ -17,7 +17,7 @@ import taichi as ti
 
 from ... import runtime
 from ...errors import InputError
-from ..columns import columns_of
+from ...linalg.columns import columns_of
 from . import galerkin
 from .cycle import CycleShape, Work, plan_schedule, run_cycle
 from .levels import ArrayPool, CellMatrix, aggregates, aggregation_positions, cell_levels, \
@@ -43,7 +43,7 @@ class Level(NamedTuple):
 class MultilevelPreconditioner:
     """Aggregation-multigrid cycle approximating ``A^-1`` (module doc).
 
-    A: a :class:`~taichi_hh.linalg.poisson.PoissonMatrix` (rows assembled).
+    A: a :class:`~taichi_hh.poisson.matrix.PoissonMatrix` (rows assembled).
     cycle: ``"W"`` (default) or ``"V"``.  The W-cycle visits every structured
     level below the first cell level twice per visit of its parent (the
     particle level and the first cell level, which carry almost all the

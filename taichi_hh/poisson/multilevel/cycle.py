@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import taichi as ti
 
-from ..columns import zeros
+from ...linalg.columns import zeros
 
 #: parallel loops of the cycle's unrolled schedule at most (a W-cycle's
 #: doubles per parallel level: 4, 10, 22, 46, ...; Taichi warns beyond 32)
