@@ -229,6 +229,8 @@ def _map_ring(proj: Stereographic, ring, tol: float) -> np.ndarray:
     edge at its midpoint."""
     ring = np.asarray(ring, dtype=np.float64)
     nxt = np.roll(ring, -1, axis=0)
+    # each edge the short way round in longitude (a cap's ring closes across 180)
+    nxt[:, 0] = ring[:, 0] + (nxt[:, 0] - ring[:, 0] + 180.0) % 360.0 - 180.0
     a = proj.forward(ring[:, 0], ring[:, 1])[0]
     b = np.roll(a, -1, axis=0)
     mid = 0.5 * (ring + nxt)
@@ -242,6 +244,7 @@ def _map_ring(proj: Stereographic, ring, tol: float) -> np.ndarray:
 def _map_polygon(proj: Stereographic, tol: float, outer, holes=()) -> Polygon:
     """A polygon given in (lon, lat) degrees, on the map (:func:`_map_ring`)."""
     return Polygon(_map_ring(proj, outer, tol), [_map_ring(proj, h, tol) for h in holes])
+
 
 
 def _box_ring(lo0, la0, lo1, la1) -> np.ndarray:

@@ -116,8 +116,8 @@ def unwrap_longitudes(lon) -> np.ndarray:
 
 def centre_of(lon, lat) -> tuple:
     """``(lon0, lat0, farthest)``: the centre of the points on the sphere (the
-    normalised mean of their unit vectors, then the midpoint of the smallest
-    spherical cap about it...) and the great-circle distance in degrees of the
+    normalised mean of their unit vectors: the same for the points turned
+    about the axis, symmetric for a symmetric region) and the great-circle distance in degrees of the
     farthest point from it.  Points of a whole hemisphere or more are
     refused: the map's factor grows without bound (no regional map holds
     them).  lon, lat: 1-D arrays of finite degrees."""
@@ -129,13 +129,7 @@ def centre_of(lon, lat) -> tuple:
         raise InputError("the points surround the sphere (their mean direction is zero): "
                          "a regional decomposition needs them within a hemisphere; use a "
                          "global (spherical-harmonic) method for global fields")
-    # the centre of the bounding cap: the mean direction, then the midpoint between it
-    # and the farthest point a few times (Badoiu-Clarkson steps) for a tighter cap
     c = mean / norm
-    for step in range(1, 30):
-        far = xyz[np.argmax(-(xyz @ c))]
-        c = c + (far - c) / (step + 1)
-        c /= np.linalg.norm(c)
     farthest = float(np.degrees(np.arccos(np.clip((xyz @ c).min(), -1.0, 1.0))))
     lat0 = float(np.degrees(np.arcsin(np.clip(c[2], -1.0, 1.0))))
     lon0 = float(np.degrees(np.arctan2(c[1], c[0])))
