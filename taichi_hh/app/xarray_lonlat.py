@@ -175,3 +175,79 @@ def _units(U, radius) -> dict:
         return {"potential": "m2 s-1", "wind": speed, "rate": "s-1"}
     return {"potential": f"({speed}) (radius unit)" if speed else "",
             "wind": speed, "rate": f"({speed}) / (radius unit)" if speed else ""}
+
+
+# --------------------------------------------------------------------------- files
+
+#: names of the eastward and northward components tried in a file, in order
+#: (ERA5's u, v and u10, v10; CF standard names are tried after these)
+WIND_NAMES = (("u", "v"), ("u10", "v10"), ("uo", "vo"), ("ugos", "vgos"), ("U", "V"))
+_STANDARD = (("eastward_wind", "northward_wind"),
+             ("eastward_sea_water_velocity", "northward_sea_water_velocity"))
+
+
+def is_lonlat_file(path) -> bool:
+    """Whether ``path`` is a netCDF file whose variables lie on longitude and
+    latitude (by name or CF units): what ``taichi-hh decompose FILE.nc`` sends
+    to :func:`decompose_lonlat_file` without ``--lonlat``."""
+    if not str(path).lower().endswith((".nc", ".nc4", ".netcdf")):
+        return False
+    try:
+        import xarray as xr
+        with xr.open_dataset(path) as ds:
+            return lonlat_dims(ds) is not None
+    except Exception:          # unreadable here: the ordinary readers say why
+        return False
+
+
+def wind_names(ds) -> tuple:
+    """``(u, v)``: the dataset's eastward and northward components."""
+    for u, v in WIND_NAMES:
+        if u in ds.data_vars and v in ds.data_vars:
+            return u, v
+    for east, north in _STANDARD:
+        found = [next((n for n in ds.data_vars if ds[n].attrs.get("standard_name") == s), None)
+                 for s in (east, north)]
+        if None not in found:
+            return tuple(found)
+    raise InputError(f"cannot tell the eastward and northward components among "
+                     f"{', '.join(map(str, ds.data_vars)) or 'no variables'}: name them u and v "
+                     "(or u10/v10, uo/vo), or give them CF standard names eastward_wind and "
+                     "northward_wind")
+
+
+def decompose_lonlat_file(path, out_dir: str, *, figures: bool = True, **options) -> tuple:
+    """``taichi-hh decompose FILE.nc --lonlat``: the winds of a netCDF file
+    on longitude and latitude decomposed on the sphere
+    (:func:`decompose_lonlat_dataset`), written to ``out_dir/lonlat.nc`` and,
+    with ``figures``, ``out_dir/lonlat.png`` (streamfunction and velocity
+    potential of the first snapshot).  Returns ``(written paths, summary)``."""
+    import os
+    try:
+        import xarray as xr
+    except ImportError:
+        raise InputError("netCDF files need xarray: pip install 'taichi-hh[xarray]'") from None
+    from . import io
+    try:
+        ds = xr.open_dataset(path)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot read it as netCDF ({exc})") from None
+    with ds:
+        u, v = wind_names(ds)
+        out = decompose_lonlat_dataset(ds.load(), u, v, **options)
+    target = os.path.join(out_dir, "lonlat.nc")
+    with io.atomic_path(target, ".nc") as tmp:
+        out.to_netcdf(tmp)
+    written = [target]
+    if figures:
+        from .lonlat_figure import streamfunction_figure
+        written.append(streamfunction_figure(out, os.path.join(out_dir, "lonlat.png")))
+    sf = out["streamfunction"]
+    first = {d: 0 for d in sf.dims[:-2]}
+    conditions = sorted(set(np.asarray(out["boundary_condition"].values).ravel().tolist()))
+    summary = (f"Decomposed ({u}, {v}) of {path} on the sphere: {sf.shape[-1]} x "
+               f"{sf.shape[-2]} longitudes x latitudes, {int(np.prod(sf.shape[:-2]))} "
+               f"snapshot(s), condition {', '.join(conditions)}; streamfunction "
+               f"{float(sf.isel(first).min()):.3g} to {float(sf.isel(first).max()):.3g} "
+               f"{sf.attrs.get('units', '')}. Wrote {', '.join(written)}.")
+    return written, summary
