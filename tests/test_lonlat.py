@@ -256,3 +256,29 @@ def test_xarray_round_trip_cf_names(field):
         warnings.simplefilter("ignore")
         out2 = thh.decompose_lonlat_dataset(renamed, boundary_condition="natural")
     assert np.allclose(out2["streamfunction"].values, out["streamfunction"].values)
+
+
+def test_cli_netcdf_on_longitude_latitude(tmp_path, field):
+    """taichi-hh decompose FILE.nc: a file on longitude and latitude goes to
+    the sphere without --lonlat; the CF file it writes holds what the
+    library returns."""
+    xr = pytest.importorskip("xarray")
+    from taichi_hh.app.cli import main
+    lo0, lo1, la0, la1 = REGION
+    lon = np.arange(lo0, lo1 + 1e-9, 1.0)
+    lat = np.arange(la0, la1 + 1e-9, 1.0)
+    w = field.evaluate(*np.meshgrid(lon, lat))
+    ds = xr.Dataset({"u10": (("lat", "lon"), w["u"], {"units": "m/s"}),
+                     "v10": (("lat", "lon"), w["v"], {"units": "m/s"})},
+                    coords={"lat": lat, "lon": lon})
+    path = tmp_path / "winds.nc"
+    ds.to_netcdf(path)
+    out = tmp_path / "out"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["decompose", str(path), "-o", str(out), "-q", "--no-figures",
+                     "--boundary-condition", "natural"]) == 0
+        direct = decompose_lonlat(lon, lat, w["u"], w["v"], boundary_condition="natural")
+    with xr.open_dataset(out / "lonlat.nc") as res:
+        assert res["streamfunction"].attrs["units"] == "m2 s-1"
+        assert np.allclose(res["streamfunction"].values, direct.streamfunction)

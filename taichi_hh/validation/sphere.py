@@ -94,15 +94,21 @@ class SphereField:
 
 def regional_field(lon0: float, lon1: float, lat0: float, lat1: float, *,
                    speed: float = 10.0, radius: float = EARTH_RADIUS, seed: int = 0,
-                   count: int = 4) -> SphereField:
+                   count: int | None = None, max_width: float | None = None) -> SphereField:
     """``count`` vortices and ``count`` sources and sinks well inside the
     region ``[lon0, lon1] x [lat0, lat1]`` (degrees; lon1 may exceed 180),
-    each supported within a disc of 0.3-0.4 times the region's smaller side
+    each supported within a disc of 0.28-0.4 times the region's smaller side
+    (at most ``max_width`` degrees; ``count`` default 4, up to 12 for small
+    bumps in a large region)
     (in great-circle degrees) clear of the edges, amplitudes giving winds of
     about ``speed``."""
     rng = np.random.default_rng(seed)
     small = min(lat1 - lat0, (lon1 - lon0) * np.cos(np.radians(max(abs(lat0), abs(lat1)))))
     width = max(0.4 * small, 0.05 * (lat1 - lat0))
+    if max_width is not None:
+        width = min(width, max_width)
+    if count is None:           # 4, more where the bumps are small for the region
+        count = int(np.clip(0.3 * small * (lat1 - lat0) / width ** 2, 4, 12))
 
     def bumps():
         out = []
@@ -142,3 +148,39 @@ def land_mask(lon, lat, field: SphereField | None = None, *, seed: int = 0,
         w = field.evaluate(LON, LAT)
         land &= (w["u"] == 0) & (w["v"] == 0)
     return land
+
+
+def era5_like_winds(lon, lat, seed: int = 4) -> tuple:
+    """``(u, v)`` (ny, nx), m/s, on the grid ``lon`` (nx,), ``lat`` (ny,)
+    (degrees): a westerly jet near 45N, two cyclones and an anticyclone, a
+    pair of convergence and divergence centres, and NaN over 'land' (smooth
+    blobs, 12% of the grid): the README's example field."""
+    lon = np.asarray(lon, dtype=np.float64)
+    lat = np.asarray(lat, dtype=np.float64)
+    LON, LAT = np.meshgrid(lon, lat)
+    vortices = (Bump(-85.0, 47.0, 12.0, -2.2e7), Bump(-62.0, 52.0, 10.0, -1.6e7),
+                Bump(-72.0, 35.0, 11.0, 1.8e7))
+    sources = (Bump(-80.0, 40.0, 9.0, -6e6), Bump(-58.0, 44.0, 9.0, 6e6))
+    w = SphereField(vortices, sources).evaluate(LON, LAT)
+    u = w["u"] + 25.0 * np.exp(-((LAT - 45.0) / 8.0) ** 2)
+    v = w["v"].copy()
+    land = land_mask(lon, lat, seed=seed, fraction=0.12)
+    u[land] = np.nan
+    v[land] = np.nan
+    return u, v
+
+
+def harmonic_stream(lon, lat, centre: tuple, speed: float = 10.0,
+                    direction: float = 20.0) -> tuple:
+    """``(u, v)``: a stream of about ``speed`` flowing ``direction`` degrees
+    north of east near ``centre`` (lon, lat), both divergence-free and
+    curl-free on the sphere (away from the centre's antipode): the gradient of
+    a linear function of the stereographic map's coordinates centred there
+    (harmonic on the map, so on the sphere: lap_s = m^2 lap).  The natural
+    condition puts it wholly in the harmonic part."""
+    from ..hhd.sphere_map import Stereographic
+    proj = Stereographic(float(centre[0]), float(centre[1]), EARTH_RADIUS)
+    _, m, east = proj.forward(lon, lat)
+    a = np.radians(direction)
+    grad = np.stack([np.full(np.shape(m), np.cos(a)), np.full(np.shape(m), np.sin(a))], -1)
+    return proj.from_map(speed * m[..., None] * grad, east)
