@@ -61,19 +61,25 @@ def test_map_is_conformal_with_factor_m():
 @pytest.mark.parametrize("condition,bound", [("natural", 0.01), ("neumann", 0.03)])
 def test_scattered_exact_split_every_condition(scattered, condition, bound):
     lon, lat, w = scattered
+    u = w["u"].copy()
+    u[::100] = np.nan                          # missing rows: left out, NaN in the result
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")        # the calm air's exact zeros are named
-        s = decompose_lonlat(lon, lat, w["u"], w["v"], boundary_condition=condition)
-    assert s.curl_free.shape == (len(lon), 2) and s.used.all()
+        s = decompose_lonlat(lon, lat, u, w["v"], boundary_condition=condition)
+    assert s.curl_free.shape == (len(lon), 2)
+    assert not s.used[::100].any() and s.used.sum() == len(lon) - len(lon[::100])
+    assert np.isnan(s.div_free[::100]).all() and np.isnan(s.streamfunction[::100]).all()
     # of each wind's mean size, 6000 points: natural measured 0.2%, neumann 1.5% (the
     # plane's own discretisation); the plane's metric (degrees as x, y) errs 8-17%
     assert wind_error(s.curl_free, w, "chi") < bound
     assert wind_error(s.div_free, w, "psi") < bound
-    assert np.allclose(s.curl_free + s.div_free + s.harmonic, np.c_[w["u"], w["v"]])
+    assert np.allclose((s.curl_free + s.div_free + s.harmonic)[s.used],
+                       np.c_[w["u"], w["v"]][s.used])
     # the potentials: the meteorologists' signs (k x grad psi), up to a constant (the
     # natural one's: the discrete net vorticity's far field, 1% here); of their mean size
     for got, exact in ((s.streamfunction, w["psi"]), (s.velocity_potential, w["chi"])):
-        off = got - exact
+        off = (got - exact)[s.used]
+        exact = exact[s.used]
         assert np.abs(off - np.median(off)).mean() < 3 * bound * np.abs(exact).mean()
 
 

