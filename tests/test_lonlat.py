@@ -170,6 +170,27 @@ def test_dateline_same_answer_as_shifted_field(field):
     assert wind_error(original.div_free, sub, "psi") < 0.01
 
 
+def test_curvilinear_grid():
+    """2-D longitudes and latitudes (a rotated grid, as WRF's): its nodes as
+    points in their hull, the results in the grid's shape."""
+    field = SphereField((Bump(-80.0, 42.5, 6.0, 1.5e7), Bump(-74.0, 45.0, 5.0, -1e7)),
+                        (Bump(-84.0, 41.0, 5.0, 8e6),))
+    i, j = np.meshgrid(np.linspace(-1, 1, 100), np.linspace(-1, 1, 75))
+    turn = np.radians(25.0)
+    lon = -80.0 + 14.0 * (i * np.cos(turn) - j * np.sin(turn))
+    lat = 42.5 + 9.0 * (i * np.sin(turn) + j * np.cos(turn))
+    w = field.evaluate(lon, lat)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        s = decompose_lonlat(lon, lat, w["u"], w["v"], boundary_condition="natural")
+        flat = decompose_lonlat(lon.ravel(), lat.ravel(), w["u"].ravel(), w["v"].ravel(),
+                                domain="hull", boundary_condition="natural")
+    assert s.div_free.shape == (75, 100, 2) and s.streamfunction.shape == (75, 100)
+    assert np.array_equal(s.div_free.reshape(-1, 2), flat.div_free)
+    assert wind_error(s.div_free, w, "psi") < 0.02
+    assert wind_error(s.curl_free, w, "chi") < 0.02
+
+
 def test_polar_cap_scattered_right_answer():
     """Scattered points around the north pole (65N to the pole): the map's
     centre is the pole, the domain the cap down to the lowest latitude."""

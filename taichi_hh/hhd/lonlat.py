@@ -109,7 +109,9 @@ def decompose_lonlat(lon, lat, u, v, radius: float = EARTH_RADIUS, *, domain=Non
 
     lon, lat: degrees (any longitude convention; a region across the
     dateline is unwrapped).  u (eastward), v (northward): any units.
-    Scattered: lon, lat, u, v of shape (N,), NaN rows missing; ``domain``: the
+    Scattered: lon, lat, u, v of shape (N,) (or all of one shape: a
+    curvilinear grid, results in that shape, domain default ``"hull"``), NaN
+    rows missing; ``domain``: the
     region where the boundary conditions hold, default the points' box in
     longitude and latitude (the polar cap down to their lowest latitude when
     they surround a pole), or ``(lon0, lat0, lon1, lat1)``, an (M, 2) array of
@@ -153,15 +155,27 @@ def decompose_lonlat(lon, lat, u, v, radius: float = EARTH_RADIUS, *, domain=Non
         return _gridded(lon_a, lat_a, u_a, v_a, radius, mask, region, hole_size,
                         min_neighbours, options)
     shapes = {a.shape for a in (lon_a, lat_a, u_a, v_a)}
-    if len(shapes) != 1 or lon_a.ndim != 1:
+    if len(shapes) != 1 or lon_a.ndim == 0:
         raise InputError(
-            "lon, lat, u, v must be either scattered points, four arrays of shape (N,), or a "
-            "grid: lon (nx,), lat (ny,), u and v (..., ny, nx); got lon "
-            f"{lon_a.shape}, lat {lat_a.shape}, u {u_a.shape}, v {v_a.shape}")
+            "lon, lat, u, v must be either scattered points, four arrays of shape (N,) (or of "
+            "one shape: a curvilinear grid's 2-D longitudes and latitudes), or a grid: lon "
+            f"(nx,), lat (ny,), u and v (..., ny, nx); got lon {lon_a.shape}, lat "
+            f"{lat_a.shape}, u {u_a.shape}, v {v_a.shape}")
     if mask is not None or hole_size != HOLE_SIZE or min_neighbours != MIN_NEIGHBOURS:
-        raise InputError("mask, hole_size and min_neighbours are for gridded fields; scattered "
-                         "points mark missing values with NaN")
-    return _scattered(lon_a, lat_a, u_a, v_a, radius, domain, region, options)
+        raise InputError("mask, hole_size and min_neighbours are for regular grids; scattered "
+                         "points (and curvilinear grids) mark missing values with NaN")
+    if lon_a.ndim == 1:
+        return _scattered(lon_a, lat_a, u_a, v_a, radius, domain, region, options)
+    # a curvilinear grid (WRF, ocean models): its nodes as points, by default in their
+    # convex hull on the map (such a grid is no box in longitude and latitude)
+    shape = lon_a.shape
+    res = _scattered(lon_a.ravel(), lat_a.ravel(), u_a.ravel(), v_a.ravel(), radius,
+                     "hull" if domain is None else domain, region, options)
+    for name in ("lon", "lat", "curl_free", "div_free", "harmonic", "velocity_potential",
+                 "streamfunction", "divergence", "vorticity", "map_factor", "used"):
+        value = getattr(res, name)
+        setattr(res, name, value.reshape(shape + value.shape[1:]))
+    return res
 
 
 # --------------------------------------------------------------------------- input
