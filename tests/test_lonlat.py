@@ -58,7 +58,8 @@ def test_map_is_conformal_with_factor_m():
     assert np.allclose(back, (u, v), atol=1e-12)
 
 
-@pytest.mark.parametrize("condition,bound", [("natural", 0.01), ("neumann", 0.03)])
+@pytest.mark.parametrize("condition,bound", [
+    ("natural", 0.01), pytest.param("neumann", 0.03, marks=pytest.mark.slow)])
 def test_scattered_exact_split_every_condition(scattered, condition, bound):
     lon, lat, w = scattered
     u = w["u"].copy()
