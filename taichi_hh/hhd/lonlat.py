@@ -129,9 +129,10 @@ def decompose_lonlat(lon, lat, u, v, radius: float = EARTH_RADIUS, *, domain=Non
     larger flow).
 
     The region must lie within 90 degrees of its centre (short of a
-    hemisphere); a gridded field must not reach a pole nor go round the whole
-    circle of longitude (give those as scattered points, without the pole's
-    row).  Raises :class:`~taichi_hh.errors.InputError`.  Returns a
+    hemisphere).  A grid all round a pole (a polar cap) is decomposed as
+    scattered points in the cap (its pole row, if any, left out: NaN); a grid
+    round the whole circle of longitude that does not reach a pole (a band),
+    or one that reaches a pole without going round it, is refused.  Raises :class:`~taichi_hh.errors.InputError`.  Returns a
     :class:`LonLatResult`."""
     if isinstance(radius, bool) or not np.isfinite(_real(radius, "radius")) or radius <= 0:
         raise InputError(f"radius must be a positive length (the sphere's; metres for the "
@@ -389,14 +390,22 @@ def _gridded(lon, lat, u, v, radius, mask, region, hole_size, min_neighbours,
     lon_s = check_axis(np.degrees(np.unwrap(np.radians(lon[cols]))), "lon")
     lat_s = lat[rows]
     span = abs(lon_s[-1] - lon_s[0]) + abs(lon_s[1] - lon_s[0])
-    if span >= 360.0 - 1e-9:
-        raise InputError("the grid goes round the whole circle of longitude: a regional "
-                         "decomposition needs a region short of a hemisphere; cut one with "
+    wraps = span >= 360.0 - 1e-9
+    step_lat = float(np.abs(np.diff(lat_s)).max())
+    polar = np.abs(lat_s).max() >= 90.0 - 1.5 * step_lat
+    if wraps and polar:
+        return _polar_cap(lon[cols], lat_s, u[(Ellipsis,) + np.ix_(rows, cols)],
+                          v[(Ellipsis,) + np.ix_(rows, cols)], invalid0[np.ix_(rows, cols)],
+                          radius, options, t0)
+    if wraps:
+        raise InputError("the grid goes round the whole circle of longitude without reaching a "
+                         "pole (a band: no regional map holds it); cut a region with "
                          "region=(lon_min, lon_max, lat_min, lat_max)")
     if np.abs(lat_s).max() >= 90.0 - 1e-9:
         raise InputError("the grid reaches a pole (a row at latitude +-90: one point with a "
-                         "different wind at every longitude, and east undefined there); cut it "
-                         "off with region=, or give the nodes off the pole as scattered points")
+                         "different wind at every longitude, and east undefined there) but "
+                         "not all round it; cut the pole's row off with region=, or give the "
+                         "whole polar cap")
     LON, LAT = np.meshgrid(lon_s, lat_s)
     proj, stats = _projection(LON.ravel(), LAT.ravel(), radius)
     points, m, east = proj.forward(LON, LAT)
@@ -438,6 +447,42 @@ def _gridded(lon, lat, u, v, radius, mask, region, hole_size, min_neighbours,
     stats.update(max_map_factor=float(m.max()), lonlat_seconds=time.perf_counter() - t0)
     return LonLatResult(lon=lon[cols], lat=lat_s, map_factor=m, used=used_all,
                         projection=proj, stats=stats, plane=planes, **out)
+
+
+def _polar_cap(lon, lat, u, v, invalid, radius, options, t0) -> LonLatResult:
+    """A grid all round a pole: its nodes as scattered points (every snapshot)
+    in the cap below the grid's lowest latitude, on the map centred near the
+    pole; a row at the pole itself (one point with a different wind at every
+    longitude, east undefined) is left out (NaN)."""
+    LON, LAT = np.meshgrid(lon, lat)
+    at_pole = np.abs(LAT) >= 90.0 - 1e-9
+    lead = u.shape[:-2]
+    names = ("curl_free", "div_free", "harmonic", "velocity_potential", "streamfunction",
+             "divergence", "vorticity")
+    out = {k: np.full(u.shape + ((2,) if k in names[:3] else ()), np.nan) for k in names}
+    used = np.zeros(u.shape, dtype=bool)
+    planes, snapshot_stats = [], []
+    for index in np.ndindex(*lead):
+        bad = invalid | at_pole
+        ui = np.where(bad, np.nan, u[index])
+        res = _scattered(LON.ravel(), LAT.ravel(), ui.ravel(), v[index].ravel(), radius, None,
+                         None, options)
+        for k in names:
+            val = getattr(res, k)
+            out[k][index] = val.reshape(LON.shape + val.shape[1:])
+        used[index] = res.used.reshape(LON.shape)
+        planes.append(res.plane)
+        snapshot_stats.append(dict(res.stats, n_pole=int(at_pole.sum())))
+        proj, map_factor = res.projection, res.map_factor.reshape(LON.shape)
+    stats = {"centre": snapshot_stats[0]["centre"], "farthest": snapshot_stats[0]["farthest"]}
+    if lead:
+        stats["snapshots"] = snapshot_stats
+    else:
+        stats.update(snapshot_stats[0])
+        planes = planes[0]
+    stats.update(polar_cap=True, lonlat_seconds=time.perf_counter() - t0)
+    return LonLatResult(lon=lon, lat=lat, map_factor=map_factor, used=used, projection=proj,
+                        stats=stats, plane=planes, **out)
 
 
 def _grid_domain(proj, lon, lat, invalid, hole_size, min_neighbours) -> tuple:
