@@ -22,6 +22,11 @@ def __getattr__(name):
     elif name in ("decompose_grid", "GridResult"):
         from .hhd import grid
         value = getattr(grid, name)
+    elif name in ("decompose_lonlat", "LonLatResult"):
+        from .hhd import lonlat
+        value = getattr(lonlat, name)
+    elif name == "decompose_lonlat_dataset":
+        from .app.xarray_lonlat import decompose_lonlat_dataset as value
     elif name == "decompose_dataset":
         from .app.xarray_io import decompose_dataset as value
     elif name in ("project", "ProjectionResult"):
@@ -33,4 +38,4 @@ def __getattr__(name):
     return value
 
 
-__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "decompose_grid", "GridResult", "decompose_dataset", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError", "AccuracyWarning"]
+__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "decompose_grid", "GridResult", "decompose_lonlat", "LonLatResult", "decompose_lonlat_dataset", "decompose_dataset", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError", "AccuracyWarning"]

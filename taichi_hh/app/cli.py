@@ -232,6 +232,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="rows with NaN vectors (or points), an empty u or v cell, or a false "
              "'valid' column: missing (the default: left out, NaN in the outputs) or "
              "error (refused)")
+    dec.add_argument_group("sphere").add_argument(
+        "--lonlat", action="store_true",
+        help="FIELD.nc holds winds (u eastward, v northward) on longitude and latitude: "
+             "decompose them on the sphere into DIR/lonlat.nc (CF streamfunction and "
+             "velocity potential) and DIR/lonlat.png (taken without the flag when the "
+             "file's coordinates are longitude and latitude)")
     dec.add_argument_group("series").add_argument(
         "--figures", default="first", metavar="WHICH",
         help="with several FIELD files: the snapshots drawn, first, all, none or 0-based "
@@ -473,6 +479,14 @@ def _cmd_decompose(args) -> int:
     say = _Progress("decompose", args.quiet)
     overrides = _numeric_overrides(args)
     options_for(args.method, **overrides)           # bad combinations fail before any work
+    from .xarray_lonlat import decompose_lonlat_file, is_lonlat_file
+    if len(files) == 1 and (args.lonlat or is_lonlat_file(files[0])):
+        out = _out_dir(args)
+        _prepare_out(out)
+        _init(args, say)
+        print(_paragraph(decompose_lonlat_file(files[0], out, figures=not args.no_figures,
+                                               method=args.method, **overrides)[1]))
+        return 0
     if len(files) > 1:
         return _decompose_series(args, files, say, overrides)
     out = _out_dir(args)

@@ -146,7 +146,8 @@ def _refuse_degrees(ds, dim) -> None:
     if unit in _DEGREES or (not unit and str(dim).lower() in _LONLAT):
         raise InputError(f"the dimension {dim!r} is in degrees (longitude or latitude): the "
                          "plane's decomposition would ignore the sphere's metric (cos(latitude), "
-                         "the earth's radius; 17% error on a 60 x 35 degree region); give "
+                         "the earth's radius; 17% error on a 60 x 35 degree region); use "
+                         "decompose_lonlat_dataset (ds.hhd.decompose_lonlat) or give "
                          "projected coordinates in length units")
 
 
@@ -193,6 +194,10 @@ def _register_accessor() -> None:
 
         def decompose(self, u: str = "u", v: str = "v", **kwargs):
             return decompose_dataset(self._ds, u, v, **kwargs)
+
+        def decompose_lonlat(self, u: str = "u", v: str = "v", **kwargs):
+            from .xarray_lonlat import decompose_lonlat_dataset
+            return decompose_lonlat_dataset(self._ds, u, v, **kwargs)
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")      # re-registration on a module reload
