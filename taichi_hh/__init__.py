@@ -22,6 +22,9 @@ def __getattr__(name):
     elif name in ("decompose_grid", "GridResult"):
         from .hhd import grid
         value = getattr(grid, name)
+    elif name in ("Decomposer", "SeriesResult", "GridDecomposer", "GridSeries", "GridDecomposer", "GridSeries"):
+        from .hhd import decomposer
+        value = getattr(decomposer, name)
     elif name == "decompose_dataset":
         from .app.xarray_io import decompose_dataset as value
     elif name in ("project", "ProjectionResult"):
@@ -33,4 +36,4 @@ def __getattr__(name):
     return value
 
 
-__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "decompose_grid", "GridResult", "decompose_dataset", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError", "AccuracyWarning"]
+__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "decompose_grid", "GridResult", "Decomposer", "SeriesResult", "GridDecomposer", "GridSeries", "decompose_dataset", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError", "AccuracyWarning"]

@@ -40,9 +40,13 @@ the frame (0.89 under normal-parallel).
 """
 from __future__ import annotations
 
+import warnings
+from dataclasses import replace
+
 import numpy as np
 
 __all__ = ["boundary_flux", "choose_boundary_condition", "natural_cancels", "energy_closer",
+           "window_split",
            "CLOSED_FLUX", "FLUX_BAND", "CANCELLING_RATIO", "ORTHOGONAL_CONDITION"]
 
 #: below this :func:`boundary_flux` the data are a closed container
@@ -104,3 +108,39 @@ def energy_closer(ratio: float, other: float) -> bool:
     if not np.isfinite(other) or other <= 0:
         return True
     return abs(np.log(ratio)) < abs(np.log(other))
+
+
+def window_split(attempt, opts, chosen: dict) -> tuple:
+    """``(unit result, options, chosen)`` of ``auto``'s window split:
+    ``attempt(options)`` (a unit-frame decomposition) under the natural
+    condition, kept unless its parts cancel (:func:`natural_cancels`), then
+    under :data:`ORTHOGONAL_CONDITION`, kept if its parts' energy is closer
+    to the field's (:func:`energy_closer`).  The warnings of the attempt not
+    kept are not the answer's and are dropped with it."""
+    def run(options):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            return attempt(options), caught
+
+    def answer(unit, caught):
+        for w in caught:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        return unit
+
+    natural, natural_warnings = run(opts)
+    ratio = natural.stats["energy_ratio"]
+    if not natural_cancels(ratio):
+        return answer(natural, natural_warnings), opts, chosen
+    orthogonal_opts = replace(opts, boundary_condition=ORTHOGONAL_CONDITION)
+    orthogonal, orthogonal_warnings = run(orthogonal_opts)
+    seconds = {"natural": natural.stats["seconds"]["total"],
+               "orthogonal": orthogonal.stats["seconds"]["total"]}
+    if not energy_closer(orthogonal.stats["energy_ratio"], ratio):
+        # data the orthogonal condition serves worse (gaps at the boundary):
+        # the natural split stands, with its own flags
+        natural.stats["seconds"]["auto_attempts"] = seconds
+        return answer(natural, natural_warnings), opts, {
+            **chosen, "orthogonal_energy_ratio": orthogonal.stats["energy_ratio"]}
+    orthogonal.stats["seconds"]["auto_attempts"] = seconds
+    return answer(orthogonal, orthogonal_warnings), orthogonal_opts, {
+        **chosen, "boundary_condition": ORTHOGONAL_CONDITION, "natural_energy_ratio": ratio}
