@@ -51,9 +51,10 @@ def test_each_snapshot_equals_its_own_call(condition):
     V = np.stack([_window(pts, t) for t in (0.0, 0.5, 1.0)])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        # batch=2: the first two snapshots' four columns in one joint solve,
-        # the third's two padded to the same width
-        series = thh.Decomposer(pts, boundary_condition=condition, batch=2).decompose(V)
+        # the six columns of the three snapshots in joint solves of four (the
+        # second's two padded with zero columns to the same width)
+        series = thh.Decomposer(pts, boundary_condition=condition, batch=3,
+                                columns=4).decompose(V)
         refs = [thh.decompose(pts, v, boundary_condition=condition) for v in V]
     assert len(series) == 3 and series.curl_free.shape == (3, len(pts), 2)
     for t, ref in enumerate(refs):

@@ -122,12 +122,15 @@ class Decomposer:
     (module doc).  ``points``, ``domain``, ``method``, ``options``: as
     :func:`~taichi_hh.hhd.decompose.decompose` takes them (NaN rows of the
     points are missing in every snapshot); ``invalid``: alike, per snapshot.
-    ``batch``: snapshots solved together at most (default: as many as
+    ``batch``: snapshots taken in at a time (default: as many as
     :data:`MAX_BATCH` and the columns' memory,
-    :data:`~taichi_hh.hhd.operator_split.COLUMN_BYTES`, allow)."""
+    :data:`~taichi_hh.hhd.operator_split.COLUMN_BYTES`, allow); ``columns``:
+    right-hand sides in one joint solve at most (default
+    :data:`~taichi_hh.hhd.operator_split.MAX_COLUMNS`: two snapshots' phi and psi)."""
 
     def __init__(self, points, domain=None, *, method: str = "default", progress=None,
-                 invalid: str = "missing", batch: int | None = None, **options):
+                 invalid: str = "missing", batch: int | None = None,
+                 columns: int | None = None, **options):
         self.opts = options_for(method, **options)
         self.method, self.options, self.invalid = method, dict(options), invalid
         self.domain_spec, self.progress = domain, progress
@@ -144,6 +147,10 @@ class Decomposer:
         if isinstance(batch, bool) or not isinstance(batch, (int, np.integer)) or batch < 1:
             raise InputError(f"batch must be a positive integer (snapshots), got {batch!r}")
         self.batch = int(batch)
+        if columns is not None and (isinstance(columns, bool) or not isinstance(
+                columns, (int, np.integer)) or columns < 1):
+            raise InputError(f"columns must be a positive integer, got {columns!r}")
+        self.columns = columns
         self._splits = {}
         self.seconds = {}
 
@@ -159,7 +166,7 @@ class Decomposer:
         if s is None:
             t = time.perf_counter()
             s = OperatorSplit(self.data, replace(self.opts, boundary_condition=condition),
-                              keep=True, max_columns=2 * self.batch)
+                              keep=True, max_columns=self.columns)
             s.build(self.progress)
             self._splits[condition] = s
             self.seconds[condition] = time.perf_counter() - t

@@ -434,16 +434,31 @@ def decompose_grid_rows(points, vectors, *, method: str = "default", progress=No
     returns it: an :class:`~taichi_hh.hhd.decompose.HHDResult` in the rows'
     order (NaN on the rows not decomposed), ``stats["grid"]`` the grid's shape.
     None when the points are not such a grid."""
-    from dataclasses import replace
     found = grid_of(points)
     if found is None:
         return None
+    x, y, rows, cols = found
+    u, v = on_nodes(found, vectors)
+    g = decompose_grid(x, y, u, v, method=method, progress=progress, **options)
+    return as_rows(g, found, points, vectors)
+
+
+def on_nodes(found: tuple, vectors) -> tuple:
+    """``(u, v)`` (ny, nx): the rows' ``vectors`` on the grid ``found``
+    (:func:`grid_of`), NaN on nodes no row gives."""
     x, y, rows, cols = found
     vec = np.asarray(vectors, dtype=np.float64)
     u = np.full((len(y), len(x)), np.nan)
     v = np.full((len(y), len(x)), np.nan)
     u[rows, cols], v[rows, cols] = vec[:, 0], vec[:, 1]
-    g = decompose_grid(x, y, u, v, method=method, progress=progress, **options)
+    return u, v
+
+
+def as_rows(g: GridResult, found: tuple, points, vectors):
+    """The :class:`GridResult` ``g`` of a row-listed field (:func:`grid_of`'s
+    ``found``) in the rows' order, as :func:`decompose_grid_rows` returns it."""
+    x, y, rows, cols = found
+    vec = np.asarray(vectors, dtype=np.float64)
     stats = dict(g.stats, grid=(len(y), len(x)))
     used = g.used[rows, cols]
     stats["n_invalid"] = int((~used).sum())

@@ -10,8 +10,8 @@ neighbours, stencils, matrix, preconditioner) is made once per system; the
 fields' right-hand sides are solved together as the columns of one BiCGSTAB
 (:meth:`~taichi_hh.linalg.poisson.PoissonMatrix.solve_columns`: the matrix
 and the preconditioner read once per iteration for all), at most
-``max_columns`` at a time (memory: the solver holds about a dozen vectors
-per column).  Each column runs its own iteration and stopping test, so a
+``max_columns`` at a time (:data:`MAX_COLUMNS`, and the memory: the solver
+holds about a dozen vectors per column).  Each column runs its own iteration and stopping test, so a
 field's answer is the one a call for it alone gives, to the solver's
 tolerance.
 """
@@ -31,7 +31,7 @@ from .options import HHDOptions
 from .poisson_setup import PoissonSetup, right_hand_sides, unit_setup
 from .rotation import J
 
-__all__ = ["OperatorSplit", "NO_FLUX_PARTS", "solve_potentials", "COLUMN_BYTES"]
+__all__ = ["OperatorSplit", "NO_FLUX_PARTS", "solve_potentials", "COLUMN_BYTES", "MAX_COLUMNS"]
 
 #: ``no-flux``: each potential under its own condition, one system each
 #: (phi's Neumann rows, psi's Dirichlet rows)
@@ -42,6 +42,11 @@ NO_FLUX_PARTS = (("phi", "neumann"), ("psi", "normal-parallel"))
 COLUMN_BYTES = 512 * 2 ** 20
 #: vectors the joint solve holds per column
 VECTORS_PER_COLUMN = 16
+#: columns in one joint solve at most: on the CPU the kernels of more columns
+#: ran slower per column (13k points, multilevel BiCGSTAB: 78, 72 and 131 ms a
+#: column at 2, 4 and 8 columns; benchmarks/timeseries.py), the pair-array
+#: traffic they share no longer the bound
+MAX_COLUMNS = 4
 
 
 def solve_potentials(setup: PoissonSetup, columns: list, seconds: dict, say) -> list:
@@ -129,9 +134,8 @@ class OperatorSplit:
                 self.seconds[k] = self.seconds.get(k, 0.0) + v
 
     def _columns(self, n_slots: int) -> int:
-        if self.max_columns is not None:
-            return max(1, int(self.max_columns))
-        return max(2, COLUMN_BYTES // (VECTORS_PER_COLUMN * 8 * max(n_slots, 1)))
+        cap = MAX_COLUMNS if self.max_columns is None else max(1, int(self.max_columns))
+        return max(1, min(cap, COLUMN_BYTES // (VECTORS_PER_COLUMN * 8 * max(n_slots, 1))))
 
     def split(self, fields: list, progress=None) -> list:
         """The unit-frame :class:`~taichi_hh.hhd.decompose.HHDResult` of each of
