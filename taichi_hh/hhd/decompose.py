@@ -177,18 +177,24 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
     return problems
 
 
-def resolved_options(opts: HHDOptions, data: Data) -> tuple:
+def resolved_options(opts: HHDOptions, data: Data, *, near=None) -> tuple:
     """``(opts, stats)``: ``boundary_condition="auto"`` replaced by the condition
-    the data call for (:func:`~taichi_hh.hhd.auto.choose_boundary_condition`);
-    ``stats``: ``boundary_condition`` (the one used) and, for ``auto``,
-    ``boundary_flux``."""
+    the data call for (:func:`~taichi_hh.hhd.auto.choose_boundary_condition`;
+    ``near``: its band of points, :func:`~taichi_hh.hhd.auto.flux_band`, if
+    made already); ``stats``: ``boundary_condition`` (the one used) and, for
+    ``auto``, ``boundary_flux``."""
     if opts.boundary_condition != "auto":
         return opts, {"boundary_condition": opts.boundary_condition}
-    spacing = math.sqrt(data.unit_domain.area / max(len(data.unit_points), 1))
     condition, flux = choose_boundary_condition(data.unit_points, data.unit_vectors,
-                                                data.unit_domain, spacing, opts.boundary)
+                                                data.unit_domain, unit_spacing(data),
+                                                opts.boundary, near=near)
     return replace(opts, boundary_condition=condition), {"boundary_condition": condition,
                                                          "boundary_flux": flux}
+
+
+def unit_spacing(data: Data) -> float:
+    """The mean spacing of the valid points in the unit frame."""
+    return math.sqrt(data.unit_domain.area / max(len(data.unit_points), 1))
 
 
 def _unit_problems(data: Data, opts: HHDOptions, progress) -> PoissonProblems:
@@ -252,19 +258,20 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
 
 
 def decompose_unit(data: Data, opts: HHDOptions, chosen: dict, progress, *,
-                   split=None) -> HHDResult:
+                   split=None, reach_checked: bool = False) -> HHDResult:
     """The unit-frame decomposition of ``data`` under ``opts`` (its condition
     resolved: :func:`resolved_options`, which also gave ``chosen``); ``auto``'s
     window split (``"boundary_flux" in chosen``, natural) falls back to the
     orthogonal condition where the natural parts cancel
     (:func:`~taichi_hh.hhd.auto.window_split`).  ``split(data, opts)``: how a
     condition with Poisson rows is solved (default: a one-off
-    :class:`~taichi_hh.hhd.operator_split.OperatorSplit`)."""
+    :class:`~taichi_hh.hhd.operator_split.OperatorSplit`); ``reach_checked``:
+    the points' reach of the boundary checked already (a series)."""
     if "boundary_flux" in chosen and opts.boundary_condition == "natural":
         unit, opts, chosen = window_split(
-            lambda o: _decompose_unit(data, o, progress, split), opts, chosen)
+            lambda o: _decompose_unit(data, o, progress, split, reach_checked), opts, chosen)
     else:
-        unit = _decompose_unit(data, opts, progress, split)
+        unit = _decompose_unit(data, opts, progress, split, reach_checked)
     unit.stats.update(chosen)
     return unit
 
@@ -294,10 +301,11 @@ def in_caller_units(unit: HHDResult, data: Data) -> HHDResult:
                      else f.domain_from_unit(unit.domain))
 
 
-def _decompose_unit(data: Data, opts: HHDOptions, progress, split=None) -> HHDResult:
+def _decompose_unit(data: Data, opts: HHDOptions, progress, split=None,
+                    reach_checked: bool = False) -> HHDResult:
     """Steps (a)-(e) on the valid rows in the unit frame under one condition."""
     if natural_at_nodes(opts):
-        return _natural_unit(data, opts, progress)
+        return _natural_unit(data, opts, progress, reach_checked)
     if split is not None:
         return split(data, opts)
     return OperatorSplit(data, opts, keep=False).split([data], progress)[0]
@@ -340,7 +348,7 @@ class _LazyPointSet:
         return getattr(self._ps, name)
 
 
-def _check_natural_reach(pts, domain, spacing: float, opts: HHDOptions, data: Data) -> None:
+def check_natural_reach(pts, domain, spacing: float, opts: HHDOptions, data: Data) -> None:
     """The data reach the boundary (:func:`~taichi_hh.hhd.inputs.check_data_near_boundary`)
     within the fixed support (``support_ratio`` mean spacings); failing that,
     with an adaptive support, within the largest of the points' supports
@@ -356,7 +364,8 @@ def _check_natural_reach(pts, domain, spacing: float, opts: HHDOptions, data: Da
         check_data_near_boundary(pts, domain, spacing, float(supports.max()), data)
 
 
-def _natural_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
+def _natural_unit(data: Data, opts: HHDOptions, progress,
+                  reach_checked: bool = False) -> HHDResult:
     """:func:`_decompose_unit` of the natural decomposition at the grid nodes
     (:func:`natural_at_nodes`): no point set (one is built if the result's
     ``pointset`` is read), div v and curl v from the nodes' fits of v, the
@@ -373,7 +382,8 @@ def _natural_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
     seconds = {}
     say("setup")
     t = time.perf_counter()
-    _check_natural_reach(pts, domain, spacing, opts, data)
+    if not reach_checked:
+        check_natural_reach(pts, domain, spacing, opts, data)
     stats = {"n_points": n, "n_boundary": 0, "n_ghosts": 0, "support": support,
              "spacing": spacing}
     check_point_count(n, stats, stacklevel=6)

@@ -10,7 +10,9 @@ archive, a model's output steps).
 
 What depends only on the points and the options is made once, the first
 time a snapshot needs it, and kept: the checked points, the domain and the
-unit frame's geometry; for each condition with Poisson rows the particles,
+unit frame's geometry, ``auto``'s band of points next to the boundary (and
+their normals), the natural condition's check that the points reach the
+boundary; for each condition with Poisson rows the particles,
 boundary samples, neighbour pairs, stencils, the assembled matrix and its
 multilevel preconditioner (:class:`~taichi_hh.hhd.operator_split.OperatorSplit`).
 The snapshots of a batch are solved together, their right-hand sides the
@@ -50,8 +52,9 @@ import numpy as np
 
 from .. import runtime
 from ..errors import InputError
-from .decompose import (HHDResult, decompose, decompose_unit, in_caller_units,
-                        resolved_options, natural_at_nodes)
+from .auto import flux_band
+from .decompose import (HHDResult, check_natural_reach, decompose, decompose_unit,
+                        in_caller_units, natural_at_nodes, resolved_options, unit_spacing)
 from .inputs import field_on, prepare_data
 from .operator_split import COLUMN_BYTES, VECTORS_PER_COLUMN, OperatorSplit
 from .options import options_for
@@ -153,6 +156,8 @@ class Decomposer:
         self.columns = columns
         self._splits = {}
         self.seconds = {}
+        self._near = None              # auto's band of points next to the boundary
+        self._reach_checked = False    # the natural condition's reach of the boundary
 
     def __repr__(self) -> str:
         return (f"Decomposer({len(self.points)} points, method={self.method!r}, "
@@ -217,11 +222,18 @@ class Decomposer:
                 res.stats["shared_setup"] = False
                 out[k] = res
                 continue
-            opts, chosen = resolved_options(self.opts, data)
+            if self.opts.boundary_condition == "auto" and self._near is None:
+                self._near = flux_band(data.unit_points, data.unit_domain, unit_spacing(data))
+            opts, chosen = resolved_options(self.opts, data, near=self._near)
             if natural_at_nodes(opts) or "boundary_flux" in chosen \
                     and opts.boundary_condition == "natural":
                 t = time.perf_counter()
-                unit = decompose_unit(data, opts, chosen, self.progress, split=self._one)
+                if natural_at_nodes(opts) and not self._reach_checked:
+                    check_natural_reach(data.unit_points, data.unit_domain, unit_spacing(data),
+                                        opts, data)
+                    self._reach_checked = True
+                unit = decompose_unit(data, opts, chosen, self.progress, split=self._one,
+                                      reach_checked=self._reach_checked)
                 unit.stats["seconds"]["total"] = time.perf_counter() - t
                 out[k] = self._finish(unit, data)
             else:
