@@ -19,6 +19,9 @@ points, through the scattered Decomposer as decompose() takes them),
   untimed warm-up batch (the joint solve's column width compiles once per
   width); ``per_snapshot_s``: the stream alone over T;
 * ``ratio``: amortised_s / one_off_s (the target: <= 0.1 at 13k);
+  a condition written ``neumann+lu`` runs the Decomposer with
+  ``factorize=True`` (each system factorised once by SuperLU, its set-up
+  seconds counted in ``setup_s``);
 * ``rss_first_mb``, ``rss_last_mb``, ``rss_peak_mb``: the process's resident
   memory after the stream's first and last batch, and its peak (flat: the
   last close to the first; the stream holds one batch, whatever T);
@@ -86,7 +89,10 @@ def peak_mb() -> float:
 def run_condition(thh, layout: str, points, condition: str, args) -> dict:
     T = args.snapshots
     phases = np.linspace(0.0, 1.0, T)
-    options = {} if condition == "auto" else {"boundary_condition": condition}
+    # "neumann+lu": the Decomposer with factorize=True (SuperLU once per system)
+    factorize = condition.endswith("+lu")
+    base = condition[:-3] if factorize else condition
+    options = {} if base == "auto" else {"boundary_condition": base}
     thh.decompose(points, drifting_flow(points, 0.0), **options)          # compile
     k = min(args.one_off, T)
     one_off, refs = [], []
@@ -95,7 +101,7 @@ def run_condition(thh, layout: str, points, condition: str, args) -> dict:
         refs.append(thh.decompose(points, drifting_flow(points, t), **options))
         one_off.append(time.perf_counter() - t0)
     t0 = time.perf_counter()
-    dec = thh.Decomposer(points, batch=args.batch, **options)
+    dec = thh.Decomposer(points, batch=args.batch, factorize=factorize, **options)
     construct = time.perf_counter() - t0
     # warm-up: the first batch builds the systems (timed into the set-up) and
     # compiles the joint solve's width (not timed: once per machine's cache)
@@ -134,7 +140,7 @@ def run_direct(thh, layout: str, points, condition: str, args) -> dict | None:
     from taichi_hh.hhd.decompose import options_for
     from taichi_hh.hhd.inputs import prepare_data
     from taichi_hh.hhd.poisson_setup import right_hand_sides, unit_setup
-    if condition in ("auto", "no-flux", "natural"):
+    if condition in ("auto", "no-flux", "natural") or condition.endswith("+lu"):
         return None
     opts = options_for(boundary_condition=condition)
     data = prepare_data(points, drifting_flow(points, 0.0), None)
@@ -146,9 +152,12 @@ def run_direct(thh, layout: str, points, condition: str, args) -> dict | None:
     B = np.stack([r[name] for r in rhs for name in ("phi", "psi")], axis=1)
     kw = dict(tol=opts.tol, preconditioner=opts.preconditioner,
               multilevel_options=dict(opts.multilevel_options))
-    A.solve_columns(B, **kw)                              # compile and preconditioner
+    from taichi_hh.hhd.operator_split import MAX_COLUMNS
+    A.solve_columns(B[:, :MAX_COLUMNS], **kw)            # compile and preconditioner
     t0 = time.perf_counter()
-    krylov = A.solve_columns(B, **kw)
+    # the Decomposer's joint solves: MAX_COLUMNS columns at a time
+    krylov = [r for a in range(0, cols, MAX_COLUMNS)
+              for r in A.solve_columns(B[:, a:a + MAX_COLUMNS], **kw)]
     krylov_s = (time.perf_counter() - t0) / cols
     S = A.to_scipy().tocsc()
     if A.bordered:

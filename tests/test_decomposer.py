@@ -182,3 +182,23 @@ def test_grid_snapshots_equal_decompose_grid(options):
         assert series.stats[0].get("grid_native")
     with pytest.raises(InputError, match="shape"):
         thh.GridDecomposer(x, y).decompose(U[:, :, :-1], V)
+
+
+@pytest.mark.parametrize("condition", ["neumann", "normal-parallel", "no-flux"])
+def test_factorised_series_equals_its_own_calls(condition):
+    """factorize=True: SuperLU of each system once, triangular solves per
+    snapshot; the answers of the BiCGSTAB calls to their tolerance."""
+    pytest.importorskip("scipy")
+    pts = _points(600, seed=13)
+    V = np.stack([_window(pts, t) for t in (0.0, 0.7)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        series = thh.Decomposer(pts, boundary_condition=condition,
+                                factorize=True).decompose(V)
+        refs = [thh.decompose(pts, v, boundary_condition=condition) for v in V]
+    for t, ref in enumerate(refs):
+        _assert_same(series, t, ref, 1e-6)
+        assert series.stats[t]["iterations_psi"] == 0
+        assert series.stats[t]["residual_psi"] <= 1e-10
+    with pytest.raises(InputError, match="least-squares"):
+        thh.Decomposer(pts, method="colin2006", factorize=True).split_for("neumann")

@@ -129,11 +129,16 @@ class Decomposer:
     :data:`MAX_BATCH` and the columns' memory,
     :data:`~taichi_hh.hhd.operator_split.COLUMN_BYTES`, allow); ``columns``:
     right-hand sides in one joint solve at most (default
-    :data:`~taichi_hh.hhd.operator_split.MAX_COLUMNS`: two snapshots' phi and psi)."""
+    :data:`~taichi_hh.hhd.operator_split.MAX_COLUMNS`: two snapshots' phi and psi).
+    ``factorize``: each Poisson system factorised once by scipy's SuperLU
+    (scipy needed) and every snapshot solved by triangular solves instead of
+    BiCGSTAB: for long series where the factorisation's cost (seconds at
+    13k points, growing faster than N) is repaid (benchmarks/timeseries.py
+    ``--direct``; docs/notes/series.md)."""
 
     def __init__(self, points, domain=None, *, method: str = "default", progress=None,
                  invalid: str = "missing", batch: int | None = None,
-                 columns: int | None = None, **options):
+                 columns: int | None = None, factorize: bool = False, **options):
         self.opts = options_for(method, **options)
         self.method, self.options, self.invalid = method, dict(options), invalid
         self.domain_spec, self.progress = domain, progress
@@ -154,6 +159,9 @@ class Decomposer:
                 columns, (int, np.integer)) or columns < 1):
             raise InputError(f"columns must be a positive integer, got {columns!r}")
         self.columns = columns
+        if not isinstance(factorize, (bool, np.bool_)):
+            raise InputError(f"factorize must be True or False, got {factorize!r}")
+        self.factorize = bool(factorize)
         self._splits = {}
         self.seconds = {}
         self._near = None              # auto's band of points next to the boundary
@@ -171,7 +179,7 @@ class Decomposer:
         if s is None:
             t = time.perf_counter()
             s = OperatorSplit(self.data, replace(self.opts, boundary_condition=condition),
-                              keep=True, max_columns=self.columns)
+                              keep=True, max_columns=self.columns, factorize=self.factorize)
             s.build(self.progress)
             self._splits[condition] = s
             self.seconds[condition] = time.perf_counter() - t

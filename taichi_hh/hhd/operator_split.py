@@ -23,6 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from .. import runtime
+from ..errors import InputError
 from .component_checks import check_energy, check_harmonic
 from .corners import check_corners
 from .inputs import Data, check_point_count
@@ -31,7 +32,8 @@ from .options import HHDOptions
 from .poisson_setup import PoissonSetup, right_hand_sides, unit_setup
 from .rotation import J
 
-__all__ = ["OperatorSplit", "NO_FLUX_PARTS", "solve_potentials", "COLUMN_BYTES", "MAX_COLUMNS"]
+__all__ = ["OperatorSplit", "NO_FLUX_PARTS", "solve_potentials", "factorise", "COLUMN_BYTES",
+           "MAX_COLUMNS"]
 
 #: ``no-flux``: each potential under its own condition, one system each
 #: (phi's Neumann rows, psi's Dirichlet rows)
@@ -58,6 +60,12 @@ def solve_potentials(setup: PoissonSetup, columns: list, seconds: dict, say) -> 
     ``seconds["preconditioner"]``: its set-up (once per matrix);
     ``seconds["solve"]``: the iterations."""
     opts, A = setup.opts, setup.A
+    if setup.factor is not None:              # a series' factorisation: triangular solves
+        t = time.perf_counter()
+        out = _direct_columns(setup, columns)
+        seconds["preconditioner"] = seconds.get("preconditioner", 0.0)
+        seconds["solve"] = seconds.get("solve", 0.0) + time.perf_counter() - t
+        return out
     say("preconditioner")
     t = time.perf_counter()
     preconditioner = A.preconditioner_for(opts.preconditioner, opts.solver,
@@ -81,6 +89,40 @@ def solve_potentials(setup: PoissonSetup, columns: list, seconds: dict, say) -> 
                      "compatibility": res.border}) for res in results]
 
 
+def factorise(setup: PoissonSetup) -> None:
+    """``setup.factor``: scipy's SuperLU of the assembled matrix (bordered
+    row and column included), for many right-hand sides by triangular solves
+    (:func:`_direct_columns`).  scipy is optional: InputError without it."""
+    try:
+        import scipy.sparse.linalg as sla
+    except ImportError:
+        raise InputError("factorize=True needs scipy (pip install scipy); the default "
+                         "(factorize=False) solves by BiCGSTAB without it") from None
+    S = setup.A.to_scipy().tocsc()
+    setup.factor = (S, sla.splu(S))
+
+
+def _direct_columns(setup: PoissonSetup, columns: list) -> list:
+    """The columns solved by the kept factorisation: ``(x, stats)`` pairs as
+    :func:`solve_potentials` gives them (no iterations; the relative
+    residual of the assembled system measured)."""
+    A = setup.A
+    S, lu = setup.factor
+    B = np.stack(columns, axis=1)
+    if A.bordered:
+        B = np.vstack([B, np.zeros((1, B.shape[1]))])
+    X = lu.solve(B)
+    R = S @ X - B
+    out = []
+    for c in range(B.shape[1]):
+        norm = float(np.linalg.norm(B[:, c]))
+        residual = float(np.linalg.norm(R[:, c]) / norm) if norm > 0 else 0.0
+        out.append((X[:A.n_particles, c].copy(),
+                    {"iterations": 0, "residual": residual,
+                     "compatibility": float(X[A.n_particles, c]) if A.bordered else 0.0}))
+    return out
+
+
 class _Problems:
     """What :func:`~taichi_hh.hhd.component_checks.check_harmonic` reads of a
     field's problems (duck-typed :class:`~taichi_hh.hhd.decompose.PoissonProblems`)."""
@@ -101,8 +143,11 @@ class OperatorSplit:
     made, as the single call always did)."""
 
     def __init__(self, data: Data, opts: HHDOptions, *, keep: bool = True,
-                 max_columns: int | None = None):
-        self.data, self.opts, self.keep = data, opts, keep
+                 max_columns: int | None = None, factorize: bool = False):
+        if factorize and opts.solver != "bicgstab":
+            raise InputError(f"factorize=True solves the square systems of solver='bicgstab'; "
+                             f"solver={opts.solver!r} seeks a least-squares solution")
+        self.data, self.opts, self.keep, self.factorize = data, opts, keep, factorize
         self.parts = (NO_FLUX_PARTS if opts.boundary_condition == "no-flux"
                       else (("phi psi", opts.boundary_condition),))
         self._setups = {}
@@ -116,6 +161,10 @@ class OperatorSplit:
         d = self.data
         s = unit_setup(d.unit_points, d.unit_domain,
                        replace(self.opts, boundary_condition=condition), progress, d)
+        if self.factorize and s.A is not None:
+            t = time.perf_counter()
+            factorise(s)
+            s.seconds["factorise"] = time.perf_counter() - t
         if self.keep:
             self._setups[condition] = s
         return s, True
@@ -124,7 +173,7 @@ class OperatorSplit:
         """Every system made now (and its preconditioner), not at the first field."""
         for _, condition in self.parts:
             s, _ = self.setup(condition, progress)
-            if s.A is not None:
+            if s.A is not None and s.factor is None:
                 t = time.perf_counter()
                 s.A.preconditioner_for(s.opts.preconditioner, s.opts.solver,
                                        dict(s.opts.multilevel_options))

@@ -48,6 +48,7 @@ class PoissonSetup:
     domain: object
     divergence_stencil: object       # of div v and curl v, over the data points
     div_sources: tuple               # the particle kinds div v reads
+    factor: object = None            # (scipy matrix, its SuperLU) where a series factorised A
 
     def gradient_stencil(self):
         """The stencil of step (e), d = grad phi and r = J grad psi at the data
