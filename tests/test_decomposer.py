@@ -202,3 +202,28 @@ def test_factorised_series_equals_its_own_calls(condition):
         assert series.stats[t]["residual_psi"] <= 1e-10
     with pytest.raises(InputError, match="least-squares"):
         thh.Decomposer(pts, method="colin2006", factorize=True).split_for("neumann")
+
+
+@pytest.mark.parametrize("grid_first", [False, True])
+def test_cli_series_keeps_the_points_setup(grid_first):
+    """The CLI's series (app.series.FieldSeries): each file's answer that of
+    decompose_field, the set-up made once for the run's points."""
+    from taichi_hh.app.series import FieldSeries, decompose_field
+    x = np.linspace(0.0, 1.0, 24)
+    X, Y = np.meshgrid(x, x[:18])
+    pts = np.c_[X.ravel(), Y.ravel()]
+    kw = dict(method="default", invalid="missing", progress=None,
+              overrides={"boundary_condition": "normal-parallel"}, grid_first=grid_first)
+    series = FieldSeries(**kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for t in (0.0, 0.5):
+            vec = _window(pts, t)
+            got = series(pts, vec, None)
+            want = decompose_field(pts, vec, None, **kw)
+            kept = series._kept
+            for name in FIELDS:
+                a, b = getattr(got, name), getattr(want, name)
+                assert np.nanmax(np.abs(a - b)) <= 1e-6 * np.nanmax(np.abs(b)), name
+            assert got.stats.get("grid", None) == want.stats.get("grid", None)
+        assert series._kept is kept              # the second file reused the first's set-up
