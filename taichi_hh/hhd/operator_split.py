@@ -44,10 +44,8 @@ NO_FLUX_PARTS = (("phi", "neumann"), ("psi", "normal-parallel"))
 COLUMN_BYTES = 512 * 2 ** 20
 #: vectors the joint solve holds per column
 VECTORS_PER_COLUMN = 16
-#: columns in one joint solve at most: on the CPU the kernels of more columns
-#: ran slower per column (13k points, multilevel BiCGSTAB: 78, 72 and 131 ms a
-#: column at 2, 4 and 8 columns; benchmarks/timeseries.py), the pair-array
-#: traffic they share no longer the bound
+#: columns in one joint solve at most: on the CPU wider joint solves ran
+#: slower per column at 13k and at 100k points (docs/notes/series.md)
 MAX_COLUMNS = 4
 
 
