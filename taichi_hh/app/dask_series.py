@@ -64,7 +64,7 @@ def _decompose_chunk(key: str, points, domain, method: str, options: dict, vecto
         series = dec.decompose(vectors)
     out = {name: getattr(series, name) for name in SERIES_FIELDS}
     out["stats"] = series.stats
-    out["meta"] = [{k: v for k, v in m.items() if k != "pointset"} for m in series._meta]
+    out["meta"] = [{k: v for k, v in m.items() if k != "pointset"} for m in series.meta]
     return out
 
 
@@ -121,4 +121,4 @@ def decompose_dask(points, vectors, domain=None, *, client=None, address: str | 
     arrays = {name: np.concatenate([c[name] for c in chunks]) for name in SERIES_FIELDS}
     stats = [s for c in chunks for s in c["stats"]]
     meta = [dict(m, pointset=None) for c in chunks for m in c["meta"]]
-    return SeriesResult(points=pts, **arrays, stats=stats, _meta=meta)
+    return SeriesResult(points=pts, **arrays, stats=stats, meta=meta)

@@ -88,7 +88,8 @@ class SeriesResult:
     divergence: np.ndarray
     curl: np.ndarray
     stats: list
-    _meta: list = field(repr=False, default_factory=list)
+    # per snapshot: its options, frame, valid rows, point set and domain (HHDResult's)
+    meta: list = field(repr=False, default_factory=list)
 
     def __len__(self) -> int:
         return len(self.stats)
@@ -105,7 +106,7 @@ class SeriesResult:
 
     def __getitem__(self, t: int) -> HHDResult:
         t = range(len(self))[t]
-        meta = self._meta[t]
+        meta = self.meta[t]
         return HHDResult(points=self.points, **{k: getattr(self, k)[t] for k in SERIES_FIELDS},
                          stats=self.stats[t], **meta)
 
@@ -117,7 +118,7 @@ class SeriesResult:
         meta = [{"options": r.options, "pointset": r.pointset, "valid": r.valid,
                  "frame": r.frame, "domain": r.domain} for r in results]
         return cls(points=np.asarray(points, dtype=np.float64), **arrays,
-                   stats=[r.stats for r in results], _meta=meta)
+                   stats=[r.stats for r in results], meta=meta)
 
 
 class Decomposer:
