@@ -227,3 +227,22 @@ def test_cli_series_keeps_the_points_setup(grid_first):
                 assert np.nanmax(np.abs(a - b)) <= 1e-6 * np.nanmax(np.abs(b)), name
             assert got.stats.get("grid", None) == want.stats.get("grid", None)
         assert series._kept is kept              # the second file reused the first's set-up
+
+
+@pytest.mark.slow
+def test_timeseries_benchmark_runs(tmp_path):
+    """benchmarks/timeseries.py end to end on a small grid: one row per
+    condition, the Decomposer's answers those of the one-off calls."""
+    import csv
+    import os
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    subprocess.run([sys.executable, os.path.join(root, "benchmarks", "timeseries.py"),
+                    "--layouts", "grid4k", "--snapshots", "3", "--one-off", "1", "--batch", "2",
+                    "--conditions", "auto,neumann", "--out-dir", str(tmp_path)],
+                   check=True, capture_output=True, timeout=900)
+    rows = list(csv.DictReader(open(tmp_path / "timeseries.csv")))
+    assert [r["condition"] for r in rows] == ["auto", "neumann"]
+    for r in rows:
+        assert float(r["max_rel_diff"]) <= 1e-6 and float(r["per_snapshot_s"]) > 0
