@@ -27,6 +27,9 @@ def __getattr__(name):
         value = getattr(lonlat, name)
     elif name == "decompose_lonlat_dataset":
         from .app.xarray_lonlat import decompose_lonlat_dataset as value
+    elif name in ("Decomposer", "SeriesResult", "GridDecomposer", "GridSeries"):
+        from .hhd import decomposer
+        value = getattr(decomposer, name)
     elif name == "decompose_dataset":
         from .app.xarray_io import decompose_dataset as value
     elif name in ("project", "ProjectionResult"):
@@ -38,4 +41,4 @@ def __getattr__(name):
     return value
 
 
-__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "decompose_grid", "GridResult", "decompose_lonlat", "LonLatResult", "decompose_lonlat_dataset", "decompose_dataset", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError", "AccuracyWarning"]
+__all__ = ["init", "Box", "Polygon", "as_domain", "decompose", "HHDResult", "decompose_grid", "GridResult", "decompose_lonlat", "LonLatResult", "decompose_lonlat_dataset", "Decomposer", "SeriesResult", "GridDecomposer", "GridSeries", "decompose_dataset", "project", "ProjectionResult", "PointSet", "InputError", "NeighbourError", "SolverError", "TaichiHHError", "AccuracyWarning"]

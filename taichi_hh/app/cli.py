@@ -551,7 +551,7 @@ def _cmd_decompose(args) -> int:
 
 def _decompose_series(args, files, say, overrides) -> int:
     """``decompose`` of several files: :mod:`taichi_hh.app.series`."""
-    from .series import decompose_field, decompose_series, figure_indices
+    from .series import FieldSeries, decompose_series, figure_indices
     figure_indices(args.figures, len(files))          # a bad --figures fails before any work
     out = _out_dir(args)
     _prepare_out(out)
@@ -562,10 +562,9 @@ def _decompose_series(args, files, say, overrides) -> int:
         args.field = path
         return _read_inputs(args, quiet, domain_kind_as_name=True)
 
-    def decompose_one(points, vectors, domain):
-        return decompose_field(points, vectors, domain, method=args.method,
-                               invalid=args.invalid, progress=None, overrides=overrides,
-                               grid_first=args.domain is None)
+    # what depends on the points made once for the run (hhd.decomposer)
+    decompose_one = FieldSeries(method=args.method, invalid=args.invalid, progress=None,
+                                overrides=overrides, grid_first=args.domain is None)
 
     def draw(res, directory):
         if args.no_figures:

@@ -22,7 +22,8 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["decompose_field", "decompose_series", "figure_indices", "SERIES_ARRAYS"]
+__all__ = ["decompose_field", "FieldSeries", "decompose_series", "figure_indices",
+           "SERIES_ARRAYS"]
 
 #: per-snapshot arrays of the run's file and the result attribute each comes from
 SERIES_ARRAYS = {"v": "vectors", "d": "curl_free", "r": "div_free", "h": "harmonic",
@@ -45,6 +46,49 @@ def decompose_field(points, vectors, domain, *, method: str, invalid: str, progr
         res = decompose(points, vectors, domain, method=method, progress=progress,
                         invalid=invalid, **overrides)
     return res
+
+
+class FieldSeries:
+    """:func:`decompose_field` for the snapshots of a series: a callable
+    ``(points, vectors, domain) -> HHDResult`` that keeps what depends on the
+    points between calls (:class:`~taichi_hh.hhd.decomposer.Decomposer`, or
+    :class:`~taichi_hh.hhd.decomposer.GridDecomposer` for a field listed
+    node by node on a grid): the particles, the systems and their
+    preconditioners are made once for the run, each snapshot's answer the
+    same as :func:`decompose_field` gives (to the solver's tolerance).  New
+    points or another domain start a new one."""
+
+    def __init__(self, *, method: str, invalid: str, progress, overrides: dict,
+                 grid_first: bool):
+        self.method, self.invalid, self.progress = method, invalid, progress
+        self.overrides, self.grid_first = dict(overrides), grid_first
+        self._key = self._kept = None
+
+    def __call__(self, points, vectors, domain):
+        from ..hhd.decomposer import Decomposer, GridDecomposer
+        from ..hhd.grid import as_rows, grid_of, on_nodes
+        points = np.asarray(points, dtype=np.float64)
+        key = (points.shape, points.tobytes(), repr(domain))
+        if key != self._key:
+            self._key, self._kept = key, None
+            found = grid_of(points) if self.grid_first else None
+            if found is not None:
+                self._kept = ("grid", found, GridDecomposer(
+                    found[0], found[1], method=self.method, progress=self.progress,
+                    batch=1, **self.overrides))
+            else:
+                self._kept = ("points", None, Decomposer(
+                    points, domain, method=self.method, progress=self.progress,
+                    invalid=self.invalid, batch=1, **self.overrides))
+        kind, found, dec = self._kept
+        if kind == "grid" and not (self.invalid == "error" and np.isnan(vectors).any()):
+            g = next(dec.stream([on_nodes(found, vectors)]))
+            return as_rows(g, found, points, vectors)
+        if kind == "grid":     # --invalid error refuses NaN rows by row (the scattered path)
+            return decompose_field(points, vectors, domain, method=self.method,
+                                   invalid=self.invalid, progress=self.progress,
+                                   overrides=self.overrides, grid_first=False)
+        return next(dec.stream([vectors]))
 
 
 def figure_indices(spec: str, count: int) -> list:

@@ -7,8 +7,10 @@ decomposition as a Dataset in, a Dataset out.
 
 ``ds`` holds ``u`` and ``v`` on a rectilinear ``x``, ``y`` grid and any
 other dimensions (time, depth, ensemble member): every combination of the
-other dimensions is one snapshot, decomposed by
-:func:`~taichi_hh.hhd.grid.decompose_grid` with NaN as missing.  The result
+other dimensions is one snapshot, decomposed as
+:func:`~taichi_hh.hhd.grid.decompose_grid` does it with NaN as missing,
+through one :class:`~taichi_hh.hhd.decomposer.GridDecomposer` (what
+depends on the grid made once, snapshots solved together).  The result
 keeps the input's dimensions, coordinates and order, and holds ``d_u``,
 ``d_v`` (the curl-free part), ``r_u``, ``r_v`` (the divergence-free part),
 ``h_u``, ``h_v`` (the harmonic part), ``phi``, ``psi``, ``divergence`` and
@@ -84,15 +86,19 @@ def decompose_dataset(ds, u: str = "u", v: str = "v", *, x: str | None = None,
     U, V = U.transpose(*order), V.transpose(*order)
     xs = _axis(ds, xdim)
     ys = _axis(ds, ydim)
-    from ..hhd.grid import decompose_grid
+    from ..hhd.decomposer import GridDecomposer
     shape = tuple(ds.sizes[d] for d in others)
     arrays = {name: np.full(shape + (len(ys), len(xs)), np.nan) for name in COMPONENTS}
     conditions = np.empty(shape, dtype=object)
     energy = np.full(shape, np.nan)
     u_values = np.asarray(U.values, dtype=np.float64)
     v_values = np.asarray(V.values, dtype=np.float64)
-    for index in itertools.product(*(range(n) for n in shape)):
-        res = decompose_grid(xs, ys, u_values[index], v_values[index], **options)
+    # every snapshot on the same grid: what depends on the grid and the missing
+    # nodes made once, the snapshots solved together (each as decompose_grid's)
+    indices = list(itertools.product(*(range(n) for n in shape)))
+    snapshots = GridDecomposer(xs, ys, **options).stream(
+        (u_values[index], v_values[index]) for index in indices)
+    for index, res in zip(indices, snapshots):
         for name, (attr, k, _) in COMPONENTS.items():
             value = getattr(res, attr)
             arrays[name][index] = value if k is None else value[..., k]

@@ -57,25 +57,26 @@ import numpy as np
 
 from .. import runtime
 from ..errors import InputError
-from ..sph.operators import ALL_KINDS
-from ..sph.particles import BOUNDARY, FLUID, GHOST
 from ..sph.pointset import PointSet
-from ..sph.positive import make_rows_positive
 from ..poisson.matrix import PoissonMatrix
-from .boundary import collocation_particles, far_from
-from .inputs import (INVALID_MODES, Data, check_data_near_boundary, check_data_reach_boundary,
-                     check_point_count, prepare_data, refuse_too_few, validate_input)
-from .auto import (ORTHOGONAL_CONDITION, choose_boundary_condition, energy_closer,
-                   natural_cancels)
-from .corners import check_corners
-from .natural import natural_decomposition, natural_potentials
+from .boundary import far_from
+from .inputs import (Data, check_data_near_boundary, check_point_count, prepare_data,
+                     refuse_too_few, validate_input)
+from .auto import choose_boundary_condition, window_split
+from .component_checks import (ENERGY_LIMIT, HARMONIC_LIMIT, check_energy, check_harmonic,
+                               flag_harmonic)
+from .natural import natural_decomposition
+from .operator_split import OperatorSplit
 from .options import (BOUNDARY_CONDITIONS, BOUNDARY_METHODS, METHODS, PRECONDITIONERS,
                       HHDOptions, options_for)
+from .poisson_setup import right_hand_sides, unit_setup
 from .rotation import J
 from .units import Frame
 
 # re-exported: importers of the options, the input checks and J from here
 __all__ = ["decompose", "poisson_problems", "PoissonProblems", "HHDResult", "ENERGY_LIMIT",
+           "HARMONIC_LIMIT", "flag_harmonic", "check_energy", "check_harmonic", "decompose_unit",
+           "in_caller_units", "resolved_options",
            "HHDOptions", "METHODS", "BOUNDARY_METHODS", "BOUNDARY_CONDITIONS", "PRECONDITIONERS",
            "options_for",
            "validate_input", "far_from", "J"]
@@ -134,20 +135,6 @@ class HHDResult:
 
 # ---------------------------------------------------------------------------
 
-def _extra_particles(domain, pts, opts: HHDOptions, spacing: float, support: float):
-    """Boundary particles (points, normals) and ghosts for the boundary method."""
-    if opts.boundary == "none":
-        return None, None
-    if opts.boundary == "collocation":
-        return collocation_particles(domain, pts, spacing, local=opts.adaptive_support,
-                                     clear_corners=opts.boundary_condition == "neumann"), None
-    band = domain.sample_ghosts(spacing, support, seed=opts.seed, avoid=pts)
-    if opts.boundary == "colin":
-        _, _, nrm, _ = domain.closest_boundary(band)
-        return (band, nrm), None
-    return None, band                                   # petronetto: fake particles
-
-
 @dataclass
 class PoissonProblems:
     """The two Poisson problems of a decomposition (Eq. 5), assembled: the
@@ -185,140 +172,42 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
         raise InputError("boundary_condition='no-flux' has two matrices (phi's Neumann rows, "
                          "psi's Dirichlet rows): ask for boundary_condition='neumann' or "
                          "'normal-parallel' to get the one")
-    problems = _unit_problems(data.unit_points, data.unit_vectors, data.unit_domain, opts,
-                              progress, data)
+    problems = _unit_problems(data, opts, progress)
     problems.stats.update(chosen)
-    problems.frame, problems.data = data.frame, data
     return problems
 
 
-def resolved_options(opts: HHDOptions, data: Data) -> tuple:
+def resolved_options(opts: HHDOptions, data: Data, *, near=None) -> tuple:
     """``(opts, stats)``: ``boundary_condition="auto"`` replaced by the condition
-    the data call for (:func:`~taichi_hh.hhd.auto.choose_boundary_condition`);
-    ``stats``: ``boundary_condition`` (the one used) and, for ``auto``,
-    ``boundary_flux``."""
+    the data call for (:func:`~taichi_hh.hhd.auto.choose_boundary_condition`;
+    ``near``: its band of points, :func:`~taichi_hh.hhd.auto.flux_band`, if
+    made already); ``stats``: ``boundary_condition`` (the one used) and, for
+    ``auto``, ``boundary_flux``."""
     if opts.boundary_condition != "auto":
         return opts, {"boundary_condition": opts.boundary_condition}
-    spacing = math.sqrt(data.unit_domain.area / max(len(data.unit_points), 1))
     condition, flux = choose_boundary_condition(data.unit_points, data.unit_vectors,
-                                                data.unit_domain, spacing, opts.boundary)
+                                                data.unit_domain, unit_spacing(data),
+                                                opts.boundary, near=near)
     return replace(opts, boundary_condition=condition), {"boundary_condition": condition,
                                                          "boundary_flux": flux}
 
 
-def _unit_problems(pts, vec, domain, opts: HHDOptions, progress,
-                   data: Data | None = None) -> PoissonProblems:
-    """:func:`poisson_problems` on checked input in the unit frame; ``data``:
-    the caller's (its frame and domain for the messages)."""
-    say = progress or (lambda stage: None)
-    seconds = {}
-    n = len(pts)
-    refuse_too_few(n)
-    spacing = math.sqrt(domain.area / n)
-    support = opts.support_ratio * spacing
+def unit_spacing(data: Data) -> float:
+    """The mean spacing of the valid points in the unit frame."""
+    return math.sqrt(data.unit_domain.area / max(len(data.unit_points), 1))
 
-    natural = opts.boundary_condition == "natural"
-    say("setup")
+
+def _unit_problems(data: Data, opts: HHDOptions, progress) -> PoissonProblems:
+    """:func:`poisson_problems` on checked input in the unit frame: the point
+    set-up (:func:`~taichi_hh.hhd.poisson_setup.unit_setup`) and the field's
+    right-hand sides."""
+    setup = unit_setup(data.unit_points, data.unit_domain, opts, progress, data)
     t = time.perf_counter()
-    # the natural decomposition has no boundary rows: the boundary samples of
-    # collocation would only be read by stencils it does not build
-    rows_on_boundary = not (natural and opts.boundary == "collocation")
-    boundary, ghosts = (_extra_particles(domain, pts, opts, spacing, support)
-                        if rows_on_boundary else (None, None))
-    ps = PointSet(pts, kernel=opts.kernel, support_ratio=opts.support_ratio,
-                  support=None if opts.adaptive_support else support, area=domain.area,
-                  boundary=boundary, ghosts=ghosts,
-                  support_neighbours=opts.support_neighbours if opts.adaptive_support else None)
-    if opts.boundary == "collocation" and rows_on_boundary:
-        check_data_reach_boundary(ps, BOUNDARY, FLUID, data)
-    elif opts.boundary == "collocation":
-        check_data_near_boundary(pts, domain, spacing, ps.support, data)
-    ops = ps.ops
-    p = ps.particles
-    kind = p.get("kind")
-    near = None
-    if opts.boundary == "petronetto":
-        ghosts_ok = _ghosts_with_data(ps)
-        if not ghosts_ok.all():   # rebuild without fake particles that see no data
-            ghosts = p.get("position")[kind == GHOST][ghosts_ok[kind == GHOST]]
-            ps = PointSet(pts, kernel=opts.kernel, support=support, area=domain.area,
-                          ghosts=ghosts)
-            ops, p = ps.ops, ps.particles
-            kind = p.get("kind")
-        near = _petronetto_band(ps, domain)
-    seconds["setup"] = time.perf_counter() - t
-
-    say("divergence and curl")
-    t = time.perf_counter()
-    v_nd = ps.upload(vec)
-    if opts.boundary == "petronetto":      # Eq. 14: extend v to the fake particles
-        ext = ps.new_array(2)
-        ops.shepard(v_nd, ext, source_kinds=(FLUID,))
-        full = ext.to_numpy()
-        full[kind == FLUID] = v_nd.to_numpy()[: ps.n_total][kind == FLUID]
-        v_nd.from_numpy(full)
-        div_sources = (FLUID, GHOST)
-    else:
-        div_sources = (FLUID,)
-    st_neumann = st_lap = None
-    if _default_stencils(opts) and not natural:
-        # the three stencils of the default from one kernel (two passes over the pairs)
-        st_div, st_neumann, st_lap = ops.decomposition_coefficients()
-    else:
-        st_div = ops.gradient_coefficients(opts.divergence, row_kinds=(FLUID,),
-                                           source_kinds=div_sources)
-    dc_nd = ps.new_array(2, zeroed=False)
-    ops.divergence_and_curl(st_div, v_nd, dc_nd)
-    dc = dc_nd.to_numpy()[: ps.n_total].astype(np.float64)
-    div_slots, curl_slots = dc[:, 0].copy(), dc[:, 1].copy()
-    fluid = kind == FLUID
-    div_slots[~fluid] = 0.0
-    curl_slots[~fluid] = 0.0
-    if opts.remove_mean:
-        # the compatibility option for pure Neumann problems: the right-hand
-        # sides' discrete integrals over the domain made zero
-        vol = p.get("volume")[fluid]
-        for slots in (div_slots, curl_slots):
-            slots[fluid] -= np.average(slots[fluid], weights=vol)
-    seconds["divergence"] = time.perf_counter() - t
-
-    A = None
-    stats_positive = None
-    if opts.boundary_condition != "natural":
-        say("assemble")
-        t = time.perf_counter()
-        # normal-parallel: Dirichlet rows, a regular problem, nothing to border
-        dirichlet = opts.boundary_condition == "normal-parallel"
-        if opts.positive_rows is not None and opts.laplacian == "corrected":
-            if st_lap is None:
-                st_lap = ops.laplacian_coefficients("corrected", row_kinds=(FLUID,))
-            wall = None
-            if opts.boundary == "collocation":
-                # the boundary rows' homogeneous condition holds all along the wall
-                wall = (domain.closest_wall, "dirichlet" if dirichlet else "neumann")
-            stats_positive = make_rows_positive(ops, st_lap, opts.positive_rows, FLUID, wall)
-        A = PoissonMatrix(ops, laplacian=opts.laplacian if st_lap is None else st_lap,
-                          gradient=opts.neumann_gradient if st_neumann is None else st_neumann,
-                          kappa=opts.kappa, near=near, bordered=opts.bordered and not dirichlet,
-                          dirichlet=dirichlet, overwrite_laplacian=True)
-        seconds["assemble"] = time.perf_counter() - t
-
-    stats = {"n_points": n, "n_boundary": int((kind == BOUNDARY).sum()),
-             "n_ghosts": int((kind == GHOST).sum()), "support": support, "spacing": spacing,
-             "mean_neighbours": float(ps.neighbour_counts.mean())}
-    if stats_positive is not None:
-        stats["positive_rows"] = stats_positive
-    return PoissonProblems(opts, pts, ps, A, {"phi": div_slots, "psi": -curl_slots}, vec, kind,
-                           seconds, stats, domain, st_div)
-
-
-def _default_stencils(opts: HHDOptions) -> bool:
-    """Whether the operators are the default's (cubic divergence over the data
-    points, quadratic Neumann gradient, corrected Laplacian), which
-    :meth:`~taichi_hh.sph.operators.Operators.decomposition_coefficients`
-    computes in one kernel."""
-    return (opts.divergence == "cubic" and opts.neumann_gradient == "quadratic"
-            and opts.laplacian == "corrected" and opts.boundary != "petronetto")
+    rhs = right_hand_sides(setup, data.unit_vectors)
+    seconds = dict(setup.seconds, divergence=time.perf_counter() - t)
+    return PoissonProblems(setup.opts, setup.points, setup.ps, setup.A, rhs, data.unit_vectors,
+                           setup.kind, seconds, dict(setup.stats), setup.domain,
+                           setup.divergence_stencil, data.frame, data)
 
 
 def decompose(points, vectors, domain=None, *, method: str = "default", progress=None,
@@ -363,52 +252,31 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
     runtime.ensure_init()
     data = prepare_data(points, vectors, domain, invalid=invalid, valid=valid)
     opts, chosen = resolved_options(opts, data)
-    if "boundary_flux" in chosen and opts.boundary_condition == "natural":
-        unit, opts, chosen = _auto_window(data, opts, chosen, progress)
-    else:
-        unit = _decompose_unit(data, opts, progress)
-    unit.stats.update(chosen)
+    unit = decompose_unit(data, opts, chosen, progress)
     unit.stats["seconds"]["total"] = time.perf_counter() - t_start
-    return _in_caller_units(unit, data)
+    return in_caller_units(unit, data)
 
 
-def _auto_window(data: Data, opts: HHDOptions, chosen: dict, progress) -> tuple:
-    """``(unit result, options, chosen)`` of ``auto``'s window split: the
-    natural one unless its parts cancel, then the orthogonal one
-    (:func:`~taichi_hh.hhd.auto.natural_cancels`; the natural attempt's
-    warnings are not the answer's and are dropped with it)."""
-    import warnings
-
-    def attempt(options):
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            return _decompose_unit(data, options, progress), caught
-
-    def answer(unit, caught):
-        for w in caught:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        return unit
-
-    natural, natural_warnings = attempt(opts)
-    ratio = natural.stats["energy_ratio"]
-    if not natural_cancels(ratio):
-        return answer(natural, natural_warnings), opts, chosen
-    orthogonal_opts = replace(opts, boundary_condition=ORTHOGONAL_CONDITION)
-    orthogonal, orthogonal_warnings = attempt(orthogonal_opts)
-    seconds = {"natural": natural.stats["seconds"]["total"],
-               "orthogonal": orthogonal.stats["seconds"]["total"]}
-    if not energy_closer(orthogonal.stats["energy_ratio"], ratio):
-        # data the orthogonal condition serves worse (gaps at the boundary):
-        # the natural split stands, with its own flags
-        natural.stats["seconds"]["auto_attempts"] = seconds
-        return answer(natural, natural_warnings), opts, {
-            **chosen, "orthogonal_energy_ratio": orthogonal.stats["energy_ratio"]}
-    orthogonal.stats["seconds"]["auto_attempts"] = seconds
-    return answer(orthogonal, orthogonal_warnings), orthogonal_opts, {
-        **chosen, "boundary_condition": ORTHOGONAL_CONDITION, "natural_energy_ratio": ratio}
+def decompose_unit(data: Data, opts: HHDOptions, chosen: dict, progress, *,
+                   split=None, reach_checked: bool = False) -> HHDResult:
+    """The unit-frame decomposition of ``data`` under ``opts`` (its condition
+    resolved: :func:`resolved_options`, which also gave ``chosen``); ``auto``'s
+    window split (``"boundary_flux" in chosen``, natural) falls back to the
+    orthogonal condition where the natural parts cancel
+    (:func:`~taichi_hh.hhd.auto.window_split`).  ``split(data, opts)``: how a
+    condition with Poisson rows is solved (default: a one-off
+    :class:`~taichi_hh.hhd.operator_split.OperatorSplit`); ``reach_checked``:
+    the points' reach of the boundary checked already (a series)."""
+    if "boundary_flux" in chosen and opts.boundary_condition == "natural":
+        unit, opts, chosen = window_split(
+            lambda o: _decompose_unit(data, o, progress, split, reach_checked), opts, chosen)
+    else:
+        unit = _decompose_unit(data, opts, progress, split, reach_checked)
+    unit.stats.update(chosen)
+    return unit
 
 
-def _in_caller_units(unit: HHDResult, data: Data) -> HHDResult:
+def in_caller_units(unit: HHDResult, data: Data) -> HHDResult:
     """The unit-frame decomposition of the valid rows mapped back to every row
     of the caller's input, in the caller's units."""
     f = data.frame
@@ -433,84 +301,24 @@ def _in_caller_units(unit: HHDResult, data: Data) -> HHDResult:
                      else f.domain_from_unit(unit.domain))
 
 
-#: ``no-flux``: each potential under its own condition, one system each
-#: (phi's Neumann rows, psi's Dirichlet rows)
-NO_FLUX_PARTS = (("phi", "neumann"), ("psi", "normal-parallel"))
-
-
-def _decompose_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
-    """Steps (a)-(e) on the valid rows in the unit frame."""
-    if _natural_at_nodes(opts):
-        return _natural_unit(data, opts, progress)
-    t_start = time.perf_counter()
-    say = progress or (lambda stage: None)
-    if opts.boundary_condition == "no-flux":
-        # two systems built and solved one after the other (the first's arrays
-        # freed before the second's are made); d from the first, r from the second
-        solved, seconds = {}, {}
-        for name, condition in NO_FLUX_PARTS:
-            problems = _checked_problems(data, replace(opts, boundary_condition=condition),
-                                         progress, check=name == "phi")
-            rhs = problems.rhs
-            problems.rhs = {name: rhs[name]}
-            potentials, gradients = _potentials_and_gradients(problems, say)
-            solved[name] = (potentials[name], gradients[name])
-            for key, value in problems.seconds.items():
-                seconds[key] = seconds.get(key, 0.0) + value
-            if name == "phi":
-                first = problems.stats
-        problems.rhs = rhs
-        stats = problems.stats
-        for key in ("iterations_phi", "residual_phi", "compatibility_phi", "flags"):
-            if key in first:
-                stats[key] = first[key]
-        (phi, d), (psi, grad_psi) = solved["phi"], solved["psi"]
-        opts = problems.opts = replace(problems.opts, boundary_condition="no-flux")
-    else:
-        problems = _checked_problems(data, opts, progress)
-        seconds, stats = problems.seconds, problems.stats
-        if opts.boundary_condition == "natural":
-            say("natural potentials")
-            t = time.perf_counter()
-            ps = problems.ps
-            nat = natural_potentials(problems.points, problems.domain,
-                                     {k: problems.rhs[k][ps.slot_of] for k in ("phi", "psi")},
-                                     stats["spacing"], evaluation=opts.natural_evaluation)
-            phi, d = nat["phi"]
-            psi, grad_psi = nat["psi"]
-            stats["natural_grid"] = nat["grid"].shape
-            seconds["natural"] = time.perf_counter() - t
-            seconds.update({f"natural_{k}": v for k, v in nat.get("seconds", {}).items()})
-        else:
-            potentials, gradients = _potentials_and_gradients(problems, say)
-            phi, psi = potentials["phi"], potentials["psi"]
-            d, grad_psi = gradients["phi"], gradients["psi"]
-    ps, vec, pts = problems.ps, problems.vectors, problems.points
-    div_slots, curl_slots = problems.rhs["phi"], -problems.rhs["psi"]
-    r = J(grad_psi)
-    h = vec - d - r
-    seconds["total"] = time.perf_counter() - t_start
-    stats["seconds"] = seconds
-    _check_energy(stats, vec, d, r, h, ps.particles.get("volume")[ps.slot_of], opts)
-    _check_harmonic(stats, problems, h)
-    if opts.boundary_condition != "natural":
-        check_corners(stats, pts, d, r, problems.domain, stats["spacing"],
-                      opts.boundary_condition, data.frame.points_from_unit)
-    runtime.release_launch_arguments(ps.n_total)
-    return HHDResult(points=pts, vectors=vec, curl_free=d, div_free=r, harmonic=h,
-                     phi=phi, psi=psi, divergence=div_slots[ps.slot_of],
-                     curl=curl_slots[ps.slot_of], stats=stats, options=opts, pointset=ps,
-                     domain=problems.domain)
+def _decompose_unit(data: Data, opts: HHDOptions, progress, split=None,
+                    reach_checked: bool = False) -> HHDResult:
+    """Steps (a)-(e) on the valid rows in the unit frame under one condition."""
+    if natural_at_nodes(opts):
+        return _natural_unit(data, opts, progress, reach_checked)
+    if split is not None:
+        return split(data, opts)
+    return OperatorSplit(data, opts, keep=False).split([data], progress)[0]
 
 
 #: the options of the SPH operator at the points: the natural decomposition
 #: with all of them at the default's values takes div v and curl v from fits
-#: of v at its grid nodes instead (:func:`_natural_at_nodes`)
+#: of v at its grid nodes instead (:func:`natural_at_nodes`)
 POINT_OPERATOR_OPTIONS = ("kernel", "support_ratio", "adaptive_support", "support_neighbours",
                           "divergence", "boundary", "remove_mean")
 
 
-def _natural_at_nodes(opts: HHDOptions) -> bool:
+def natural_at_nodes(opts: HHDOptions) -> bool:
     """Whether the natural decomposition takes div v and curl v from fits of v
     at its grid nodes (:func:`~taichi_hh.hhd.natural.natural_decomposition`:
     no operator at the points, no neighbour search): with the default
@@ -540,7 +348,7 @@ class _LazyPointSet:
         return getattr(self._ps, name)
 
 
-def _check_natural_reach(pts, domain, spacing: float, opts: HHDOptions, data: Data) -> None:
+def check_natural_reach(pts, domain, spacing: float, opts: HHDOptions, data: Data) -> None:
     """The data reach the boundary (:func:`~taichi_hh.hhd.inputs.check_data_near_boundary`)
     within the fixed support (``support_ratio`` mean spacings); failing that,
     with an adaptive support, within the largest of the points' supports
@@ -556,9 +364,10 @@ def _check_natural_reach(pts, domain, spacing: float, opts: HHDOptions, data: Da
         check_data_near_boundary(pts, domain, spacing, float(supports.max()), data)
 
 
-def _natural_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
+def _natural_unit(data: Data, opts: HHDOptions, progress,
+                  reach_checked: bool = False) -> HHDResult:
     """:func:`_decompose_unit` of the natural decomposition at the grid nodes
-    (:func:`_natural_at_nodes`): no point set (one is built if the result's
+    (:func:`natural_at_nodes`): no point set (one is built if the result's
     ``pointset`` is read), div v and curl v from the nodes' fits of v, the
     energy check with the points' cell areas
     (:class:`~taichi_hh.hhd.natural.NaturalSplit`), the harmonic check with
@@ -573,10 +382,11 @@ def _natural_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
     seconds = {}
     say("setup")
     t = time.perf_counter()
-    _check_natural_reach(pts, domain, spacing, opts, data)
+    if not reach_checked:
+        check_natural_reach(pts, domain, spacing, opts, data)
     stats = {"n_points": n, "n_boundary": 0, "n_ghosts": 0, "support": support,
              "spacing": spacing}
-    check_point_count(n, stats, stacklevel=5)
+    check_point_count(n, stats, stacklevel=6)
     seconds["setup"] = time.perf_counter() - t
     say("natural potentials")
     t = time.perf_counter()
@@ -590,8 +400,9 @@ def _natural_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
     t = time.perf_counter()
     d, r = split.d, J(split.grad_psi)
     h = vec - d - r
-    _check_energy(stats, vec, d, r, h, split.volume, opts, stacklevel=5)
-    flag_harmonic(stats, dict(zip(("divergence", "curl"), split.harmonic_ratios(h))), opts)
+    check_energy(stats, vec, d, r, h, split.volume, opts, stacklevel=6)
+    flag_harmonic(stats, dict(zip(("divergence", "curl"), split.harmonic_ratios(h))), opts,
+                  stacklevel=6)
     seconds["checks"] = time.perf_counter() - t
     seconds.update({f"natural_{k}": v for k, v in split.seconds.items()})
     seconds["total"] = time.perf_counter() - t_start
@@ -608,218 +419,3 @@ def _natural_unit(data: Data, opts: HHDOptions, progress) -> HHDResult:
                      phi=split.phi, psi=split.psi, divergence=split.divergence,
                      curl=split.curl, stats=stats, options=opts,
                      pointset=_LazyPointSet(pointset), domain=domain)
-
-
-def _checked_problems(data: Data, opts: HHDOptions, progress, *,
-                      check: bool = True) -> PoissonProblems:
-    """The problems of ``data`` under ``opts``; with ``check``, too few points
-    refused or flagged."""
-    problems = _unit_problems(data.unit_points, data.unit_vectors, data.unit_domain, opts,
-                              progress, data)
-    problems.frame, problems.data = data.frame, data
-    if check:
-        check_point_count(len(problems.points), problems.stats, stacklevel=5)
-    return problems
-
-
-def _potentials_and_gradients(problems: PoissonProblems, say) -> tuple:
-    """Steps (d) and (e) for the potentials ``problems.rhs`` names: ``(potentials,
-    gradients)``, each a dict by name, at the data points."""
-    opts, ps = problems.opts, problems.ps
-    slots = _solve_potentials(problems, say)
-    say("components")
-    t = time.perf_counter()
-    A = problems.A
-    if A.grad.variant == opts.gradient and A.grad.source_kinds == ALL_KINDS:
-        st_grad = A.grad        # the Neumann rows' gradient: the same fit at the data points
-    else:
-        st_grad = ps.ops.gradient_coefficients(opts.gradient, row_kinds=(FLUID,))
-    some = np.asarray(next(iter(slots.values())))
-    a, b = (np.asarray(slots[k]) if k in slots else np.zeros_like(some) for k in ("phi", "psi"))
-    ga, gb = _gradients(ps, st_grad, a, b)
-    problems.seconds["components"] = time.perf_counter() - t
-    potentials = {k: np.asarray(v)[ps.slot_of] for k, v in slots.items()}
-    gradients = {k: g for k, g in (("phi", ga), ("psi", gb)) if k in slots}
-    return potentials, gradients
-
-
-def _solve_potentials(problems, say) -> dict:
-    """Steps (d): phi and psi per particle slot from the assembled problems.
-    With BiCGSTAB (the default) the two are solved together, the matrix and
-    the preconditioner read once per iteration for both
-    (:meth:`~taichi_hh.poisson.matrix.PoissonMatrix.solve_columns`).
-    ``seconds["preconditioner"]``: the preconditioner's set-up;
-    ``seconds["solve"]``: the iterations of both."""
-    opts, A, stats, seconds = problems.opts, problems.A, problems.stats, problems.seconds
-    say("preconditioner")
-    t = time.perf_counter()
-    preconditioner = A.preconditioner_for(opts.preconditioner, opts.solver,
-                                          dict(opts.multilevel_options))
-    seconds["preconditioner"] = time.perf_counter() - t
-    say("solve phi and psi")
-    t = time.perf_counter()
-    names = list(problems.rhs)
-    if opts.solver == "bicgstab":
-        results = A.solve_columns(np.stack([problems.rhs[name] for name in names], axis=1),
-                                  tol=opts.tol, max_iterations=opts.max_iterations,
-                                  preconditioner=preconditioner)
-    else:
-        # Colin's stacked boundary system is overdetermined and inconsistent in
-        # general: CGNR then seeks its least-squares solution (Colin Sec. 3.5)
-        extra = {"least_squares": True} if opts.solver == "cgnr" else {}
-        results = [A.solve(problems.rhs[name], method=opts.solver, tol=opts.tol,
-                           max_iterations=opts.max_iterations, preconditioner=preconditioner,
-                           **extra) for name in names]
-    seconds["solve"] = time.perf_counter() - t
-    potentials = {}
-    for name, res in zip(names, results):
-        potentials[name] = res.x
-        stats[f"iterations_{name}"] = res.iterations
-        stats[f"residual_{name}"] = res.relative_residual
-        stats[f"compatibility_{name}"] = res.border
-    return potentials
-
-
-def _gradients(ps, st_grad, a, b) -> tuple:
-    """Step (e): the gradients (stencil ``st_grad``) of two per-slot fields at the
-    data points, one pass over the pairs."""
-    f_nd = ps.new_array(2, zeroed=False)
-    f_nd.from_numpy(np.stack([a, b], axis=1).astype(runtime.np_real()))
-    ga, gb = ps.new_array(2, zeroed=False), ps.new_array(2, zeroed=False)
-    ps.ops.gradients(st_grad, f_nd, ga, gb)
-    return ps.download(ga), ps.download(gb)
-
-
-#: h with mean |div h| or |curl h| above this fraction of the field's mean
-#: sqrt(div v^2 + curl v^2) is not harmonic: flagged.  Measured (docs/notes/hhd.md):
-#: 0.02-0.16 for the default method on the analytic fields at 13k-1k points,
-#: up to 0.29 for petronetto2010, 0.47 for the natural HHD of pure 1% noise
-#: (finer than its grid), 1.0 for a rigid rotation under Neumann
-HARMONIC_LIMIT = 0.5
-
-
-def _divergence_curl(ps, st, w):
-    """div w and curl w at the data points by the stencil ``st``."""
-    out = ps.new_array(2)
-    ps.ops.divergence_and_curl(st, ps.upload(w), out)
-    dc = ps.download(out)
-    return dc[:, 0], dc[:, 1]
-
-
-def _check_harmonic(stats, problems, h) -> None:
-    """How harmonic h is: ``stats["h_divergence"]``, ``stats["h_curl"]`` (mean |div h|
-    and |curl h| over the mean of sqrt(div v^2 + curl v^2), the divergence operator
-    over the data points); above :data:`HARMONIC_LIMIT` flagged as _check_energy does."""
-    ps, opts = problems.ps, problems.opts
-    if opts.boundary == "petronetto" or opts.remove_mean:
-        # the right-hand sides are not div v and curl v over the data alone there
-        st = ps.gradient_stencil(opts.divergence)
-        div_v, curl_v = _divergence_curl(ps, st, problems.vectors)
-    else:                                   # the same operator as the right-hand sides'
-        st = problems.divergence_stencil
-        div_v = problems.rhs["phi"][ps.slot_of]
-        curl_v = -problems.rhs["psi"][ps.slot_of]
-    scale = float(np.hypot(div_v, curl_v).mean())
-    ratios = {}
-    for name, values in zip(("divergence", "curl"), _divergence_curl(ps, st, h)):
-        mean = float(np.abs(values).mean())
-        ratios[name] = mean / scale if scale > 0 else (0.0 if mean == 0 else math.inf)
-    flag_harmonic(stats, ratios, opts)
-
-
-def flag_harmonic(stats, ratios: dict, opts: HHDOptions) -> None:
-    """``stats["h_divergence"]``, ``stats["h_curl"]`` from ``ratios`` (by
-    ``divergence``, ``curl``); above :data:`HARMONIC_LIMIT` flagged (stats and
-    an AccuracyWarning)."""
-    import warnings
-    from ..errors import AccuracyWarning
-    for name in ("divergence", "curl"):
-        stats[f"h_{name}"] = ratios[name]
-    stats.setdefault("flags", [])
-    worst = max(ratios, key=ratios.get)
-    if not ratios[worst] <= HARMONIC_LIMIT:
-        msg = (f"h is not harmonic: mean |{'div' if worst == 'divergence' else 'curl'} h| is "
-               f"{ratios[worst]:.3g} of the field's mean derivative (limit {HARMONIC_LIMIT:g}); "
-               f"with boundary_condition={opts.boundary_condition!r}")
-        if not stats.get("energy_ratio", 1.0) <= ENERGY_LIMIT:
-            msg += "; the operators are inconsistent on these points (see the energy flag)"
-        elif opts.boundary_condition == "neumann":
-            msg += ("; the usual cause: the field has net curl or divergence, which the "
-                    "Neumann condition cannot put into d or r (boundary_condition="
-                    "'normal-parallel' or 'natural' can)")
-        stats["flags"].append(msg)
-        warnings.warn(msg, AccuracyWarning, stacklevel=5)
-
-
-#: components with more than this many times the field's energy are flagged
-ENERGY_LIMIT = 4.0
-
-
-def _check_energy(stats, v, d, r, h, vol, opts, *, stacklevel: int = 4) -> None:
-    """The decomposition is L2-orthogonal (Petronetto Eq. 16), so
-    |d|^2 + |r|^2 + |h|^2 = |v|^2 (volume-weighted sums) for an exact one; an
-    accurate discrete one stays within a few percent (docs/notes/hhd.md).
-    Components carrying several times the field's energy cancel each other: the
-    operators are inconsistent on these points (e.g. the symmetric gradient on
-    random points).  Flagged in ``stats["flags"]`` and by an
-    :class:`~taichi_hh.errors.AccuracyWarning`."""
-    import warnings
-    from ..errors import AccuracyWarning
-
-    def energy(x):
-        return float((vol * (x * x).sum(axis=1)).sum())
-
-    total = energy(v)
-    ratio = (energy(d) + energy(r) + energy(h)) / total if total > 0 else 1.0
-    stats["energy_ratio"] = ratio
-    stats.setdefault("flags", [])
-    if not np.isfinite(ratio) or ratio > ENERGY_LIMIT:
-        default = METHODS["default"]
-        if (opts.gradient, opts.divergence, opts.laplacian) != \
-                (default.gradient, default.divergence, default.laplacian):
-            why = (f"the operators (gradient {opts.gradient!r}, divergence "
-                   f"{opts.divergence!r}, Laplacian {opts.laplacian!r}) are not consistent "
-                   "on these points; the default method's are")
-        else:
-            why = ("the components cancel each other: the data are too few or too noisy "
-                   "for the operators at this resolution, or the boundary condition "
-                   f"({opts.boundary_condition!r}) forces large opposite parts near the "
-                   "boundary (boundary_condition='natural' imposes none)")
-        msg = (f"decomposition components carry {ratio:.3g} times the field's energy "
-               f"(|d|^2 + |r|^2 + |h|^2 over |v|^2; 1 for an exact decomposition): {why}; "
-               "the components are unreliable")
-        stats["flags"].append(msg)
-        warnings.warn(msg, AccuracyWarning, stacklevel=stacklevel)
-
-
-def _ghosts_with_data(ps, reach: float = 0.8) -> np.ndarray:
-    """Per slot: False for fake particles without a data point within ``reach`` x
-    support.  0.8: the published quartic is negative beyond 0.848 of its support, so
-    a Shepard sum over only such far neighbours would have no positive weight."""
-    off, nb = ps.pairs.to_numpy()
-    kind = ps.particles.get("kind")
-    pos = ps.particles.get("position")
-    rows = np.repeat(np.arange(ps.n_total), np.diff(off))
-    close = np.linalg.norm(pos[nb] - pos[rows], axis=1) < reach * ps.support
-    has = np.zeros(ps.n_total, dtype=bool)
-    np.logical_or.at(has, rows, (kind[nb] == FLUID) & close)
-    return has | (kind != GHOST)
-
-
-def _petronetto_band(ps, domain):
-    """Petronetto Sec. 4: fluid particles within sqrt(m/rho)/pi of the boundary get
-    the Neumann term, with the outward normal of the closest boundary point; their
-    weights (-1) go to the Poisson rows, the normals to the particles."""
-    p = ps.particles
-    kind = p.get("kind")
-    pos = p.get("position")
-    vol = p.get("volume")
-    dist, _, nrm, _ = domain.closest_boundary(pos)
-    band = (kind == FLUID) & (dist < np.sqrt(vol) / math.pi)
-    normals = p.get("normal")
-    normals[band] = nrm[band]
-    p.set("normal", normals)
-    w = np.where(band, -1.0, 0.0).astype(runtime.np_real())
-    near = runtime.array(runtime.real_dtype(), max(ps.n_total, 1))
-    near.from_numpy(np.resize(w, max(ps.n_total, 1)))
-    return near

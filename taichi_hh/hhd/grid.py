@@ -38,7 +38,7 @@ from ..geometry.polygon import Polygon
 from ..geometry.raster import cell_outlines, check_axis
 from .auto import ORTHOGONAL_CONDITION, energy_closer, natural_cancels
 
-__all__ = ["decompose_grid", "GridResult", "HOLE_SIZE"]
+__all__ = ["decompose_grid", "GridResult", "GridLayout", "grid_components", "HOLE_SIZE"]
 
 #: invalid regions holding a block of this many x this many nodes are cut out
 #: of the domain (holes, cut-off corners); smaller gaps are bridged
@@ -184,15 +184,33 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE,
     Returns a :class:`GridResult`; ``stats`` adds ``n_invalid`` (nodes
     without a vector), ``n_cut_out`` (invalid nodes outside the domain),
     ``n_left_out`` (valid nodes of smaller pieces, not decomposed)."""
-    from .decompose import decompose
-    from .natural_grid import NodeFields, decompose_nodes, uniform_steps
     if _path not in ("auto", "scattered"):
         raise InputError(f"_path must be 'auto' or 'scattered', got {_path!r}")
+    check_grid_options(options, hole_size, min_neighbours)
+    x_in, y_in = check_axis(x, "x"), check_axis(y, "y")
+    u_arr, v_arr, invalid = grid_components(x_in, y_in, u, v, mask)
+    layout = GridLayout(x_in, y_in, invalid, int(hole_size), int(min_neighbours))
+    res = layout.split(u_arr, v_arr, method, progress, options, scattered_only=_path != "auto")
+    return layout.result(res)
+
+
+def check_grid_options(options: dict, hole_size, min_neighbours) -> None:
+    """:func:`decompose_grid`'s own arguments checked (InputError)."""
     if "domain" in options:
         raise InputError("decompose_grid makes its domain from the valid nodes: give "
                          "mask= (True where invalid) to cut regions out, or use "
                          "decompose() with a domain")
-    x_in, y_in = check_axis(x, "x"), check_axis(y, "y")
+    if isinstance(hole_size, bool) or not isinstance(hole_size, (int, np.integer)) \
+            or hole_size < 2:
+        raise InputError(f"hole_size must be an integer >= 2 (nodes), got {hole_size!r}")
+    if isinstance(min_neighbours, bool) or not isinstance(min_neighbours, (int, np.integer)) \
+            or not 0 <= min_neighbours <= 8:
+        raise InputError(f"min_neighbours must be an integer 0..8, got {min_neighbours!r}")
+
+
+def grid_components(x_in, y_in, u, v, mask=None) -> tuple:
+    """``(u, v, invalid)``: the components as (ny, nx) float64 arrays and the
+    nodes without a vector (NaN, masked, or ``mask`` True)."""
     shape = (len(y_in), len(x_in))
     u_arr, u_mask = _component(u, "u", shape)
     v_arr, v_mask = _component(v, "v", shape)
@@ -206,104 +224,147 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE,
             raise InputError(f"mask must be booleans of shape (ny, nx) = {shape}, True where "
                              f"invalid; got {m.dtype} {m.shape}")
         invalid |= m.astype(bool)
-    if isinstance(hole_size, bool) or not isinstance(hole_size, (int, np.integer)) \
-            or hole_size < 2:
-        raise InputError(f"hole_size must be an integer >= 2 (nodes), got {hole_size!r}")
-    if isinstance(min_neighbours, bool) or not isinstance(min_neighbours, (int, np.integer)) \
-            or not 0 <= min_neighbours <= 8:
-        raise InputError(f"min_neighbours must be an integer 0..8, got {min_neighbours!r}")
-    missing = invalid.copy()
-    isolated = isolated_nodes(invalid, int(min_neighbours))
-    invalid = invalid | isolated
-    # work on increasing axes; the results go back to the input's order
-    flip_x, flip_y = x_in[1] < x_in[0], y_in[1] < y_in[0]
-    sl = (slice(None, None, -1 if flip_y else 1), slice(None, None, -1 if flip_x else 1))
-    xs, ys = x_in[sl[1]], y_in[sl[0]]
-    invalid_s, u_s, v_s = invalid[sl], u_arr[sl], v_arr[sl]
-    if invalid_s.all():
-        raise InputError(f"all {invalid.size} nodes are invalid: there is no field to "
-                         "decompose")
-    outside = cut_out(invalid_s, int(hole_size))
-    pieces = cell_outlines(xs, ys, ~outside)
-    outer, holes = pieces[0]
-    domain = Polygon(outer, holes)
+    return u_arr, v_arr, invalid
 
-    def nodes():
-        X, Y = np.meshgrid(xs, ys)
+
+class GridLayout:
+    """What a gridded decomposition takes from the axes and the invalid nodes
+    alone (module doc): the nodes left out as isolated, the regions cut out,
+    the domain's outline, the nodes inside and those decomposed (``used``),
+    on increasing axes (``sl`` the slices back to the input's order).  A
+    series whose snapshots miss the same nodes shares one."""
+
+    def __init__(self, x_in, y_in, invalid, hole_size: int, min_neighbours: int):
+        self.x_in, self.y_in, self.hole_size = x_in, y_in, hole_size
+        self.shape = shape = (len(y_in), len(x_in))
+        self.missing = invalid.copy()
+        self.isolated = isolated_nodes(invalid, min_neighbours)
+        invalid = invalid | self.isolated
+        # work on increasing axes; the results go back to the input's order
+        flip_x, flip_y = x_in[1] < x_in[0], y_in[1] < y_in[0]
+        self.sl = (slice(None, None, -1 if flip_y else 1), slice(None, None, -1 if flip_x else 1))
+        self.xs, self.ys = x_in[self.sl[1]], y_in[self.sl[0]]
+        self.invalid_s = invalid_s = invalid[self.sl]
+        if invalid_s.all():
+            raise InputError(f"all {invalid.size} nodes are invalid: there is no field to "
+                             "decompose")
+        self.outside = cut_out(invalid_s, hole_size)
+        pieces = cell_outlines(self.xs, self.ys, ~self.outside)
+        outer, self.holes = pieces[0]
+        self.n_pieces = len(pieces)
+        self.domain = Polygon(outer, self.holes)
+        if len(pieces) == 1:             # every node not cut out is inside the one outline
+            self.inside = ~self.outside
+        else:
+            self.inside = self.domain.contains(self.nodes()).reshape(shape) & ~self.outside
+        self.used = self.inside & ~invalid_s
+        self.left_out = int((~invalid_s & ~self.inside).sum())
+        from .natural_grid import uniform_steps
+        self.steps = uniform_steps(self.xs, self.ys)
+
+    def nodes(self) -> np.ndarray:
+        """(ny * nx, 2) every node, on the increasing axes."""
+        X, Y = np.meshgrid(self.xs, self.ys)
         return np.c_[X.ravel(), Y.ravel()]
-    if len(pieces) == 1:             # every node not cut out is inside the one outline
-        inside = ~outside
-    else:
-        inside = domain.contains(nodes()).reshape(shape) & ~outside
-    used = inside & ~invalid_s
-    left_out = int((~invalid_s & ~inside).sum())
-    res = None
-    steps = uniform_steps(xs, ys) if _path != "scattered" else None
-    if steps is not None and method == "default" and set(options) <= GRID_NATIVE_OPTIONS:
-        # a uniform grid under the natural condition: on its own nodes
-        # (hhd.natural_grid); the default condition (auto) measured alike
-        from .decompose import options_for
-        opts = options_for(method, **options)
-        chosen = {"boundary_condition": opts.boundary_condition}
-        if opts.boundary_condition == "auto":
-            chosen = _auto_condition(xs, ys, used, inside, u_s, v_s, domain, steps,
-                                     opts.boundary)
-        if chosen["boundary_condition"] == "natural":
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                res = decompose_nodes(xs, ys, steps, u_s, v_s, inside, used, domain,
-                                      replace(opts, boundary_condition="natural"), chosen,
-                                      progress)
-            if "boundary_flux" in chosen and natural_cancels(res.stats["energy_ratio"]):
-                # auto's window split whose parts cancel: the orthogonal one if
-                # its energy is closer to the field's (hhd/auto.py)
-                orthogonal, orthogonal_warnings = _orthogonal_attempt(
-                    nodes()[used.ravel()], np.c_[u_s[used], v_s[used]], domain, method,
-                    progress, options)
-                if energy_closer(orthogonal.stats["energy_ratio"], res.stats["energy_ratio"]):
-                    orthogonal.stats.update(
-                        boundary_condition=ORTHOGONAL_CONDITION,
-                        boundary_flux=chosen["boundary_flux"],
-                        natural_energy_ratio=res.stats["energy_ratio"])
-                    res, caught = orthogonal, orthogonal_warnings
-                else:
-                    res.stats["orthogonal_energy_ratio"] = orthogonal.stats["energy_ratio"]
-            for w in caught:
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if res is None:
-        # the default condition as decompose()'s (auto): natural for a window, which
-        # every measured PIV field is, no-flux where the flow does not cross the outline
-        res = decompose(nodes()[used.ravel()], np.c_[u_s[used], v_s[used]], domain,
-                        method=method, progress=progress, **options)
-    stats = dict(res.stats)
-    stats.update(n_invalid=int(missing.sum()), n_isolated=int(isolated.sum()),
-                 n_cut_out=int((outside & invalid_s).sum()),
-                 n_left_out=left_out, n_holes=len(holes), hole_size=int(hole_size))
-    if left_out:
-        msg = (f"{left_out} valid vectors lie in {len(pieces) - 1} separate piece(s) of the "
-               f"grid, cut off from the largest by invalid regions of {hole_size} x "
-               f"{hole_size} nodes or more: left out (NaN); a larger hole_size bridges the gaps")
-        stats["flags"] = list(stats.get("flags", [])) + [msg]
-        warnings.warn(msg, AccuracyWarning, stacklevel=2)
-    lattice = res if isinstance(res, NodeFields) else None
-    gaps = inside & ~used
 
-    def on_grid(name):
-        if lattice is not None:         # on the grid already, NaN off the inside nodes
-            out = np.array(getattr(lattice, name))
-            if gaps.any():
-                out[gaps] = np.nan
-            return out[sl]
-        values = np.asarray(getattr(res, name))
-        out = np.full(shape + values.shape[1:], np.nan)
-        out[used] = values
-        return out[sl]                      # the input's order again
-    return GridResult(x=x_in, y=y_in, curl_free=on_grid("curl_free"),
-                      div_free=on_grid("div_free"), harmonic=on_grid("harmonic"),
-                      phi=on_grid("phi"), psi=on_grid("psi"),
-                      divergence=on_grid("divergence"), curl=on_grid("curl"),
-                      used=used[sl], inside=inside[sl], domain=domain, stats=stats,
-                      lattice=lattice, _scattered=None if lattice is not None else res)
+    def used_points(self) -> np.ndarray:
+        return self.nodes()[self.used.ravel()]
+
+    def native(self, method: str, options: dict) -> bool:
+        """Whether the grid-native natural path may serve these options."""
+        return (self.steps is not None and method == "default"
+                and set(options) <= GRID_NATIVE_OPTIONS)
+
+    def split(self, u_arr, v_arr, method: str, progress, options: dict, *,
+              scattered_only: bool = False, scattered=None, orthogonal=None):
+        """The decomposition of one snapshot (u, v in the input's order) on
+        this layout: the grid-native natural path where it applies, else the
+        scattered one on the used nodes.  ``scattered(points, vectors)`` and
+        ``orthogonal(points, vectors)`` (auto's fallback): how the scattered
+        decompositions are made (default: a :func:`decompose` call each;
+        :class:`~taichi_hh.hhd.decomposer.GridDecomposer` passes its kept ones)."""
+        from .decompose import decompose, options_for
+        from .natural_grid import decompose_nodes
+        u_s, v_s = u_arr[self.sl], v_arr[self.sl]
+        used, inside = self.used, self.inside
+        res = None
+        if not scattered_only and self.native(method, options):
+            # a uniform grid under the natural condition: on its own nodes
+            # (hhd.natural_grid); the default condition (auto) measured alike
+            opts = options_for(method, **options)
+            chosen = {"boundary_condition": opts.boundary_condition}
+            if opts.boundary_condition == "auto":
+                chosen = _auto_condition(self.xs, self.ys, used, inside, u_s, v_s,
+                                         self.domain, self.steps, opts.boundary)
+            if chosen["boundary_condition"] == "natural":
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    res = decompose_nodes(self.xs, self.ys, self.steps, u_s, v_s, inside, used,
+                                          self.domain,
+                                          replace(opts, boundary_condition="natural"), chosen,
+                                          progress)
+                if "boundary_flux" in chosen and natural_cancels(res.stats["energy_ratio"]):
+                    # auto's window split whose parts cancel: the orthogonal one if
+                    # its energy is closer to the field's (hhd/auto.py)
+                    attempt = orthogonal or (lambda p, w: _orthogonal_attempt(
+                        p, w, self.domain, method, progress, options))
+                    orth, orthogonal_warnings = attempt(self.used_points(),
+                                                        np.c_[u_s[used], v_s[used]])
+                    if energy_closer(orth.stats["energy_ratio"], res.stats["energy_ratio"]):
+                        orth.stats.update(
+                            boundary_condition=ORTHOGONAL_CONDITION,
+                            boundary_flux=chosen["boundary_flux"],
+                            natural_energy_ratio=res.stats["energy_ratio"])
+                        res, caught = orth, orthogonal_warnings
+                    else:
+                        res.stats["orthogonal_energy_ratio"] = orth.stats["energy_ratio"]
+                for w in caught:
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        if res is None:
+            # the default condition as decompose()'s (auto): natural for a window, which
+            # every measured PIV field is, no-flux where the flow does not cross the outline
+            if scattered is not None:
+                res = scattered(self.used_points(), np.c_[u_s[used], v_s[used]])
+            else:
+                res = decompose(self.used_points(), np.c_[u_s[used], v_s[used]], self.domain,
+                                method=method, progress=progress, **options)
+        return res
+
+    def result(self, res, *, stacklevel: int = 3) -> GridResult:
+        """The :class:`GridResult` of a decomposition ``res`` on this layout."""
+        from .natural_grid import NodeFields
+        sl, shape, used, inside = self.sl, self.shape, self.used, self.inside
+        stats = dict(res.stats)
+        stats.update(n_invalid=int(self.missing.sum()), n_isolated=int(self.isolated.sum()),
+                     n_cut_out=int((self.outside & self.invalid_s).sum()),
+                     n_left_out=self.left_out, n_holes=len(self.holes),
+                     hole_size=self.hole_size)
+        if self.left_out:
+            msg = (f"{self.left_out} valid vectors lie in {self.n_pieces - 1} separate piece(s) "
+                   f"of the grid, cut off from the largest by invalid regions of "
+                   f"{self.hole_size} x {self.hole_size} nodes or more: left out (NaN); a "
+                   "larger hole_size bridges the gaps")
+            stats["flags"] = list(stats.get("flags", [])) + [msg]
+            warnings.warn(msg, AccuracyWarning, stacklevel=stacklevel)
+        lattice = res if isinstance(res, NodeFields) else None
+        gaps = inside & ~used
+
+        def on_grid(name):
+            if lattice is not None:         # on the grid already, NaN off the inside nodes
+                out = np.array(getattr(lattice, name))
+                if gaps.any():
+                    out[gaps] = np.nan
+                return out[sl]
+            values = np.asarray(getattr(res, name))
+            out = np.full(shape + values.shape[1:], np.nan)
+            out[used] = values
+            return out[sl]                      # the input's order again
+        return GridResult(x=self.x_in, y=self.y_in, curl_free=on_grid("curl_free"),
+                          div_free=on_grid("div_free"), harmonic=on_grid("harmonic"),
+                          phi=on_grid("phi"), psi=on_grid("psi"),
+                          divergence=on_grid("divergence"), curl=on_grid("curl"),
+                          used=used[sl], inside=inside[sl], domain=self.domain, stats=stats,
+                          lattice=lattice, _scattered=None if lattice is not None else res)
 
 
 def _orthogonal_attempt(points, vectors, domain, method, progress, options):
@@ -373,16 +434,31 @@ def decompose_grid_rows(points, vectors, *, method: str = "default", progress=No
     returns it: an :class:`~taichi_hh.hhd.decompose.HHDResult` in the rows'
     order (NaN on the rows not decomposed), ``stats["grid"]`` the grid's shape.
     None when the points are not such a grid."""
-    from dataclasses import replace
     found = grid_of(points)
     if found is None:
         return None
+    x, y, rows, cols = found
+    u, v = on_nodes(found, vectors)
+    g = decompose_grid(x, y, u, v, method=method, progress=progress, **options)
+    return as_rows(g, found, points, vectors)
+
+
+def on_nodes(found: tuple, vectors) -> tuple:
+    """``(u, v)`` (ny, nx): the rows' ``vectors`` on the grid ``found``
+    (:func:`grid_of`), NaN on nodes no row gives."""
     x, y, rows, cols = found
     vec = np.asarray(vectors, dtype=np.float64)
     u = np.full((len(y), len(x)), np.nan)
     v = np.full((len(y), len(x)), np.nan)
     u[rows, cols], v[rows, cols] = vec[:, 0], vec[:, 1]
-    g = decompose_grid(x, y, u, v, method=method, progress=progress, **options)
+    return u, v
+
+
+def as_rows(g: GridResult, found: tuple, points, vectors):
+    """The :class:`GridResult` ``g`` of a row-listed field (:func:`grid_of`'s
+    ``found``) in the rows' order, as :func:`decompose_grid_rows` returns it."""
+    x, y, rows, cols = found
+    vec = np.asarray(vectors, dtype=np.float64)
     stats = dict(g.stats, grid=(len(y), len(x)))
     used = g.used[rows, cols]
     stats["n_invalid"] = int((~used).sum())

@@ -301,11 +301,36 @@ def prepare_data(points, vectors, domain, *, invalid: str = "missing", valid=Non
     data = Data(pts, vec_out, ok, frame, unit_pts, unit_vec, unit_domain,
                 domain=None if made_from is not None else user_domain, made_from=made_from)
     if caller == "decompose":
-        _check_zero_rows(data)
+        check_zero_rows(data)
     return data
 
 
-def _check_zero_rows(data: Data, *, stacklevel: int = 4) -> None:
+def field_on(data: Data, vectors, *, stacklevel: int = 5) -> Data | None:
+    """Another field ``vectors`` (N, 2) on the points of ``data``
+    (:func:`prepare_data`'s): the same points, valid rows, domain and unit
+    coordinates, the field's own speed (:class:`~taichi_hh.hhd.units.Frame`)
+    and zero-row check.  None when the field misses (NaN, masked) a row that
+    ``data`` holds: its valid points differ, the caller prepares them anew.  Raises
+    :class:`~taichi_hh.errors.InputError` for a bad array."""
+    vec, masked = _real_rows(vectors, "vectors", data.valid.size)
+    missing = np.isnan(vec).any(axis=1)
+    if masked is not None:
+        missing |= masked
+    if missing[data.valid].any():      # a row the points hold is missing here
+        return None
+    vec_ok = vec[data.valid]
+    base = data.frame
+    frame = Frame.of(((0.0, 0.0), (base.length, base.length)), vec_ok)
+    frame = Frame(base.centre, base.length, frame.speed)
+    vec_out = vec.copy()
+    vec_out[~data.valid] = np.nan
+    out = Data(data.points, vec_out, data.valid, frame, data.unit_points, vec_ok / frame.speed,
+               data.unit_domain, domain=data.domain, made_from=data.made_from)
+    check_zero_rows(out, stacklevel=stacklevel)
+    return out
+
+
+def check_zero_rows(data: Data, *, stacklevel: int = 4) -> None:
     """Name exactly zero vectors when there are enough of them to be an
     instrument's mark for invalid ones rather than still fluid."""
     zero = (data.unit_vectors == 0.0).all(axis=1)
