@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -79,21 +80,24 @@ def cli_command(files, out_dir, extra=()) -> list[str]:
             "-q", *extra]
 
 
-def child_env(cache: Path) -> dict:
+def child_env(cache: Path, root: Path = REPO_ROOT) -> dict:
     env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    env["PYTHONPATH"] = str(root) + os.pathsep + env.get("PYTHONPATH", "")
     env["TAICHI_HH_CACHE"] = str(cache)
     return env
 
 
-def timed_run(cmd, env) -> float:
+def timed_run(cmd, env) -> tuple:
+    """(wall seconds, CPU seconds) of one run of ``cmd``."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     done = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                           text=True)
     dt = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stderr[-3000:]}")
-    return dt
+    return dt, (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
 
 
 # --------------------------------------------------------------------------- probe
@@ -107,12 +111,21 @@ def probe(argv: list[str], report: str) -> int:
     from taichi_hh.app import cli
     t_cli = time.perf_counter()
 
-    class Progress(cli._Progress):
-        def __call__(self, stage):
-            stages.append((stage, time.perf_counter() - t_start))
-            super().__call__(stage)
+    class StageClock:
+        """stderr, with the time each of the CLI's stage messages came"""
 
-    cli._Progress = Progress
+        def __init__(self, stream):
+            self.stream = stream
+
+        def write(self, text):
+            if text.startswith("taichi-hh ") and "] " in text:
+                stages.append((text.split("] ", 1)[1].strip(), time.perf_counter() - t_start))
+            return self.stream.write(text)
+
+        def __getattr__(self, name):
+            return getattr(self.stream, name)
+
+    sys.stderr = StageClock(sys.stderr)
 
     def patch_taichi():
         from taichi.lang import kernel_impl
@@ -193,7 +206,7 @@ def breakdown(files, out_dir, env) -> dict:
     with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as fh:
         report = fh.name
     cmd = [sys.executable, "-X", "importtime", str(Path(__file__).resolve()), "--probe", report,
-           "--", "decompose", *map(str, files), "-o", str(out_dir), "-q"]
+           "--", "decompose", *map(str, files), "-o", str(out_dir)]
     t0 = time.perf_counter()
     done = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                           text=True)
@@ -235,6 +248,14 @@ def stage_rows(field: str, got: dict) -> list[dict]:
     return rows
 
 
+def wall_row(case, files, version, runs, target) -> dict:
+    walls = [w for w, _ in runs]
+    cpus = [c for _, c in runs]
+    return dict(case=case, version=version, files=files, median_s=statistics.median(walls),
+                min_s=min(walls), max_s=max(walls), cpu_median_s=statistics.median(cpus),
+                runs=len(runs), target_s=target)
+
+
 def main() -> int:
     if len(sys.argv) > 2 and sys.argv[1] == "--probe":
         rest = sys.argv[3:]
@@ -248,6 +269,10 @@ def main() -> int:
     ap.add_argument("--series", type=int, default=100, help="files in the series call (0: none)")
     ap.add_argument("--series-repeats", type=int, default=2)
     ap.add_argument("--kernels", type=int, default=12, help="kernels listed (slowest first)")
+    ap.add_argument("--baseline", metavar="DIR", default=None,
+                    help="a checkout of the reference version (e.g. a git worktree of main): "
+                         "its CLI timed in the same run, runs interleaved with this one's")
+    ap.add_argument("--no-breakdown", action="store_true", help="wall times only")
     ap.add_argument("--out", default=str(REPO_ROOT / "outputs"))
     args = ap.parse_args()
     out = Path(args.out)
@@ -255,55 +280,74 @@ def main() -> int:
     walls, stages, kernel_rows = [], [], []
     with tempfile.TemporaryDirectory(prefix="cli_startup_") as tmp:
         tmp = Path(tmp)
-        env = child_env(tmp / "cache")
+        versions = {"this": child_env(tmp / "cache", REPO_ROOT)}
+        if args.baseline:
+            versions["baseline"] = child_env(tmp / "cache_baseline", Path(args.baseline).resolve())
+        env = versions["this"]
         for field in [f.strip() for f in args.fields.split(",") if f.strip()]:
             one = write_fields(tmp, field, 1)
-            cmd = cli_command(one, tmp / f"out_{field}")
-            timed_run(cmd, env)                                  # fills the offline cache
-            times = [timed_run(cmd, env) for _ in range(args.repeats)]
-            walls.append(dict(case=f"{field}: 1 file", files=1, median_s=statistics.median(times),
-                              min_s=min(times), max_s=max(times), runs=len(times), target_s=1.5))
-            print(f"{field}: 1 file, median {statistics.median(times):.2f} s "
-                  f"({', '.join(f'{t:.2f}' for t in times)})", flush=True)
-            got = breakdown(one, tmp / f"probe_{field}", env)
-            stages += stage_rows(field, got)
-            for name, v in sorted(got["kernels"].items(),
-                                  key=lambda kv: -(kv[1]["materialize"] + kv[1]["first_launch"])
-                                  )[:args.kernels]:
-                kernel_rows.append(dict(field=field, kernel=name, module=v["module"],
-                                        transform_s=v["materialize"], first_launch_s=v["first_launch"],
-                                        launches=v["launches"], launch_s=v["launch_s"]))
+            cmds = {v: cli_command(one, tmp / f"out_{field}_{v}") for v in versions}
+            runs = {v: [] for v in versions}
+            for v in versions:
+                timed_run(cmds[v], versions[v])                  # fills the offline cache
+            for _ in range(args.repeats):
+                for v in versions:                               # interleaved
+                    runs[v].append(timed_run(cmds[v], versions[v]))
+            for v in versions:
+                walls.append(wall_row(f"{field}: 1 file", 1, v, runs[v], 1.5))
+                w = walls[-1]
+                print(f"{field}: 1 file ({v}), median {w['median_s']:.2f} s wall, "
+                      f"{w['cpu_median_s']:.2f} s CPU", flush=True)
+            if not args.no_breakdown:
+                got = breakdown(one, tmp / f"probe_{field}", env)
+                stages += stage_rows(field, got)
+                for name, v in sorted(got["kernels"].items(),
+                                      key=lambda kv: -(kv[1]["materialize"] + kv[1]["first_launch"])
+                                      )[:args.kernels]:
+                    kernel_rows.append(dict(field=field, kernel=name, module=v["module"],
+                                            transform_s=v["materialize"],
+                                            first_launch_s=v["first_launch"],
+                                            launches=v["launches"], launch_s=v["launch_s"]))
             if args.series:
                 many = write_fields(tmp, field, args.series)
-                cmd = cli_command(many, tmp / f"series_{field}")
-                times = [timed_run(cmd, env) for _ in range(args.series_repeats)]
-                walls.append(dict(case=f"{field}: {args.series} files", files=args.series,
-                                  median_s=statistics.median(times), min_s=min(times),
-                                  max_s=max(times), runs=len(times), target_s=15.0))
-                print(f"{field}: {args.series} files, median {statistics.median(times):.2f} s",
-                      flush=True)
+                cmds = {v: cli_command(many, tmp / f"series_{field}_{v}") for v in versions}
+                runs = {v: [] for v in versions}
+                for _ in range(args.series_repeats):
+                    for v in versions:
+                        runs[v].append(timed_run(cmds[v], versions[v]))
+                for v in versions:
+                    walls.append(wall_row(f"{field}: {args.series} files", args.series, v,
+                                          runs[v], 15.0))
+                    w = walls[-1]
+                    print(f"{field}: {args.series} files ({v}), median {w['median_s']:.2f} s "
+                          f"wall, {w['cpu_median_s']:.2f} s CPU", flush=True)
                 for p in many[1:]:
                     p.unlink()
     print()
-    print(format_table(["case", "median s", "min s", "max s", "runs", "target s"],
-                       [[w["case"], f"{w['median_s']:.2f}", f"{w['min_s']:.2f}",
-                         f"{w['max_s']:.2f}", w["runs"], f"{w['target_s']:g}"] for w in walls]))
-    print()
-    print(format_table(["field", "stage", "s"], [[r["field"], r["stage"], f"{r['seconds']:.3f}"]
-                                                  for r in stages], align="llr"))
-    print()
-    print(format_table(["field", "kernel", "module", "transform s", "first launch s", "launches"],
-                       [[r["field"], r["kernel"], r["module"].replace("taichi_hh.", ""),
-                         f"{r['transform_s']:.3f}", f"{r['first_launch_s']:.3f}", r["launches"]]
-                        for r in kernel_rows], align="lllrrr"))
+    print(format_table(["case", "version", "median s", "min s", "max s", "CPU s", "runs",
+                        "target s"],
+                       [[w["case"], w["version"], f"{w['median_s']:.2f}", f"{w['min_s']:.2f}",
+                         f"{w['max_s']:.2f}", f"{w['cpu_median_s']:.2f}", w["runs"],
+                         f"{w['target_s']:g}"] for w in walls], align="llrrrrrr"))
+    if stages:
+        print()
+        print(format_table(["field", "stage", "s"], [[r["field"], r["stage"], f"{r['seconds']:.3f}"]
+                                                      for r in stages], align="llr"))
+        print()
+        print(format_table(["field", "kernel", "module", "transform s", "first launch s",
+                            "launches"],
+                           [[r["field"], r["kernel"], r["module"].replace("taichi_hh.", ""),
+                             f"{r['transform_s']:.3f}", f"{r['first_launch_s']:.3f}", r["launches"]]
+                            for r in kernel_rows], align="lllrrr"))
+        write_csv_atomic(out / "cli_startup_breakdown.csv",
+                         stages + [dict(field=r["field"], stage=f"kernel {r['kernel']} transform",
+                                        seconds=r["transform_s"]) for r in kernel_rows] +
+                         [dict(field=r["field"], stage=f"kernel {r['kernel']} first launch",
+                               seconds=r["first_launch_s"]) for r in kernel_rows],
+                         ["field", "stage", "seconds"])
     write_csv_atomic(out / "cli_startup.csv", walls, list(walls[0]))
-    write_csv_atomic(out / "cli_startup_breakdown.csv",
-                     stages + [dict(field=r["field"], stage=f"kernel {r['kernel']} transform",
-                                    seconds=r["transform_s"]) for r in kernel_rows] +
-                     [dict(field=r["field"], stage=f"kernel {r['kernel']} first launch",
-                           seconds=r["first_launch_s"]) for r in kernel_rows],
-                     ["field", "stage", "seconds"])
-    print(f"\nwrote {out / 'cli_startup.csv'} and {out / 'cli_startup_breakdown.csv'}")
+    print(f"\nwrote {out / 'cli_startup.csv'}" +
+          ("" if not stages else f" and {out / 'cli_startup_breakdown.csv'}"))
     return 0
 
 
