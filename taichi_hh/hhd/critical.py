@@ -28,7 +28,6 @@ or a corner, tens of times the typical one (docs/notes/hhd.md).
 from __future__ import annotations
 
 import math
-import warnings
 from collections import namedtuple
 from types import SimpleNamespace
 
@@ -324,8 +323,8 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     sm = smoothed(np.stack([lat.divergence, lat.curl, dd[..., 0], dr[..., 1], lat.phi, lat.psi],
                            axis=-1), lat.inside)
     comps, pots = sm[..., 2:4], sm[..., 4:6]
-    for _ in range(POT_PASSES - 1):
-        pots = smoothed(pots, lat.inside)
+    if POT_PASSES > 1:
+        pots = smoothed(pots, lat.inside, POT_PASSES - 1)
     div_v, curl_v = sm[..., 0][used], sm[..., 1][used]
     vec = np.stack([lat.u[used], lat.v[used]], axis=1)
     scale = strength_scale(SimpleNamespace(divergence=div_v, curl=curl_v, vectors=vec,
@@ -360,18 +359,19 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
         near8 = (np.abs(oy) <= 1) & (np.abs(ox) <= 1) & (r_off > 0)
         nb = padded[jj[:, None] + Ry + oy[near8][None, :], ii[:, None] + Rx + ox[near8][None, :]]
         here = pot[jj, ii]
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)    # all-NaN rows: no extremum
-            low = here < np.nanmin(nb, axis=1)
-            high = here > np.nanmax(nb, axis=1)
+        # fmin/fmax skip NaN (off the used nodes) as nanmin/nanmax do, without
+        # their copy; an all-NaN row gives NaN: no extremum
+        with np.errstate(invalid="ignore"):
+            low = here < np.fmin.reduce(nb, axis=1)
+            high = here > np.fmax.reduce(nb, axis=1)
             keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
             jj, ii, low, high = jj[keep], ii[keep], low[keep], high[keep]
             nb = padded[jj[:, None] + Ry + oy[in_rad][None, :],
                         ii[:, None] + Rx + ox[in_rad][None, :]]
             here = pot[jj, ii]
             c_here = comp[jj, ii]
-            low &= (here < np.nanmin(nb, axis=1)) & (c_here * signs[0] > 0)
-            high &= (here > np.nanmax(nb, axis=1)) & (c_here * signs[1] > 0)
+            low &= (here < np.fmin.reduce(nb, axis=1)) & (c_here * signs[0] > 0)
+            high &= (here > np.fmax.reduce(nb, axis=1)) & (c_here * signs[1] > 0)
             keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
         jj, ii, low = jj[keep], ii[keep], low[keep]
         c_all = np.full(jj.size, math.nan)
