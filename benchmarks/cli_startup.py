@@ -17,7 +17,7 @@ Two measurements, each in fresh processes (the CLI as users run it):
 
 Fields: ``scattered`` (4000 uniformly random points in the unit square: the
 scattered path) and ``grid`` (64 x 64 nodes: the grid path).  Writes
-``outputs/cli_startup.csv`` (wall times), ``outputs/cli_startup_breakdown.csv``
+``outputs/benchmarks/cli_startup.csv`` (wall times), ``outputs/benchmarks/cli_startup_breakdown.csv``
 (stages and kernels) and prints both tables.
 
     python benchmarks/cli_startup.py                      # both fields, 5 repeats, 100-file series
@@ -273,7 +273,7 @@ def main() -> int:
                     help="a checkout of the reference version (e.g. a git worktree of main): "
                          "its CLI timed in the same run, runs interleaved with this one's")
     ap.add_argument("--no-breakdown", action="store_true", help="wall times only")
-    ap.add_argument("--out", default=str(REPO_ROOT / "outputs"))
+    ap.add_argument("--out", default=str(REPO_ROOT / "outputs" / "benchmarks"))
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

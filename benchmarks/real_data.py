@@ -3,7 +3,7 @@ sample fields shipped inside the ``pivpy`` package, read with pivpy's readers
 and decomposed with :func:`taichi_hh.decompose_grid`.
 
     python benchmarks/real_data.py [--datasets jet,urban,...] [--conditions natural,neumann]
-                                   [--no-extras] [--no-figures]
+                                   [--no-extras] [--no-figures] [--repeats N]
 
 Needs ``pip install "pivpy[lvpyio]"`` (the ``bench`` extra); without pivpy it
 prints a note and exits 0.
