@@ -352,20 +352,27 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
             cand &= (comp * signs[0] > 0) | (comp * signs[1] > 0)
         if not cand.any():
             continue
-        # a strict extremum among the 8 neighbours (necessary), then among the
-        # used nodes within the radius: gathers over the candidates
+        # a strict extremum among the 8 neighbours (necessary: shifted views
+        # of the whole grid), then among the used nodes within the radius
+        # (gathers over the candidates left).  fmin/fmax skip NaN (off the
+        # used nodes) as nanmin/nanmax do; none but NaN: no extremum
         padded = _padded(pot, Ry, Rx, np.nan)
-        jj, ii = np.nonzero(cand)
-        near8 = (np.abs(oy) <= 1) & (np.abs(ox) <= 1) & (r_off > 0)
-        nb = padded[jj[:, None] + Ry + oy[near8][None, :], ii[:, None] + Rx + ox[near8][None, :]]
-        here = pot[jj, ii]
-        # fmin/fmax skip NaN (off the used nodes) as nanmin/nanmax do, without
-        # their copy; an all-NaN row gives NaN: no extremum
+        lo8 = hi8 = None
+        count8 = np.zeros(pot.shape, dtype=np.int64)
+        for dy in range(-min(Ry, 1), min(Ry, 1) + 1):
+            for dx in range(-min(Rx, 1), min(Rx, 1) + 1):
+                if dy or dx:
+                    view = padded[Ry + dy:Ry + dy + ny, Rx + dx:Rx + dx + nx]
+                    lo8 = view if lo8 is None else np.fmin(lo8, view)
+                    hi8 = view if hi8 is None else np.fmax(hi8, view)
+                    count8 += np.isfinite(view)
+        if lo8 is None:
+            continue
         with np.errstate(invalid="ignore"):
-            low = here < np.fmin.reduce(nb, axis=1)
-            high = here > np.fmax.reduce(nb, axis=1)
-            keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
-            jj, ii, low, high = jj[keep], ii[keep], low[keep], high[keep]
+            low8, high8 = pot < lo8, pot > hi8
+            cand &= (low8 | high8) & (count8 >= 2)
+            jj, ii = np.nonzero(cand)
+            low, high = low8[jj, ii], high8[jj, ii]
             nb = padded[jj[:, None] + Ry + oy[in_rad][None, :],
                         ii[:, None] + Rx + ox[in_rad][None, :]]
             here = pot[jj, ii]
