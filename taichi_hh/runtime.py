@@ -78,6 +78,8 @@ def subnormals_kept() -> bool:
 def _taichi():
     import taichi as ti  # imported lazily: importing taichi prints a banner
     _free_vector_ndarrays()
+    from .kernel_transform import install
+    install()                # kernels' Python->IR transforms memoised (kernel_transform.py)
     return ti
 
 

@@ -267,10 +267,11 @@ def div_curl(F: np.ndarray, avail: np.ndarray, hx: float, hy: float, codes=None)
     return out
 
 
-def smoothed(F: np.ndarray, avail: np.ndarray) -> np.ndarray:
+def smoothed(F: np.ndarray, avail: np.ndarray, passes: int = 1) -> np.ndarray:
     """``F`` (ny, nx[, k]) smoothed over the nodes ``avail`` by the binomial
     filter [1, 2, 1] / 4 along x, then along y (each pass renormalised by the
-    weight of the available nodes; NaN off ``avail``).  One pass is what the
+    weight of the available nodes; NaN off ``avail``), ``passes`` times (the
+    weights computed once).  One pass is what the
     scattered path's cubic moving-least-squares divergence does to a field's
     differences: on pivpy's noisy samples the differences smoothed so differ
     from it by 16-22% (wing tip, soap film; 31-54% unsmoothed)."""
@@ -278,19 +279,23 @@ def smoothed(F: np.ndarray, avail: np.ndarray) -> np.ndarray:
     one = F.ndim == 2
     Z = np.where(avail[..., None], F[..., None] if one else F, 0.0)
     w = avail.astype(np.float64)
+    steps = []                          # (axis, lo, hi, the renormalisation)
     for axis in (1, 0):
         n = Z.shape[axis]
         if n < 2:
             continue
         lo = (slice(None),) * axis + (slice(0, n - 1),)
         hi = (slice(None),) * axis + (slice(1, n),)
-        num = 2.0 * Z
-        num[hi] += Z[lo]
-        num[lo] += Z[hi]
         den = 2.0 * w
         den[hi] += w[lo]
         den[lo] += w[hi]
-        Z = num * np.where(avail, 1.0 / np.maximum(den, 1e-300), 0.0)[..., None]
+        steps.append((lo, hi, np.where(avail, 1.0 / np.maximum(den, 1e-300), 0.0)[..., None]))
+    for _ in range(passes):
+        for lo, hi, scale in steps:
+            num = 2.0 * Z
+            num[hi] += Z[lo]
+            num[lo] += Z[hi]
+            Z = num * scale
     Z[~avail] = np.nan
     return Z[..., 0] if one else Z
 
