@@ -131,8 +131,6 @@ def default_arch() -> str:
     """The arch :func:`init` takes when given none: ``$TAICHI_HH_ARCH`` where
     set, else ``"cpu"``."""
     arch = os.environ.get(ARCH_VARIABLE, "").strip() or "cpu"
-    if arch is None:
-        arch = default_arch()
     if arch not in ARCHES:
         raise InputError(f"${ARCH_VARIABLE} must be one of {ARCHES}, got {arch!r}")
     return arch
@@ -163,6 +161,8 @@ def init(arch: str | None = None, precision: str = "f64", *, offline_cache_dir: 
     milliseconds, so loops shorter than that ran on one core
     (docs/notes/flow.md, "Worker threads").
     """
+    if arch is None:
+        arch = default_arch()
     if arch not in ARCHES:
         raise InputError(f"arch must be one of {ARCHES}, got {arch!r}")
     if precision not in _PRECISIONS:
