@@ -140,3 +140,20 @@ def test_the_command_line_refuses_a_missing_gpu_and_names_the_device():
 def test_an_unknown_arch_is_refused_by_name():
     with pytest.raises(InputError, match="arch must be one of .*'vulkan'.*got 'tpu'"):
         thh.init(arch="tpu")
+
+
+def test_the_direct_sums_logarithm_from_the_bits_is_numpys():
+    """The natural decomposition's direct sum takes ln |x|^2 from the float's
+    bits on the SPIR-V archs (no f64 log there): on any arch, the same sum
+    as numpy's log gives, to round-off."""
+    from taichi_hh.geometry.box import Box
+    from taichi_hh.hhd import free_space
+    grid = free_space.Grid(Box((0.0, 0.0), (1.0, 1.0)), 1 / 24)
+    density = np.random.default_rng(5).standard_normal(grid.shape)
+    bits = free_space.convolve_direct(grid, density, bitwise_log=True).ravel()
+    c = grid.centres()
+    q = density.ravel() * grid.hx * grid.hy
+    r2 = ((c[:, None, :] - c[None, :, :]) ** 2).sum(axis=2)
+    np.fill_diagonal(r2, 1.0)                                   # ln 1 = 0: the own cell
+    want = q * grid.self_integral() / (grid.hx * grid.hy) + np.log(r2) @ q / (4 * np.pi)
+    assert np.abs(bits - want).max() < 1e-13 * np.abs(want).max()
