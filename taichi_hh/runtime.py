@@ -141,9 +141,11 @@ def init(arch: str | None = None, precision: str = "f64", *, offline_cache_dir: 
          pin_threads: bool | None = None) -> RuntimeState:
     """Initialise Taichi for this package.
 
-    arch: ``"cpu"`` (default: :func:`default_arch`); ``"cuda"`` or ``"vulkan"`` (that backend); ``"gpu"`` (the
-    first GPU backend that starts: CUDA, then Vulkan; Metal first on macOS) or
-    ``"auto"`` (a GPU backend when one starts, the CPU otherwise).  A GPU
+    arch: ``"cpu"``; ``"cuda"`` or ``"vulkan"`` (that backend); ``"gpu"``
+    (the first GPU backend that starts: CUDA, then Vulkan; Metal first on
+    macOS; a Vulkan whose only device is a CPU driver, lavapipe, does not
+    count) or ``"auto"`` (a GPU backend when one starts, the CPU otherwise);
+    None: :func:`default_arch` (``$TAICHI_HH_ARCH``, else ``"cpu"``).  A GPU
     request that no device can serve (``cuda``, ``vulkan``, ``gpu``) raises
     :class:`~taichi_hh.errors.InputError` naming the backends tried: Taichi
     itself falls back to the CPU silently, so the arch Taichi reports after
