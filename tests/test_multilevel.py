@@ -98,7 +98,7 @@ def test_grid_levels_built_in_parallel_are_the_serial_ones(square48, monkeypatch
     parallel loops (the kernel whose run-time indexed local vector Vulkan
     could not compile, so every scene of 5000 particles failed there): the
     same entries, bit for bit, as the serial build."""
-    from taichi_hh.linalg.multilevel import preconditioner
+    from taichi_hh.poisson.multilevel import preconditioner
     ps, A, b = square48
     serial = MultilevelPreconditioner(A)
     monkeypatch.setattr(preconditioner, "SERIAL_MAX_N", 0)

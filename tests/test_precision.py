@@ -4,7 +4,7 @@ The f32 runtime runs in its own interpreter (one precision per process), on
 the session's arch (``$TAICHI_HH_ARCH``: the subprocess inherits it, so CI's
 Vulkan run checks f32 on Vulkan).  The solver's default tolerance (1e-8) is
 below what an f32 residual attains; the Poisson solves reach it by
-refinement with the residual in f64 (linalg/poisson.py), so the defaults
+refinement with the residual in f64 (poisson/matrix.py), so the defaults
 are the same in both precisions.  test_units.py checks f32's accuracy under
 every placement; here every call and boundary condition, and the answers
 against f64's (this process).
