@@ -1,8 +1,9 @@
 """Taichi runtime ownership: the only module that calls ``ti.init``.
 
 Nothing in :mod:`taichi_hh` initialises Taichi at import time.  The first call
-that needs Taichi runs :func:`ensure_init`, which initialises the CPU arch in
-double precision unless :func:`init` was called before with other settings.
+that needs Taichi runs :func:`ensure_init`, which initialises the CPU arch (or
+the one ``$TAICHI_HH_ARCH`` names) in double precision unless :func:`init` was
+called before with other settings.
 
 Precision is a runtime-wide choice (Taichi's ``default_fp``): every ``float``
 inside a kernel and every real-valued array this package allocates follows it.
@@ -18,18 +19,28 @@ from dataclasses import dataclass
 
 import numpy as np
 
-_ARCHES = ("cpu", "gpu", "auto")
+from .errors import InputError
+
+#: the arch choices of :func:`init`: a backend by name, any GPU backend, or
+#: whatever is present
+ARCHES = ("cpu", "cuda", "vulkan", "gpu", "auto")
+#: the environment variable that names the default arch (of :func:`init`, the
+#: lazy start, the command line and the scenes; CI's Vulkan run sets it)
+ARCH_VARIABLE = "TAICHI_HH_ARCH"
+#: the GPU backends ``"gpu"`` and ``"auto"`` try, in order (Metal first on macOS)
+GPU_BACKENDS = ("cuda", "vulkan")
 _PRECISIONS = {"f32": np.float32, "f64": np.float64}
 
 
 @dataclass
 class RuntimeState:
     initialized: bool = False
-    arch: str = ""           # "cpu" or "gpu": what Taichi actually runs on
+    arch: str = ""           # the backend Taichi actually runs on: cpu, cuda, vulkan, metal
     requested_arch: str = ""
     precision: str = ""
     generation: int = 0      # bumped on every (re)initialisation
     pinned: tuple = ()       # CPUs Taichi's worker threads were bound to, in order
+    device: str = ""         # the Vulkan device's name where known ("" otherwise)
 
 
 _state = RuntimeState()
@@ -118,14 +129,32 @@ def _free_vector_ndarrays() -> None:
             cls.__del__ = free
 
 
-def init(arch: str = "cpu", precision: str = "f64", *, offline_cache_dir: str | None = None,
+def default_arch() -> str:
+    """The arch :func:`init` takes when given none: ``$TAICHI_HH_ARCH`` where
+    set, else ``"cpu"``."""
+    arch = os.environ.get(ARCH_VARIABLE, "").strip() or "cpu"
+    if arch not in ARCHES:
+        raise InputError(f"${ARCH_VARIABLE} must be one of {ARCHES}, got {arch!r}")
+    return arch
+
+
+def init(arch: str | None = None, precision: str = "f64", *, offline_cache_dir: str | None = None,
          threads: int | None = None, debug: bool = False, verbose: bool = True,
          pin_threads: bool | None = None) -> RuntimeState:
     """Initialise Taichi for this package.
 
-    arch: ``"cpu"``, ``"gpu"`` (falls back to CPU with one message when no GPU
-    is found) or ``"auto"`` (GPU when present, CPU silently otherwise).
+    arch: ``"cpu"``; ``"cuda"`` or ``"vulkan"`` (that backend); ``"gpu"``
+    (the first GPU backend that starts: CUDA, then Vulkan; Metal first on
+    macOS; a Vulkan whose only device is a CPU driver, lavapipe, does not
+    count) or ``"auto"`` (a GPU backend when one starts, the CPU otherwise);
+    None: :func:`default_arch` (``$TAICHI_HH_ARCH``, else ``"cpu"``).  A GPU
+    request that no device can serve (``cuda``, ``vulkan``, ``gpu``) raises
+    :class:`~taichi_hh.errors.InputError` naming the backends tried: Taichi
+    itself falls back to the CPU silently, so the arch Taichi reports after
+    starting is checked.  The arch in use is :attr:`RuntimeState.arch`.
     precision: ``"f32"`` or ``"f64"``; the default floating type of every kernel.
+    verbose: kept for callers of the time a missing GPU printed a message;
+    nothing is printed now (a missing GPU is an error).
     offline_cache_dir: where Taichi keeps compiled kernels between runs
     (default: Taichi's own, or ``$TAICHI_HH_CACHE`` when set).
     threads: CPU worker threads (default: all cores).
@@ -136,8 +165,10 @@ def init(arch: str = "cpu", precision: str = "f64", *, offline_cache_dir: str | 
     milliseconds, so loops shorter than that ran on one core
     (docs/notes/flow.md, "Worker threads").
     """
-    if arch not in _ARCHES:
-        raise ValueError(f"arch must be one of {_ARCHES}, got {arch!r}")
+    if arch is None:
+        arch = default_arch()
+    if arch not in ARCHES:
+        raise InputError(f"arch must be one of {ARCHES}, got {arch!r}")
     if precision not in _PRECISIONS:
         raise ValueError(f"precision must be one of {tuple(_PRECISIONS)}, got {precision!r}")
     ti = _taichi()
@@ -148,13 +179,13 @@ def init(arch: str = "cpu", precision: str = "f64", *, offline_cache_dir: str | 
     environment = FloatingPointEnvironment()
     environment.save()
     try:
-        _start(ti, arch, precision, offline_cache_dir, threads, debug, verbose, pin_threads)
+        _start(ti, arch, precision, offline_cache_dir, threads, debug, pin_threads)
     finally:
         environment.restore()
     return _state
 
 
-def _start(ti, arch, precision, offline_cache_dir, threads, debug, verbose, pin_threads) -> None:
+def _start(ti, arch, precision, offline_cache_dir, threads, debug, pin_threads) -> None:
     """:func:`init`'s work once the arguments are checked."""
     kwargs = dict(default_fp=ti.f64 if precision == "f64" else ti.f32, default_ip=ti.i32,
                   offline_cache=True, debug=debug, log_level=ti.WARN)
@@ -165,20 +196,34 @@ def _start(ti, arch, precision, offline_cache_dir, threads, debug, verbose, pin_
     if threads:
         kwargs["cpu_max_num_threads"] = int(threads)
     actual = "cpu"
+    tried = []
     if arch != "cpu":
-        # Try the GPU backends one by one rather than ti.gpu: its OpenGL probe
-        # segfaults on machines without a display (seen on the CPU-only CI boxes),
-        # while CUDA and Vulkan fall back to the CPU cleanly when absent.
-        for backend in _gpu_backends(ti):
-            ti.init(arch=backend, **kwargs)
-            if ti.lang.impl.current_cfg().arch != ti.cpu:
-                actual = "gpu"
+        # Backends one by one rather than ti.gpu: its OpenGL probe segfaults on
+        # machines without a display (seen on the CPU-only CI boxes), while CUDA
+        # and Vulkan fall back to the CPU cleanly when absent.
+        names = (arch,) if arch in GPU_BACKENDS else _gpu_backends()
+        for name in names:
+            tried.append(name)
+            if name == "vulkan" and arch != "vulkan" and _software_vulkan_only():
+                continue     # Mesa's lavapipe: a CPU behind the Vulkan API, far slower
+            ti.init(arch=getattr(ti, name), **kwargs)
+            if ti.lang.impl.current_cfg().arch == getattr(ti, name):
+                actual = name
                 break
             ti.reset()
+    if actual == "cpu" and arch not in ("cpu", "auto"):
+        software = arch == "gpu" and _software_vulkan_only()
+        _state.initialized = False          # Taichi was reset: nothing is running
+        _state.generation += 1              # and every array made before is gone
+        raise InputError(
+            f"arch={arch!r} asks for a GPU backend, but Taichi found no usable "
+            f"{' or '.join(tried)} device on this machine (no driver, or no device "
+            "it can start"
+            + ("; the only Vulkan device is a CPU driver (Mesa's lavapipe), which "
+               "arch='vulkan' still takes" if software else "")
+            + "); use arch='cpu', or 'auto' to take a GPU only where one exists")
     if actual == "cpu":
         ti.init(arch=ti.cpu, **kwargs)
-    if arch == "gpu" and actual == "cpu" and verbose:
-        print("taichi_hh: no usable GPU found; running on the CPU instead.", file=sys.stderr)
     _state.pinned = ()
     if actual == "cpu":
         if pin_threads is None:
@@ -187,6 +232,7 @@ def _start(ti, arch, precision, offline_cache_dir, threads, debug, verbose, pin_
             _state.pinned = _pin_workers(ti)
     _state.initialized = True
     _state.arch = actual
+    _state.device = _device_name(actual)
     _state.requested_arch = arch
     _state.precision = precision
     _state.generation += 1
@@ -264,15 +310,89 @@ def _pin_workers(ti) -> tuple:
     return tuple(used)
 
 
-def _gpu_backends(ti):
-    backends = [ti.cuda, ti.vulkan]
-    if sys.platform == "darwin":
-        backends.insert(0, ti.metal)
-    return backends
+def _gpu_backends() -> tuple:
+    return ("metal",) + GPU_BACKENDS if sys.platform == "darwin" else GPU_BACKENDS
+
+
+def vulkan_devices() -> list | None:
+    """``[(name, kind)]`` of the Vulkan devices the loader lists, ``kind`` one of
+    ``other``, ``integrated``, ``discrete``, ``virtual``, ``cpu``; None where
+    no Vulkan loader or instance is to be had.  Asked of the Vulkan loader
+    directly (Taichi does not say which device it took); a ``cpu`` device is a
+    software driver such as Mesa's lavapipe, which Taichi takes as readily as
+    a GPU."""
+    import ctypes
+    import ctypes.util
+    names = [ctypes.util.find_library("vulkan"), "libvulkan.so.1", "vulkan-1", "libvulkan.1.dylib"]
+    lib = None
+    for name in filter(None, names):
+        try:
+            lib = ctypes.CDLL(name)
+            break
+        except OSError:
+            continue
+    if lib is None:
+        return None
+
+    class InstanceCreateInfo(ctypes.Structure):
+        _fields_ = [("sType", ctypes.c_uint32), ("pNext", ctypes.c_void_p),
+                    ("flags", ctypes.c_uint32), ("pApplicationInfo", ctypes.c_void_p),
+                    ("enabledLayerCount", ctypes.c_uint32), ("ppEnabledLayerNames", ctypes.c_void_p),
+                    ("enabledExtensionCount", ctypes.c_uint32),
+                    ("ppEnabledExtensionNames", ctypes.c_void_p)]
+
+    info = InstanceCreateInfo(sType=1)        # VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO
+    instance = ctypes.c_void_p()
+    if lib.vkCreateInstance(ctypes.byref(info), None, ctypes.byref(instance)) != 0:
+        return None
+    try:
+        count = ctypes.c_uint32(0)
+        lib.vkEnumeratePhysicalDevices(instance, ctypes.byref(count), None)
+        handles = (ctypes.c_void_p * count.value)()
+        lib.vkEnumeratePhysicalDevices(instance, ctypes.byref(count), handles)
+        kinds = ("other", "integrated", "discrete", "virtual", "cpu")
+        out = []
+        for handle in handles[:count.value]:
+            # VkPhysicalDeviceProperties: four uint32, the type, then the name
+            props = ctypes.create_string_buffer(4096)
+            lib.vkGetPhysicalDeviceProperties(ctypes.c_void_p(handle), props)
+            kind = int.from_bytes(props.raw[16:20], sys.byteorder)
+            name = props.raw[20:276].split(b"\0", 1)[0].decode(errors="replace")
+            out.append((name, kinds[kind] if kind < len(kinds) else "other"))
+        return out
+    finally:
+        lib.vkDestroyInstance(instance, None)
+
+
+def _software_vulkan_only() -> bool:
+    """Whether every Vulkan device is a CPU driver (lavapipe): Vulkan then is
+    no GPU, and ``"gpu"``/``"auto"`` do not take it."""
+    devices = vulkan_devices()
+    return bool(devices) and all(kind == "cpu" for _, kind in devices)
+
+
+def _device_name(arch: str) -> str:
+    """The Vulkan device Taichi runs on: its first GPU device where there is
+    one (Taichi prefers them), else the first device."""
+    if arch != "vulkan":
+        return ""
+    devices = vulkan_devices() or []
+    gpus = [name for name, kind in devices if kind != "cpu"]
+    return (gpus or [name for name, _ in devices] or [""])[0]
+
+
+def taichi_arch() -> str:
+    """The arch Taichi itself reports it runs on (``"cpu"``, ``"vulkan"``, ...),
+    read from Taichi rather than from this module's record: what a check that
+    the requested arch really is in use compares with."""
+    ti = _taichi()
+    ensure_init()
+    name = ti.lang.impl.current_cfg().arch.name
+    return "cpu" if name in ("x64", "arm64") else name
 
 
 def ensure_init() -> RuntimeState:
-    """Initialise lazily (CPU, f64) unless already initialised."""
+    """Initialise lazily (:func:`default_arch`, f64) unless already initialised."""
     if not _state.initialized:
         init()
     return _state

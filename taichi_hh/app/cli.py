@@ -27,6 +27,7 @@ import textwrap
 import time
 
 from .. import __version__
+from ..runtime import ARCHES, default_arch
 from ..checks import nonnegative_float, nonnegative_int, positive_float, positive_int
 
 #: HHDOptions fields not on the command line: the multilevel cycle's tuning
@@ -193,9 +194,10 @@ def _add_common(p, command):
             num.add_argument(flag, dest=name, default=None, help=text)
 
     rt = p.add_argument_group("runtime")
-    rt.add_argument("--arch", default="cpu", choices=("cpu", "gpu", "auto"),
-                    help="Taichi arch: cpu, gpu (falls back to the CPU with a message) or "
-                         "auto (GPU when present) (default: cpu)")
+    rt.add_argument("--arch", default=default_arch(), choices=ARCHES,
+                    help="Taichi arch: cpu, cuda, vulkan, gpu (any GPU backend; an error "
+                         "where none starts) or auto (a GPU when present) (default: "
+                         "$TAICHI_HH_ARCH, else cpu)")
     rt.add_argument("--precision", default="f64", choices=("f32", "f64"),
                     help="floating-point precision of every Taichi kernel; with f32 use a "
                          "looser --tol such as 1e-5 (default: f64)")
@@ -265,8 +267,9 @@ def build_parser() -> argparse.ArgumentParser:
     pro.set_defaults(func=_cmd_project)
 
     info = sub.add_parser("info", help="show the version and the Taichi arch in use")
-    info.add_argument("--arch", default="auto", choices=("cpu", "gpu", "auto"),
-                      help="Taichi arch: cpu, gpu (falls back to cpu) or auto (default)")
+    info.add_argument("--arch", default="auto", choices=ARCHES,
+                      help="Taichi arch: cpu, cuda, vulkan, gpu (an error where no GPU "
+                           "backend starts) or auto (default)")
     info.add_argument("--verbose", action="store_true",
                       help="also show Taichi's own start-up messages")
     info.add_argument("--precision", default="f64", choices=("f32", "f64"),
@@ -377,7 +380,8 @@ def _cmd_info(args) -> int:
     import taichi_hh as thh
     with _captured_output() as captured:     # Taichi's start-up and arch-probing messages
         st = thh.init(arch=args.arch, precision=args.precision)
-    print(f"taichi_hh {thh.__version__}: Taichi arch={st.arch} (requested {st.requested_arch}), "
+    device = f", device {st.device}" if st.device else ""
+    print(f"taichi_hh {thh.__version__}: Taichi arch={st.arch} (requested {st.requested_arch}{device}), "
           f"precision={st.precision}")
     lines = [ln for ln in captured.text.splitlines() if ln.strip()]
     if args.verbose:

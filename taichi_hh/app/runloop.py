@@ -40,6 +40,7 @@ import numpy as np
 
 from ..checks import positive_float, positive_int
 from ..errors import BlowUp, SolverError
+from ..runtime import ARCHES, default_arch
 from .io import atomic_path, npz_problem
 
 
@@ -459,7 +460,7 @@ def run(step_fn, *, t0: float, t_end: float, output_interval: float, on_output, 
 # ---- command line ------------------------------------------------------------------------
 
 DEFAULTS = {
-    "particles": 10000, "end_time": 1.0, "out": "outputs/scene", "arch": "cpu",
+    "particles": 10000, "end_time": 1.0, "out": "outputs/scene", "arch": None,
     "movie": "none", "fps": 20.0, "frame_width": 800, "color": "phase", "precision": "f64",
 }
 
@@ -495,8 +496,10 @@ def add_common_arguments(parser: argparse.ArgumentParser, defaults: dict | None 
                              "a fresh run first removes the files an earlier run wrote there "
                              "(frames, particles, diagnostics, checkpoint, movie), other files "
                              "stay" + dflt)
-    parser.add_argument("--arch", choices=("cpu", "gpu", "auto"), default=d["arch"],
-                        help="Taichi arch; gpu falls back to the CPU when there is none" + dflt)
+    parser.add_argument("--arch", choices=ARCHES, default=d["arch"] or default_arch(),
+                        help="Taichi arch: cpu, cuda, vulkan, gpu (any GPU backend; an error "
+                             "where none starts) or auto (a GPU when present) (default: "
+                             "$TAICHI_HH_ARCH, else cpu)")
     parser.add_argument("--resume", action="store_true",
                         help="continue from the checkpoint in --out instead of starting afresh;"
                              " the run keeps the checkpoint's options (a different value is "

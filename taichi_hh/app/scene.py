@@ -316,7 +316,8 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
     result = SceneRun(flow=flow, args=args)
     spent = dict.fromkeys(("render", "diagnostics", "checkpoint"), 0.0)
     if not args.quiet:
-        print(f"{scene.name}: {flow.n_fluid} fluid particles, spacing {flow.dx:.4g}, "
+        print(f"{scene.name} on {runtime.state().arch}/{runtime.state().precision}: "
+              f"{flow.n_fluid} fluid particles, spacing {flow.dx:.4g}, "
               f"support {flow.support:.4g}, until t={args.end_time}; terms: {scene.terms}; "
               f"projection: {'exact (orthogonal clean-up)' if params.exact_projection else 'approximate'}; "
               f"writing to {args.out}", file=sys.stderr)

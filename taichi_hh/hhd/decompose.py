@@ -289,6 +289,7 @@ def in_caller_units(unit: HHDResult, data: Data) -> HHDResult:
     stats["n_invalid"] = data.n_invalid
     stats["frame"] = f.as_dict()
     stats["flags"] = data.flags + list(unit.stats.get("flags", []))
+    stats["arch"], stats["precision"] = runtime.state().arch, runtime.state().precision
     return HHDResult(points=data.points, vectors=data.vectors,
                      curl_free=data.rows(unit.curl_free, f.speed),
                      div_free=data.rows(unit.div_free, f.speed),

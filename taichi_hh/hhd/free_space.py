@@ -248,22 +248,54 @@ def convolve_fft(grid: Grid, density: np.ndarray) -> np.ndarray:
     return out[0] if one else out
 
 
+#: ln 2 split in two (fdlibm's): e ln 2 exact to double precision for any exponent e
+_LN2_HI, _LN2_LO = 6.93147180369123816490e-01, 1.90821492927058770002e-10
+
+
+@ti.func
+def _log(x):
+    """ln x of a positive normal f64, to 2 ulp, from its bits: SPIR-V
+    (Vulkan) has no f64 log.  x = m 2^e with m in [sqrt(1/2), sqrt(2)), then
+    ln m = 2 atanh(s), s = (m - 1) / (m + 1), |s| < 0.172, by its series to
+    s^23 (the next term is below 1e-19)."""
+    bits = ti.bit_cast(x, ti.i64)
+    e = ti.cast((bits >> 52) & 0x7FF, ti.i32) - 1023
+    m = ti.bit_cast((bits & ti.i64(0x000FFFFFFFFFFFFF)) | ti.i64(0x3FF0000000000000), ti.f64)
+    if m > 1.4142135623730951:
+        m *= 0.5
+        e += 1
+    s = (m - 1.0) / (m + 1.0)
+    s2 = s * s
+    series = 1.0 / 23.0
+    for k in ti.static(range(21, 0, -2)):
+        series = series * s2 + 1.0 / k
+    fe = ti.cast(e, ti.f64)
+    return (fe * _LN2_LO + 2.0 * s * series) + fe * _LN2_HI
+
+
 @ti.kernel
 def _direct_sum(n: ti.i32, pos: ti.types.ndarray(), q: ti.types.ndarray(), self_term: float,
-                out: ti.types.ndarray()):
+                out: ti.types.ndarray(), bitwise_log: ti.template()):
     # one gather per target: no atomics; the own cell contributes its integral
     for a in range(n):
         acc = q[a] * self_term
         for b in range(n):
             if b != a:
                 d = pos[a] - pos[b]
-                acc += q[b] * ti.log(d.dot(d)) * (0.25 / math.pi)
+                log_r2 = 0.0
+                if ti.static(bitwise_log):
+                    log_r2 = ti.cast(_log(ti.cast(d.dot(d), ti.f64)), float)
+                else:
+                    log_r2 = ti.log(d.dot(d))
+                acc += q[b] * log_r2 * (0.25 / math.pi)
         out[a] = acc
 
 
-def convolve_direct(grid: Grid, density: np.ndarray) -> np.ndarray:
+def convolve_direct(grid: Grid, density: np.ndarray, bitwise_log: bool | None = None) -> np.ndarray:
     """The same sum as :func:`convolve_fft` by direct summation over the cells
-    with nonzero density (a Taichi kernel, O(M^2)): its exact reference."""
+    with nonzero density (a Taichi kernel, O(M^2)): its exact reference.
+    ``bitwise_log``: the logarithm from the float's bits (:func:`_log`), as the
+    SPIR-V archs need (None: there only; the CPU's own is 1.1-1.5x faster)."""
     runtime.ensure_init()
     dens = np.asarray(density, dtype=np.float64).ravel()
     c = grid.centres()
@@ -276,7 +308,9 @@ def convolve_direct(grid: Grid, density: np.ndarray) -> np.ndarray:
     q = runtime.array(real, n)
     q.from_numpy((dens * area).astype(runtime.np_real()))
     out = runtime.array(real, n)
-    _direct_sum(n, pos, q, grid.self_integral() / area, out)
+    if bitwise_log is None:
+        bitwise_log = runtime.state().arch in ("vulkan", "metal")
+    _direct_sum(n, pos, q, grid.self_integral() / area, out, bool(bitwise_log))
     return out.to_numpy().astype(np.float64).reshape(grid.shape)
 
 

@@ -25,14 +25,14 @@ SPLINE_PAD = 12
 
 
 @ti.kernel
-def _spline_filter(c: ti.types.ndarray(), z: ti.f64):
+def _spline_filter(c: ti.types.ndarray(), z: ti.f64, zn: ti.f64):
     """The cubic B-spline prefilter in place along the middle axis of ``c``
     (A, n, B), every line (a, :, b) in parallel: the gain, the causal filter
     started exactly for the half-sample symmetric extension, the anticausal
-    filter (as :func:`spline_coefficients_numpy`)."""
+    filter (as :func:`spline_coefficients_numpy`).  ``zn`` is z ** n, from
+    the host: SPIR-V (Vulkan) has no f64 pow."""
     A, n, B = c.shape[0], c.shape[1], c.shape[2]
     gain = (1.0 - z) * (1.0 - 1.0 / z)
-    zn = ti.pow(z, ti.cast(n, ti.f64))
     for t in range(A * B):
         a = t // B
         b = t - a * B
@@ -64,8 +64,9 @@ def spline_coefficients(u: np.ndarray) -> np.ndarray:
     c = np.pad(np.asarray(u, dtype=np.float64), pad, mode="edge")
     c3 = c.reshape(c.shape[0], c.shape[1], -1)
     if c3.size:
-        _spline_filter(c3.reshape(1, c3.shape[0], -1), SPLINE_POLE)        # along x
-        _spline_filter(c3, SPLINE_POLE)                                    # along y
+        z = SPLINE_POLE
+        _spline_filter(c3.reshape(1, c3.shape[0], -1), z, z ** c3.shape[0])   # along x
+        _spline_filter(c3, z, z ** c3.shape[1])                               # along y
     return c
 
 

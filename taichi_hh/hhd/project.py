@@ -552,7 +552,8 @@ def project(points, vectors, domain=None, *, iterations: int = 1, method: str = 
              "spacing": projection.spacing * frame.length,
              "divergence_operator": projection.divergence_operator(), "frame": frame.as_dict(),
              "support_choice": "adaptive" if opts.adaptive_support else "fixed",
-             "support_chosen_by": choice["by"], "irregularity": choice["irregularity"]}
+             "support_chosen_by": choice["by"], "irregularity": choice["irregularity"],
+             "arch": runtime.state().arch, "precision": runtime.state().precision}
     if "fixed_support_error" in choice:
         stats["fixed_support_error"] = choice["fixed_support_error"]
     runtime.release_launch_arguments(len(pts))

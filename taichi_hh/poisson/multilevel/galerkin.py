@@ -215,25 +215,26 @@ def grid_values(serial: ti.template(), L: ti.i32, cell_start: ti.types.ndarray()
         for i in range(cell_start[c], cell_start[c + 1]):
             cell_of[i] = c
             dinv[i] = 1.0 / D[i] if D[i] != 0 else 0.0
-    # level 0: a gather per cell over its particles' pairs (no atomics)
+    # level 0: a gather per cell over its particles' pairs (no atomics), summed
+    # in the cell's own row of S_val: a local vector indexed at run time fails
+    # to compile for SPIR-V (Vulkan) in a kernel of several offloaded tasks
     ti.loop_config(serialize=serial)
     for c in range(ncell):
-        row = ti.Vector([0.0] * 9)
         cx = c % nx
         cy = c // nx
         beyond = 0
+        for s in ti.static(range(9)):
+            S_val[9 * c + s] = 0.0
         for i in range(cell_start[c], cell_start[c + 1]):
-            row[4] += D[i] * dinv[i]
+            S_val[9 * c + 4] += D[i] * dinv[i]
             for k in range(offsets[i], offsets[i + 1]):
                 cj = cell_of[nbrs[k]]
                 dx = cj % nx - cx
                 dy = cj // nx - cy
                 if abs(dx) <= 1 and abs(dy) <= 1:
-                    row[(dy + 1) * 3 + dx + 1] += dinv[i] * K[k]
+                    S_val[9 * c + (dy + 1) * 3 + dx + 1] += dinv[i] * K[k]
                 else:
                     beyond += 1
-        for s in ti.static(range(9)):
-            S_val[9 * c + s] = row[s]
         if beyond > 0:
             beyond_total += beyond      # rare: an error
     # the cell levels: few cells, one thread
@@ -248,7 +249,9 @@ def grid_values(serial: ti.template(), L: ti.i32, cell_start: ti.types.ndarray()
             for C in range(lvl[k, 1] - c0):
                 X = C % nxc
                 Y = C // nxc
-                acc = ti.Vector([0.0] * 9)
+                row = 9 * (c0 + C)
+                for s in ti.static(range(9)):
+                    S_val[row + s] = 0.0
                 for b in range(2):
                     for a in range(2):
                         fx = 2 * X + a
@@ -259,8 +262,6 @@ def grid_values(serial: ti.template(), L: ti.i32, cell_start: ti.types.ndarray()
                                 gx = fx + s % 3 - 1
                                 gy = fy + s // 3 - 1
                                 if 0 <= gx < nxf and 0 <= gy < nyf:
-                                    acc[(gy // 2 - Y + 1) * 3 + gx // 2 - X + 1] += \
+                                    S_val[row + (gy // 2 - Y + 1) * 3 + gx // 2 - X + 1] += \
                                         S_val[fine + s]
-                for s in ti.static(range(9)):
-                    S_val[9 * (c0 + C) + s] = acc[s]
     return beyond_total
