@@ -23,10 +23,12 @@ import math
 
 import numpy as np
 
+from .free_space import DIPOLE_STENCIL
+
 #: nodes within this many cells (each axis) of a cut cell see its exact
 #: potential instead of the grid's charge-and-dipole (beyond, the dipole's
 #: error falls as the cube of the distance)
-NEAR_CELLS = 2
+NEAR_CELLS = 4
 #: a segment's piece shorter than this fraction of a cell is dropped (a vertex
 #: on a grid line splits a segment there)
 _TINY = 1e-12
@@ -154,7 +156,8 @@ def cut_cells(grid, domain) -> CutCells | None:
     centre = corner + 0.5 * h
     ra, rb = a - centre[owner], b - centre[owner]
     cross = ra[:, 0] * rb[:, 1] - ra[:, 1] * rb[:, 0]
-    area = np.bincount(owner, weights=cross, minlength=K) / 2.0
+    # a sliver's area rounds to about -1e-12 of the cell's: none is negative
+    area = np.maximum(np.bincount(owner, weights=cross, minlength=K) / 2.0, 0.0)
     mom = np.stack([np.bincount(owner, weights=cross * (ra[:, c] + rb[:, c]), minlength=K)
                     for c in (0, 1)], axis=1) / 6.0
     centroid = centre + mom / np.where(area > 0, area, 1.0)[:, None]
@@ -162,28 +165,27 @@ def cut_cells(grid, domain) -> CutCells | None:
 
 
 def log_integral(x, a, b) -> np.ndarray:
-    """(E,) the signed integral of ln|y - x| over the triangle (x, a, b), each
-    row a target ``x`` and an edge ``a`` -> ``b`` (E, 2): in polar
-    coordinates about x, with d the edge's signed distance (positive when x
-    is on its left) and s the position along it from the foot of the
-    perpendicular, (1/2) [d s (ln r - 3/2) + d^2 atan(s / d)] from a to b.
-    Summed over a closed boundary (inside on the left) it is the integral of
-    ln|y - x| over the region, for x anywhere."""
+    """The signed integral of ln|y - x| over the triangle (x, a, b), for targets
+    ``x`` (..., E, 2) and edges ``a`` -> ``b`` (E, 2): in polar coordinates
+    about x, with d the edge's signed distance (positive when x is on its
+    left) and s the position along it from the foot of the perpendicular,
+    (1/2) [d s (ln r - 3/2) + d^2 atan(s / d)] from a to b.  Summed over a
+    closed boundary (inside on the left) it is the integral of ln|y - x| over
+    the region, for x anywhere."""
     e = b - a
     length = np.hypot(e[:, 0], e[:, 1])
     e = e / np.where(length > 0, length, 1.0)[:, None]
     ra, rb = a - x, b - x
-    d = ra[:, 0] * e[:, 1] - ra[:, 1] * e[:, 0]
-    sa = (ra * e).sum(axis=1)
-    sb = (rb * e).sum(axis=1)
+    d = ra[..., 0] * e[:, 1] - ra[..., 1] * e[:, 0]
+    safe_d = np.where(d != 0, d, 1.0)
 
-    def primitive(s, r):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lnr = np.log(np.where(r > 0, r, 1.0))
-            at = np.where(d != 0, np.arctan(s / np.where(d != 0, d, 1.0)), 0.0)
-        return 0.5 * (d * s * (lnr - 1.5) + d * d * at)
+    def primitive(r):
+        s = (r * e).sum(axis=-1)
+        dist = np.hypot(r[..., 0], r[..., 1])
+        lnr = np.log(np.where(dist > 0, dist, 1.0))
+        return d * s * (lnr - 1.5) + d * d * np.where(d != 0, np.arctan(s / safe_d), 0.0)
 
-    return primitive(sb, np.hypot(rb[:, 0], rb[:, 1])) - primitive(sa, np.hypot(ra[:, 0], ra[:, 1]))
+    return 0.5 * (primitive(rb) - primitive(ra))
 
 
 def near_field_correction(grid, cut: CutCells, frac, offset, density) -> np.ndarray:
@@ -192,8 +194,9 @@ def near_field_correction(grid, cut: CutCells, frac, offset, density) -> np.ndar
     the nodes within :data:`NEAR_CELLS` of each cut cell that cell's charge
     is seen exactly: its density times the integral of G over its inside part
     (:func:`log_integral`), less what the grid gives (the cell's charge at its
-    centre through the grid's kernel and the dipole to its centroid
-    ``offset``, as :func:`~.free_space.dipole_density` spreads it)."""
+    centre through the grid's kernel, :meth:`~.free_space.Grid.kernel_at`,
+    and the dipole to its centroid ``offset``, as
+    :func:`~.free_space.dipole_density` spreads it)."""
     m = density.shape[0]
     out = np.zeros((m, grid.nx * grid.ny))
     cells, owner = cut.cells, cut.owner
@@ -201,21 +204,31 @@ def near_field_correction(grid, cut: CutCells, frac, offset, density) -> np.ndar
     centre = grid.origin + np.c_[ci * grid.hx, cj * grid.hy]
     kernel = grid.kernel_at
     q = frac[cells]
-    px = q * offset[cells, 0] / (2.0 * grid.hx)
-    py = q * offset[cells, 1] / (2.0 * grid.hy)
+    px = q * offset[cells, 0] / grid.hx
+    py = q * offset[cells, 1] / grid.hy
     rho = density[:, cells]
+    # the segments about their cell's centre, the offsets' targets about it too
+    a = cut.starts - centre[owner]
+    b = cut.ends - centre[owner]
     R = NEAR_CELLS
+    K = len(cells)
     for di in range(-R, R + 1):
-        for dj in range(-R, R + 1):
-            i, j = ci + di, cj + dj
-            ok = (i >= 0) & (i < grid.nx) & (j >= 0) & (j < grid.ny)
-            target = centre + np.array([di * grid.hx, dj * grid.hy])
-            exact = np.bincount(owner, weights=log_integral(target[owner], cut.starts, cut.ends),
-                                minlength=len(cells)) / (2.0 * math.pi)
-            # the dipole: -p at the cell before, +p at the cell after, on each axis
-            grid_rep = (q * kernel(di, dj) + px * (kernel(di - 1, dj) - kernel(di + 1, dj))
-                        + py * (kernel(di, dj - 1) - kernel(di, dj + 1)))
-            node = (i * grid.ny + j)[ok]
-            for c in range(m):
-                np.add.at(out[c], node, (rho[c] * (exact - grid_rep))[ok])
+        dj = np.arange(-R, R + 1)
+        target = np.stack([np.full(len(dj), di * grid.hx), dj * grid.hy], axis=1)
+        ints = log_integral(target[:, None, :], a, b)                    # (2R + 1, E)
+        exact = np.stack([np.bincount(owner, weights=w, minlength=K) for w in ints])
+        exact /= 2.0 * math.pi
+        for row, j in enumerate(dj):
+            j = int(j)
+            grid_rep = q * kernel(di, j)
+            # the dipole: -w p at the cells before, +w p at the cells after, each axis
+            for step, w in DIPOLE_STENCIL:
+                grid_rep = grid_rep + w * (px * (kernel(di - step, j) - kernel(di + step, j))
+                                           + py * (kernel(di, j - step) - kernel(di, j + step)))
+            i_node, j_node = ci + di, cj + j
+            ok = (i_node >= 0) & (i_node < grid.nx) & (j_node >= 0) & (j_node < grid.ny)
+            node = (i_node * grid.ny + j_node)[ok]
+            diff = (exact[row] - grid_rep)[ok]
+            # one offset sends each cut cell to its own node: no repeated index
+            out[:, node] += rho[:, ok] * diff
     return out

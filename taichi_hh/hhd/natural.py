@@ -299,7 +299,8 @@ def _local_spacing(cells: _Cells, binned: "PointBins") -> tuple:
     grid = cells.grid
     count = _shared_counts(grid, binned.points)
     frac = cells.frac.reshape(grid.shape)
-    area = _box_sum(frac, LOCAL_CELLS) * (grid.hx * grid.hy)
+    # clipped: the summed-area table's differences round below 0 where all is 0
+    area = np.maximum(_box_sum(frac, LOCAL_CELLS), 0.0) * (grid.hx * grid.hy)
     spacing = np.sqrt(area / np.maximum(_box_sum(count, LOCAL_CELLS), 1.0))
     cell = max(grid.hx, grid.hy)
     spacing = np.where(spacing > SPARSE_RATIO * cell, spacing, cell)
