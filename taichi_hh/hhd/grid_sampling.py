@@ -164,7 +164,7 @@ def at_points(grid: Grid, u: np.ndarray, points, *, dest=None) -> np.ndarray:
 
 #: points within this many cells of the boundary take their gradient from a
 #: one-sided fit (:func:`one_sided_gradient`)
-ONE_SIDED_CELLS = 3.0
+ONE_SIDED_CELLS = 6.0
 #: the fit's stencil: the nodes of the square block this many cells around the
 #: nearest node, weighted within ONE_SIDED_REACH - 1/2 cells of the point
 ONE_SIDED_REACH = 4

@@ -36,6 +36,7 @@ import time
 
 import numpy as np
 
+from .cut_cells import cut_cells, near_field_correction
 from .free_space import (Grid, axis_rectangle, convolve_direct, convolve_fft, dipole_density,
                          grid_gradient)
 from .grid_sampling import ONE_SIDED_CELLS, at_points, lagrange_at, one_sided_gradient
@@ -69,13 +70,20 @@ class _Cells:
     """The grid of a natural decomposition and its cells' coverage of the
     domain: ``frac`` (nx * ny,) inside fractions, ``offset`` the inside
     parts' centroids, ``inside`` (nx, ny) the centres inside, ``live`` the
-    cells with a part inside (flat indices)."""
+    cells with a part inside (flat indices); ``cut`` the cells a polygon's
+    boundary cuts (:func:`~.cut_cells.cut_cells`; None for a rectangle, whose
+    sides are grid lines): their fractions and centroids exact."""
 
     def __init__(self, domain, cell: float):
         self.grid = grid = Grid(domain, cell)
         frac, self.offset, self.inside = grid.coverage(domain, CUT_SUBSAMPLES, centroids=True,
                                                        inside=True)
         self.frac = frac.ravel()
+        self.cut = None if axis_rectangle(domain) is not None else cut_cells(grid, domain)
+        if self.cut is not None:
+            k = self.cut.cells
+            self.frac[k] = self.cut.area / (grid.hx * grid.hy)
+            self.offset.reshape(-1, 2)[k] = self.cut.centroid - grid.centres()[k]
         self.live = np.flatnonzero(self.frac > 0)
 
 
@@ -84,7 +92,8 @@ def _grid_potentials(cells: _Cells, at_cells: np.ndarray, evaluation: str,
     """(m, nx, ny) the free-space potentials of the densities ``at_cells``
     (len(live), m) at the live cells' centres: each cell's charge its value
     times its inside area, placed at its inside part's centroid (a dipole
-    about the centre), summed against G by ``evaluation``."""
+    about the centre), summed against G by ``evaluation``; next to the cut
+    cells, their charges' exact potentials (:func:`~.cut_cells.near_field_correction`)."""
     grid, live = cells.grid, cells.live
     m = at_cells.shape[1]
     dens = np.zeros((m, grid.nx * grid.ny))
@@ -100,6 +109,11 @@ def _grid_potentials(cells: _Cells, at_cells: np.ndarray, evaluation: str,
         u = convolve_fft(grid, dens)
     else:
         u = np.stack([convolve_direct(grid, d) for d in dens])
+    if cells.cut is not None:
+        values = np.zeros((m, grid.nx * grid.ny))
+        values[:, live] = at_cells.T
+        u += near_field_correction(grid, cells.cut, cells.frac, cells.offset.reshape(-1, 2),
+                                   values).reshape(u.shape)
     lap("convolve")
     return u
 
@@ -285,7 +299,8 @@ def _local_spacing(cells: _Cells, binned: "PointBins") -> tuple:
     grid = cells.grid
     count = _shared_counts(grid, binned.points)
     frac = cells.frac.reshape(grid.shape)
-    area = _box_sum(frac, LOCAL_CELLS) * (grid.hx * grid.hy)
+    # clipped: the summed-area table's differences round below 0 where all is 0
+    area = np.maximum(_box_sum(frac, LOCAL_CELLS), 0.0) * (grid.hx * grid.hy)
     spacing = np.sqrt(area / np.maximum(_box_sum(count, LOCAL_CELLS), 1.0))
     cell = max(grid.hx, grid.hy)
     spacing = np.where(spacing > SPARSE_RATIO * cell, spacing, cell)
