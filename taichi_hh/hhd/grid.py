@@ -90,7 +90,7 @@ class GridResult:
         """Sources, sinks and vortices: see
         :meth:`~taichi_hh.hhd.decompose.HHDResult.critical_points` (on the
         grid's nodes where the grid-native path ran:
-        :func:`~taichi_hh.hhd.critical.find_grid_critical_points`)."""
+        :func:`~taichi_hh.hhd.critical_grid.find_grid_critical_points`)."""
         from .critical import critical_points
         return critical_points(self, threshold, radius, **filters)
 

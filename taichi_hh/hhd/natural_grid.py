@@ -524,7 +524,7 @@ class NodeFields:
     ``domain``: the outline; ``stats`` and ``options``: the decomposition's;
     ``frame``: the unit frame its potentials' logarithm took its length from.
     What its critical points are found from
-    (:func:`~taichi_hh.hhd.critical.find_grid_critical_points`)."""
+    (:func:`~taichi_hh.hhd.critical_grid.find_grid_critical_points`)."""
     x: np.ndarray
     y: np.ndarray
     hx: float

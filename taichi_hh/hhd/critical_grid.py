@@ -1,0 +1,443 @@
+"""Critical points of a decomposition on a uniform grid's nodes: the tests
+of :func:`~.critical.find_critical_points` on the grid itself, without a
+neighbour search (candidates by shifted views of the whole grid, the
+significance sums and the refinements for all candidates at once)."""
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+
+from .critical import (COHERENCE, COHERENCE_RADIUS, EDGE, NOISE_SAMPLES, POT_PASSES, SCALE_EDGE,
+                       SIGNIFICANCE, SIGNIFICANCE_RADII, THRESHOLD, CriticalPoint, noise_sigma,
+                       strength_scale)
+
+
+def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float | None = None,
+                              *, filter: bool = True, edge: float | None = EDGE,
+                              significance: float | None = SIGNIFICANCE,
+                              coherence: float | None = COHERENCE):
+    """:func:`find_critical_points` of a decomposition on a uniform grid's
+    nodes (``lat``: :class:`~taichi_hh.hhd.natural_grid.NodeFields`), the same
+    tests on the grid without a neighbour search:
+
+    - the support H (and the default ``radius``) is what the adaptive
+      support gives a grid's node (``support_ratio`` times the local spacing
+      of its 12 nearest nodes), the local spacing the mean spacing;
+    - a candidate is a strict extremum among its 8 neighbours (a necessary
+      condition, vectorised over the grid), then among the used nodes within
+      ``radius`` (a window of the grid);
+    - strengths from div d and curl r by the decomposition's differences;
+    - distances to the outline from the grid
+      (:func:`~taichi_hh.hhd.natural_grid.outline_distance`: exact along
+      straight edges, at most the exact one at the outline's corners);
+    - the noise from the quadratic fit to each sampled node's 20 nearest
+      nodes (a fixed filter on the grid where all of them are used), the
+      white-noise spread of a disc mean from the difference stencils' rows.
+    """
+    from .natural_grid import outline_distance, smoothed
+    used, inside = lat.used, lat.inside
+    n = int(used.sum())
+    if n < 4:
+        return []
+    if not filter:
+        edge = significance = coherence = None
+    hx, hy = lat.hx, lat.hy
+    ny, nx = used.shape
+    ell = float(lat.spacing)
+    support = grid_support(hx, hy, lat.options.support_ratio)
+    rad = support if radius is None else float(radius)
+    # distances to the outline (in the points' units) up to what the tests need
+    far = max(SCALE_EDGE, edge or 0.0) * ell
+    jj, ii, best, _ = outline_distance(used, inside, hx, hy, far)
+    dist = np.full(used.shape, np.inf)
+    dist[jj, ii] = best
+    # the derivatives smoothed as the scattered path's MLS operator smooths
+    # them (natural_grid.smoothed): the strengths, signs, coherence and
+    # significance read them
+    dd = lat.div_curl(lat.curl_free)
+    dr = lat.div_curl(lat.div_free)
+    sm = smoothed(np.stack([lat.divergence, lat.curl, dd[..., 0], dr[..., 1], lat.phi, lat.psi],
+                           axis=-1), lat.inside)
+    comps, pots = sm[..., 2:4], sm[..., 4:6]
+    if POT_PASSES > 1:
+        pots = smoothed(pots, lat.inside, POT_PASSES - 1)
+    div_v, curl_v = sm[..., 0][used], sm[..., 1][used]
+    vec = np.stack([lat.u[used], lat.v[used]], axis=1)
+    scale = strength_scale(SimpleNamespace(divergence=div_v, curl=curl_v, vectors=vec,
+                                           stats={"spacing": ell}), dist[used] / ell)
+    if scale == 0.0 or not math.isfinite(scale):
+        return []
+    Ry, Rx = int(rad // hy), int(rad // hx)
+    oy, ox = np.mgrid[-Ry:Ry + 1, -Rx:Rx + 1]
+    r_off = np.hypot(oy * hy, ox * hx)
+    in_rad = (r_off < rad) & (r_off > 0)                  # the others within radius
+    sigma = None
+    rows = None
+    found = []              # (refined place, node, kind, strength, significance, coherence)
+    for pot, fld, comp, kinds, signs in (
+            (pots[..., 0], lat.curl_free, comps[..., 0], ("source", "sink"), (1, -1)),
+            (pots[..., 1], lat.div_free, comps[..., 1], ("cw_vortex", "ccw_vortex"), (-1, 1))):
+        pot = np.where(used, pot, np.nan)
+        comp = np.where(used, comp, np.nan)
+        with np.errstate(invalid="ignore"):
+            strength = np.abs(comp) / scale
+            speed = np.hypot(fld[..., 0], fld[..., 1])
+            cand = used & (strength >= threshold) & (speed <= np.abs(comp) * rad)
+            if edge is not None and edge > 0:
+                cand &= dist >= edge * ell
+            cand &= (comp * signs[0] > 0) | (comp * signs[1] > 0)
+        if not cand.any():
+            continue
+        # a strict extremum among the 8 neighbours (necessary: shifted views
+        # of the whole grid), then among the used nodes within the radius
+        # (gathers over the candidates left).  fmin/fmax skip NaN (off the
+        # used nodes) as nanmin/nanmax do; none but NaN: no extremum
+        padded = _padded(pot, Ry, Rx, np.nan)
+        lo8 = hi8 = None
+        count8 = np.zeros(pot.shape, dtype=np.int64)
+        for dy in range(-min(Ry, 1), min(Ry, 1) + 1):
+            for dx in range(-min(Rx, 1), min(Rx, 1) + 1):
+                if dy or dx:
+                    view = padded[Ry + dy:Ry + dy + ny, Rx + dx:Rx + dx + nx]
+                    lo8 = view if lo8 is None else np.fmin(lo8, view)
+                    hi8 = view if hi8 is None else np.fmax(hi8, view)
+                    count8 += np.isfinite(view)
+        if lo8 is None:
+            continue
+        with np.errstate(invalid="ignore"):
+            low8, high8 = pot < lo8, pot > hi8
+            cand &= (low8 | high8) & (count8 >= 2)
+            jj, ii = np.nonzero(cand)
+            low, high = low8[jj, ii], high8[jj, ii]
+            nb = padded[jj[:, None] + Ry + oy[in_rad][None, :],
+                        ii[:, None] + Rx + ox[in_rad][None, :]]
+            here = pot[jj, ii]
+            c_here = comp[jj, ii]
+            low &= (here < np.fmin.reduce(nb, axis=1)) & (c_here * signs[0] > 0)
+            high &= (here > np.fmax.reduce(nb, axis=1)) & (c_here * signs[1] > 0)
+            keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
+        jj, ii, low = jj[keep], ii[keep], low[keep]
+        c_all = np.full(jj.size, math.nan)
+        if coherence is not None and jj.size:            # one sign over the disc
+            sel = (r_off <= COHERENCE_RADIUS * ell)
+            cpad = _padded(comp, Ry, Rx, np.nan)
+            disc_c = cpad[jj[:, None] + Ry + oy[sel][None, :], ii[:, None] + Rx + ox[sel][None, :]]
+            sign = np.sign(comp[jj, ii])
+            total = np.nansum(np.abs(disc_c), axis=1)
+            c_all = np.where(total > 0, sign * np.nansum(disc_c, axis=1) /
+                             np.maximum(total, 1e-300), 1.0)
+            keep = c_all >= coherence
+            jj, ii, low, c_all = jj[keep], ii[keep], low[keep], c_all[keep]
+        order = np.argsort(-strength[jj, ii], kind="stable")
+        jj, ii, low, c_all = jj[order], ii[order], low[order], c_all[order]
+        z_all = np.full(jj.size, math.nan)
+        if significance is not None and jj.size:
+            if sigma is None:
+                sigma = grid_noise_sigma(lat)
+            if rows is None:
+                rows = _GridRows(lat)
+            z_all = _grid_significance(rows, comp, used, jj, ii, (oy, ox, r_off), rad, ell,
+                                       sigma)
+            keep = z_all >= significance
+            jj, ii, low, c_all, z_all = jj[keep], ii[keep], low[keep], c_all[keep], z_all[keep]
+        places = _grid_refine(lat, pot, used, jj, ii, (oy, ox, r_off), rad)
+        for k in range(jj.size):
+            j, i = int(jj[k]), int(ii[k])
+            found.append((places[k], (float(lat.x[i]), float(lat.y[j])),
+                          kinds[0] if low[k] else kinds[1], strength[j, i], float(z_all[k]),
+                          float(c_all[k])))
+    if found and lat.domain is not None:
+        # a refined place outside the outline falls back to its node (one
+        # vectorised test for all)
+        moved = np.array([f[0] for f in found], dtype=np.float64)
+        inside = _inside_outline(lat.domain, moved)
+        found = [(f[0] if ok else f[1],) + f[1:] for f, ok in zip(found, inside)]
+    out = [CriticalPoint(float(p[0][0]), float(p[0][1]), p[2], p[3], p[4], p[5])
+           for p in found]
+    out.sort(key=lambda p: -p.strength)
+    return out
+
+
+def _inside_outline(domain, points) -> np.ndarray:
+    """``domain.contains(points)`` for a few points: the even-odd crossing
+    test over every boundary segment (outer ring and holes), O(points x
+    segments) without the point locator :meth:`Polygon.contains` builds on
+    its first query (0.15 s for the staircase outline of a masked 64 x 64
+    grid, four times the decomposition).  Points on the boundary itself (a
+    set of measure zero) may go either way."""
+    segments = getattr(domain, "segments", None)
+    if segments is None or len(points) > 256:
+        return domain.contains(points)
+    a, b = segments()
+    px, py = points[:, 0:1], points[:, 1:2]                     # (k, 1) against (S,)
+    crosses = (a[:, 1] > py) != (b[:, 1] > py)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        at = a[:, 0] + (py - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return ((crosses & (px < at)).sum(axis=1) % 2) == 1
+
+
+def grid_support(hx: float, hy: float, support_ratio: float) -> float:
+    """The adaptive support of a grid's node (:mod:`taichi_hh.sph.support`):
+    ``support_ratio`` times its local spacing, the distance to its 12th
+    nearest node times sqrt(pi / 12)."""
+    from ..sph.support import DEFAULT_NEIGHBOURS
+    k = DEFAULT_NEIGHBOURS
+    R = int(math.ceil(math.sqrt(k))) + 1
+    oy, ox = np.mgrid[-R:R + 1, -R:R + 1]
+    r = np.sort(np.hypot(oy * hy, ox * hx).ravel())
+    return support_ratio * float(r[k]) * math.sqrt(math.pi / k)     # r[0]: the node itself
+
+
+def _window(j, i, Ry, Rx, ny, nx):
+    """``(grid slice, window shape, slice of the full window)`` of the nodes
+    within Ry rows and Rx columns of (j, i), clipped to the grid."""
+    j0, j1 = max(j - Ry, 0), min(j + Ry + 1, ny)
+    i0, i1 = max(i - Rx, 0), min(i + Rx + 1, nx)
+    return ((slice(j0, j1), slice(i0, i1)), (j1 - j0, i1 - i0),
+            (slice(j0 - (j - Ry), j1 - (j - Ry)), slice(i0 - (i - Rx), i1 - (i - Rx))))
+
+
+def _padded(values, Ry, Rx, fill):
+    """``values`` (ny, nx) with Ry rows and Rx columns of ``fill`` around
+    (np.pad's work without its per-call overhead, a tenth of a millisecond)."""
+    ny, nx = values.shape
+    out = np.full((ny + 2 * Ry, nx + 2 * Rx), fill, dtype=values.dtype)
+    out[Ry:Ry + ny, Rx:Rx + nx] = values
+    return out
+
+
+def _gather(values, jj, ii, offsets, fill):
+    """``values`` (ny, nx) at the nodes (jj + oy, ii + ox) for every candidate
+    (jj, ii) (K,) and offset (oy, ox) (O,): (K, O), ``fill`` off the grid."""
+    oy, ox = offsets
+    Ry, Rx = int(np.abs(oy).max(initial=0)), int(np.abs(ox).max(initial=0))
+    padded = _padded(values, Ry, Rx, fill)
+    return padded[jj[:, None] + Ry + oy[None, :], ii[:, None] + Rx + ox[None, :]]
+
+
+def _grid_significance(rows, comp, used, jj, ii, window, rad, ell, sigma) -> np.ndarray:
+    """Per candidate node (jj, ii) (K,), the significance of
+    :func:`find_grid_critical_points`: the best over ``SIGNIFICANCE_RADII`` of
+    the mean of ``comp`` over the used nodes of the disc (also within
+    ``rad``), signed by the candidate's, over ``sigma`` times the disc mean's
+    white-noise spread (:class:`_GridRows`).  The sums for all candidates at
+    once; the spreads of windows in the grid's interior computed once."""
+    oy, ox, r_off = window
+    Ry, Rx = oy.shape[0] // 2, ox.shape[1] // 2
+    ny, nx = used.shape
+    discs = np.stack([(r_off < rad) & (r_off <= radius_i * ell)
+                      for radius_i in SIGNIFICANCE_RADII])          # (4, wy, wx)
+    flat = discs.reshape(len(discs), -1).astype(np.float64)
+    offsets = (oy.ravel(), ox.ravel())
+    g_used = _gather(used, jj, ii, offsets, False)                    # (K, wy * wx)
+    g_comp = _gather(np.where(used, comp, 0.0), jj, ii, offsets, 0.0)    # finite where used
+    counts = g_used.astype(np.float64) @ flat.T                       # (K, 4)
+    sums = g_comp @ flat.T
+    sign = np.where(comp[jj, ii] > 0, 1.0, -1.0)
+    means = sign[:, None] * sums / np.maximum(counts, 1)
+    # windows whose nodes are all used, whose filter reach (one node more) is
+    # inside and takes the central stencils, clear of the grid's edges: the
+    # same discs and rows wherever they lie (_GridRows.cached_mean_row_norms)
+    off_centre = _padded(~rows.inside | (rows.cx != 0) | (rows.cy != 0), 1, 1, False)
+    area = np.zeros((ny + 3, nx + 3), dtype=np.int64)
+    area[1:, 1:] = off_centre.cumsum(0).cumsum(1)
+    j0, j1 = jj - Ry - 1, jj + Ry + 2
+    i0, i1 = ii - Rx - 1, ii + Rx + 2
+    clear = (j0 >= 0) & (i0 >= 0) & (j1 <= ny) & (i1 <= nx) & g_used.all(axis=1)
+    a0, a1, b0, b1 = (np.clip(t + 1, 0, s) for t, s in
+                      ((j0, ny + 2), (j1, ny + 2), (i0, nx + 2), (i1, nx + 2)))
+    clear &= (area[a1, b1] - area[a0, b1] - area[a1, b0] + area[a0, b0]) == 0
+    norms = np.empty((len(jj), len(discs)))
+    first_clear = None
+    for k in range(len(jj)):
+        if clear[k] and first_clear is not None:
+            norms[k] = norms[first_clear]
+            continue
+        first_clear = k if clear[k] else first_clear
+        j, i = int(jj[k]), int(ii[k])
+        win = _window(j, i, Ry, Rx, ny, nx)
+        mine = discs[:, win[2][0], win[2][1]] & used[win[0]][None]
+        norms[k] = rows.cached_mean_row_norms(mine, win, used)
+    spread = sigma * norms
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(spread > 0, means / np.where(spread > 0, spread, 1.0),
+                     np.where(means > 0, math.inf, -math.inf))
+    return z.max(axis=1) if z.size else np.full(len(jj), -math.inf)
+
+
+def _grid_refine(lat, pot, used, jj, ii, window, rad) -> list:
+    """Per candidate node (jj, ii), the stationary point of the quadratic
+    least-squares fit of ``pot`` over the used nodes within ``rad`` of it
+    (the node kept where the fit has fewer than 6 nodes, is singular, or
+    its stationary point falls farther than ``rad``; the caller keeps it
+    where it falls outside the domain's outline): all fits at once."""
+    oy, ox, r_off = window
+    near = r_off < rad
+    offsets = (oy[near], ox[near])
+    here = np.c_[lat.x[ii], lat.y[jj]]
+    if len(jj) == 0:
+        return []
+    m = _gather(used, jj, ii, offsets, False)                          # (K, O)
+    nx, ny = len(lat.x), len(lat.y)
+    cols, rows = ii[:, None] + offsets[1][None, :], jj[:, None] + offsets[0][None, :]
+    X = np.where(m, lat.x[np.clip(cols, 0, nx - 1)] - here[:, :1], 0.0)
+    Y = np.where(m, lat.y[np.clip(rows, 0, ny - 1)] - here[:, 1:], 0.0)
+    P = np.where(m, _gather(pot, jj, ii, offsets, 0.0), 0.0)
+    A = np.stack([m.astype(np.float64), X, Y, X * X, X * Y, Y * Y], axis=-1)   # (K, O, 6)
+    normal = np.einsum("koa,kob->kab", A, A)
+    rhs = np.einsum("koa,ko->ka", A, P)
+    fit = m.sum(axis=1) >= 6
+    coef = np.full((len(jj), 6), np.nan)
+    try:                                  # the normal equations: no LAPACK least squares
+        coef[fit] = np.linalg.solve(normal[fit], rhs[fit][..., None])[..., 0]
+    except np.linalg.LinAlgError:         # one singular: each on its own
+        for k in np.flatnonzero(fit):
+            try:
+                coef[k] = np.linalg.solve(normal[k], rhs[k])
+            except np.linalg.LinAlgError:
+                pass
+    a, b, c = 2 * coef[:, 3], coef[:, 4], 2 * coef[:, 5]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        det = a * c - b * b
+        step = np.stack([-(c * coef[:, 1] - b * coef[:, 2]) / det,
+                         -(a * coef[:, 2] - b * coef[:, 1]) / det], axis=1)
+        ok = (det != 0) & np.isfinite(det) & np.isfinite(step).all(axis=1) & \
+            (np.hypot(step[:, 0], step[:, 1]) <= rad)
+    out = []
+    for k in range(len(jj)):
+        x, y = float(here[k, 0]), float(here[k, 1])
+        out.append((x + float(step[k, 0]), y + float(step[k, 1])) if ok[k] else (x, y))
+    return out
+
+
+def grid_noise_sigma(lat, samples: int = NOISE_SAMPLES) -> float:
+    """:func:`noise_sigma` on a grid: the quadratic moving-least-squares fit
+    to each sampled node's 20 nearest nodes (itself left out; Wendland
+    weights on the distance over 1.5 times the 20th), a fixed filter at the
+    nodes whose 20 neighbours are all used; where fewer than a tenth of the
+    samples have them, :func:`noise_sigma` of the used nodes."""
+    used = lat.used
+    ny, nx = used.shape
+    hx, hy = lat.hx, lat.hy
+    k = 20
+    R = 3
+    oy, ox = np.mgrid[-R:R + 1, -R:R + 1]
+    oy, ox = oy.ravel(), ox.ravel()
+    r = np.hypot(oy * hy, ox * hx)
+    order = np.argsort(r, kind="stable")[1:k + 1]          # the 20 nearest, not the node
+    oy, ox, r = oy[order], ox[order], r[order]
+    scale = 1.5 * r.max()
+    q = r / scale
+    w = (1 - q) ** 4 * (1 + 4 * q)
+    dx, dy = ox * hx / scale, oy * hy / scale
+    B = np.c_[np.ones(k), dx, dy, dx * dx, dx * dy, dy * dy]
+    M = (B * w[:, None]).T @ B
+    M += 1e-12 * np.trace(M) * np.eye(6)
+    filt = np.linalg.solve(M, (B * w[:, None]).T)[0]        # the constant coefficient's weights
+    flat = np.flatnonzero(used.ravel())
+    step = max(1, -(-len(flat) // samples))
+    at = flat[::step]
+    j, i = np.divmod(at, nx)
+    # flat indices into the grids padded by R (unused, zero): no bounds tests
+    width = nx + 2 * R
+    centre = (j + R) * width + (i + R)
+    near = centre[:, None] + (oy * width + ox)[None, :]
+    full = np.pad(used, R).ravel()[near].all(axis=1)
+    if full.sum() < max(8, 0.1 * len(at)):
+        vec = np.stack([lat.u, lat.v], axis=-1).reshape(-1, 2)
+        return noise_sigma(np.c_[lat.x[np.divmod(flat, nx)[1]], lat.y[np.divmod(flat, nx)[0]]],
+                           vec[flat], samples)
+    rows = near[full]
+    out = []
+    for comp in (lat.u, lat.v):
+        padded = np.pad(comp, R).ravel()
+        out.append(padded[centre[full]] - padded[rows] @ filt)
+    return 1.4826 * float(np.median(np.abs(np.stack(out, axis=1))))
+
+
+class _GridRows:
+    """The rows of the operator the critical points read on a grid: the
+    difference stencils of the vectors (:mod:`taichi_hh.hhd.natural_grid`,
+    along x on u, along y on v), smoothed by the binomial filter
+    (:func:`~taichi_hh.hhd.natural_grid.smoothed`): the white-noise spread of
+    a mean over a disc of nodes."""
+
+    def __init__(self, lat):
+        from .natural_grid import PAD, STENCILS
+        self.cx, self.cy = lat.data_codes
+        self.inside = lat.inside
+        self.table, self.pad = STENCILS, PAD
+        self.hx, self.hy = lat.hx, lat.hy
+        self._interior = {}          # discs' shape -> the norms of an interior window
+
+    def cached_mean_row_norms(self, discs, win, used) -> np.ndarray:
+        """:meth:`mean_row_norms`, computed once for every window of the
+        grid's interior: a window of used nodes, unclipped, whose nodes and
+        the filter's reach around them are inside and take the central
+        stencils has the same discs and the same rows wherever it lies."""
+        gs = win[0]
+        ny, nx = self.inside.shape
+        j0, j1, i0, i1 = gs[0].start - 1, gs[0].stop + 1, gs[1].start - 1, gs[1].stop + 1
+        interior = (win[1] == discs.shape[1:] and j0 >= 0 and i0 >= 0 and j1 <= ny
+                    and i1 <= nx and used[gs].all())
+        if interior:
+            grown = (slice(j0, j1), slice(i0, i1))
+            interior = (self.inside[grown].all() and not self.cx[grown].any()
+                        and not self.cy[grown].any())
+        if not interior:
+            return self.mean_row_norms(discs, win)
+        key = discs.shape
+        if key not in self._interior:
+            self._interior[key] = self.mean_row_norms(discs, win)
+        return self._interior[key]
+
+    def mean_row_norms(self, discs, win) -> np.ndarray:
+        """2-norms of the means of the smoothed divergence rows of the nodes
+        of each of ``discs`` (bool (k, wy, wx) over the window ``win``,
+        :func:`_window`): each disc's indicator smeared by the binomial
+        filter weighs the rows of the nodes it reaches; the central stencils
+        (nearly every node's) by shifted sums, the others node by node."""
+        P = self.pad
+        k = discs.shape[0]
+        m = discs.reshape(k, -1).sum(axis=1)
+        ny, nx = self.inside.shape
+        # the window grown by the filter's reach (one node), clipped to the grid
+        gs = win[0]
+        j0, j1 = max(gs[0].start - 1, 0), min(gs[0].stop + 1, ny)
+        i0, i1 = max(gs[1].start - 1, 0), min(gs[1].stop + 1, nx)
+        wy, wx = j1 - j0, i1 - i0
+        ind = np.zeros((k, wy + 2, wx + 2))
+        oj, oi = gs[0].start - j0 + 1, gs[1].start - i0 + 1
+        ind[:, oj:oj + discs.shape[1], oi:oi + discs.shape[2]] = discs
+        ind = 0.25 * ind[:, :, :-2] + 0.5 * ind[:, :, 1:-1] + 0.25 * ind[:, :, 2:]
+        sl = (slice(j0, j1), slice(i0, i1))
+        weight = (0.25 * ind[:, :-2] + 0.5 * ind[:, 1:-1] + 0.25 * ind[:, 2:]) \
+            * self.inside[sl]                                           # (k, wy, wx)
+        total = np.zeros(k)
+        for codes, h, axis in ((self.cx, self.hx, 1), (self.cy, self.hy, 0)):
+            c = codes[sl]
+            acc = np.zeros((k, wy + 2 * P, wx + 2 * P))
+            central = weight * ((c == 0) / h)
+            for o in (-2, -1, 1, 2):
+                w = self.table[0, o + P]
+                if axis == 1:
+                    acc[:, P:P + wy, P + o:P + o + wx] += w * central
+                else:
+                    acc[:, P + o:P + o + wy, P:P + wx] += w * central
+            other = (c != 0) & (weight > 0).any(axis=0)
+            if other.any():
+                gj, gi = np.nonzero(other)
+                co = c[other].astype(np.intp)
+                wo = weight[:, other] / h                              # (k, n)
+                for o in range(-P, P + 1):
+                    wgt = self.table[co, o + P][None, :] * wo
+                    if axis == 1:
+                        idx = (slice(None), gj + P, gi + P + o)
+                    else:
+                        idx = (slice(None), gj + P + o, gi + P)
+                    np.add.at(acc, (np.arange(k)[:, None], idx[1][None, :], idx[2][None, :]),
+                              wgt)
+            total += np.einsum("kij,kij->k", acc, acc)
+        return np.sqrt(total) / np.maximum(m, 1)
