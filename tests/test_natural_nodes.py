@@ -170,3 +170,39 @@ def test_default_takes_the_nodes_and_other_operators_the_points(window_6k):
     vm = np.linalg.norm(ex.v, axis=1).mean()
     for a, b in ((res.curl_free, other.curl_free), (res.div_free, other.div_free)):
         assert np.linalg.norm(a - b, axis=1).mean() < 2e-3 * vm
+
+
+def test_fit_weights_are_the_fits():
+    """The fits kept as weights (node_fits.FitWeights, one gather per field)
+    give fit_gradients' gradients (to the rounding of the normal equations'
+    solve: inverse rows against a solve per field) with the same counts, for
+    any number of columns, inside, at the boundary and at the corners."""
+    pts = np.random.default_rng(4).random((3000, 2)) * [2.0, 1.0]
+    grid, b = _binned(pts, math.sqrt(2.0 / len(pts)))
+    targets = np.vstack([grid.centres()[::5], [[0.0, 0.0], [2.0, 1.0], [1.0, 0.0]]])
+    vals, _ = _cubic(b.points)
+    g, count = node_fits.fit_gradients(grid, b, vals, targets, counts=True)
+    w = node_fits.FitWeights(grid, b, targets)
+    assert np.array_equal(w.counts, count)
+    assert np.abs(w.gradients(vals) - g).max() < 1e-9 * np.abs(g).max()
+    four = w.gradients(np.c_[vals, 2 * vals[:, ::-1]])
+    assert np.abs(four[:, 2:] - 2 * g[:, ::-1]).max() < 1e-9 * np.abs(g).max()
+
+
+def test_a_kept_natural_setup_splits_as_a_call():
+    """NaturalSetup with the fits kept as weights (the Decomposer's) splits
+    each field as natural_decomposition does, to rounding."""
+    disk = thh.Polygon.circle((0.5, 0.5), 0.5, n=200)
+    pts = disk.sample_interior(3000, kind="random", seed=2)
+    sp = math.sqrt(disk.area / len(pts))
+    setup = natural.NaturalSetup(pts, disk, sp, reuse_fits=True)
+    assert setup.fits is not None
+    for k in range(2):
+        v = np.c_[np.sin(3 * pts[:, 0] + k) + pts[:, 1] ** 2, np.cos(2 * pts[:, 1] - k) * pts[:, 0]]
+        a = setup.split(v)
+        b = natural.natural_decomposition(pts, v, disk, sp)
+        for name in ("phi", "psi", "d", "grad_psi", "divergence", "curl"):
+            x, y = getattr(a, name), getattr(b, name)
+            assert np.abs(x - y).max() < 1e-9 * np.abs(y).max(), name
+        h = v - a.d - a.grad_psi @ np.array([[0.0, 1.0], [-1.0, 0.0]])
+        assert np.allclose(a.harmonic_ratios(h), b.harmonic_ratios(h), rtol=1e-8, atol=1e-12)

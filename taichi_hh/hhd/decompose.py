@@ -258,7 +258,7 @@ def decompose(points, vectors, domain=None, *, method: str = "default", progress
 
 
 def decompose_unit(data: Data, opts: HHDOptions, chosen: dict, progress, *,
-                   split=None, reach_checked: bool = False) -> HHDResult:
+                   split=None, reach_checked: bool = False, natural=None) -> HHDResult:
     """The unit-frame decomposition of ``data`` under ``opts`` (its condition
     resolved: :func:`resolved_options`, which also gave ``chosen``); ``auto``'s
     window split (``"boundary_flux" in chosen``, natural) falls back to the
@@ -266,12 +266,15 @@ def decompose_unit(data: Data, opts: HHDOptions, chosen: dict, progress, *,
     (:func:`~taichi_hh.hhd.auto.window_split`).  ``split(data, opts)``: how a
     condition with Poisson rows is solved (default: a one-off
     :class:`~taichi_hh.hhd.operator_split.OperatorSplit`); ``reach_checked``:
-    the points' reach of the boundary checked already (a series)."""
+    the points' reach of the boundary checked already (a series);
+    ``natural``: the natural decomposition's set-up of these points
+    (:class:`~taichi_hh.hhd.natural.NaturalSetup`, a series), None: its own."""
     if "boundary_flux" in chosen and opts.boundary_condition == "natural":
         unit, opts, chosen = window_split(
-            lambda o: _decompose_unit(data, o, progress, split, reach_checked), opts, chosen)
+            lambda o: _decompose_unit(data, o, progress, split, reach_checked, natural), opts,
+            chosen)
     else:
-        unit = _decompose_unit(data, opts, progress, split, reach_checked)
+        unit = _decompose_unit(data, opts, progress, split, reach_checked, natural)
     unit.stats.update(chosen)
     return unit
 
@@ -303,10 +306,10 @@ def in_caller_units(unit: HHDResult, data: Data) -> HHDResult:
 
 
 def _decompose_unit(data: Data, opts: HHDOptions, progress, split=None,
-                    reach_checked: bool = False) -> HHDResult:
+                    reach_checked: bool = False, natural=None) -> HHDResult:
     """Steps (a)-(e) on the valid rows in the unit frame under one condition."""
     if natural_at_nodes(opts):
-        return _natural_unit(data, opts, progress, reach_checked)
+        return _natural_unit(data, opts, progress, reach_checked, natural)
     if split is not None:
         return split(data, opts)
     return OperatorSplit(data, opts, keep=False).split([data], progress)[0]
@@ -366,7 +369,7 @@ def check_natural_reach(pts, domain, spacing: float, opts: HHDOptions, data: Dat
 
 
 def _natural_unit(data: Data, opts: HHDOptions, progress,
-                  reach_checked: bool = False) -> HHDResult:
+                  reach_checked: bool = False, natural=None) -> HHDResult:
     """:func:`_decompose_unit` of the natural decomposition at the grid nodes
     (:func:`natural_at_nodes`): no point set (one is built if the result's
     ``pointset`` is read), div v and curl v from the nodes' fits of v, the
@@ -391,7 +394,11 @@ def _natural_unit(data: Data, opts: HHDOptions, progress,
     seconds["setup"] = time.perf_counter() - t
     say("natural potentials")
     t = time.perf_counter()
-    split = natural_decomposition(pts, vec, domain, spacing, evaluation=opts.natural_evaluation)
+    if natural is not None:                # a series on these points: its set-up kept
+        split = natural.split(vec)
+    else:
+        split = natural_decomposition(pts, vec, domain, spacing,
+                                      evaluation=opts.natural_evaluation)
     # "divergence": div v and curl v (the nodes' fits and the points' values)
     seconds["divergence"] = sum(split.seconds.get(k, 0.0) for k in ("fit", "divergence"))
     seconds["natural"] = time.perf_counter() - t - seconds["divergence"]

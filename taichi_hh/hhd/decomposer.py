@@ -34,7 +34,9 @@ Per snapshot, as in a call of its own:
   condition's system is made once, when a snapshot first needs it;
 * the natural decomposition with the default operators (the usual answer
   for a window) has no system to keep: its node fits and convolution run
-  per snapshot (:func:`~taichi_hh.hhd.natural.natural_decomposition`), the
+  per snapshot, on a set-up of the points made once
+  (:class:`~taichi_hh.hhd.natural.NaturalSetup`: the grid and its cut cells,
+  the bins, the node fits kept as weights, one gather per field) and the
   grid's kernel spectrum reused;
 * missing data: a snapshot whose NaN (or masked) rows are not among the
   points' own missing rows has other valid points, so no shared set-up: it
@@ -56,6 +58,7 @@ from .auto import flux_band
 from .decompose import (HHDResult, check_natural_reach, decompose, decompose_unit,
                         in_caller_units, natural_at_nodes, resolved_options, unit_spacing)
 from .inputs import field_on, prepare_data
+from .natural import NaturalSetup
 from .operator_split import COLUMN_BYTES, VECTORS_PER_COLUMN, OperatorSplit
 from .options import options_for
 
@@ -167,6 +170,7 @@ class Decomposer:
         self.seconds = {}
         self._near = None              # auto's band of points next to the boundary
         self._reach_checked = False    # the natural condition's reach of the boundary
+        self._natural = None           # the natural decomposition's set-up (NaturalSetup)
 
     def __repr__(self) -> str:
         return (f"Decomposer({len(self.points)} points, method={self.method!r}, "
@@ -185,6 +189,17 @@ class Decomposer:
             self._splits[condition] = s
             self.seconds[condition] = time.perf_counter() - t
         return s
+
+    def natural_setup(self, data, opts) -> NaturalSetup:
+        """The natural decomposition's set-up of the points
+        (:class:`~taichi_hh.hhd.natural.NaturalSetup`: grid, bins, the node
+        fits kept as weights), made on first use."""
+        if self._natural is None:
+            t = time.perf_counter()
+            self._natural = NaturalSetup(data.unit_points, data.unit_domain, unit_spacing(data),
+                                         evaluation=opts.natural_evaluation, reuse_fits=True)
+            self.seconds["natural"] = time.perf_counter() - t
+        return self._natural
 
     def _one(self, data, opts):
         # the orthogonal attempt of auto's window split, through the kept system
@@ -242,7 +257,9 @@ class Decomposer:
                                         opts, data)
                     self._reach_checked = True
                 unit = decompose_unit(data, opts, chosen, self.progress, split=self._one,
-                                      reach_checked=self._reach_checked)
+                                      reach_checked=self._reach_checked,
+                                      natural=self.natural_setup(data, opts)
+                                      if natural_at_nodes(opts) else None)
                 unit.stats["seconds"]["total"] = time.perf_counter() - t
                 out[k] = self._finish(unit, data)
             else:

@@ -40,7 +40,7 @@ from .cut_cells import cut_cells, near_field_correction
 from .free_space import (Grid, axis_rectangle, convolve_direct, convolve_fft, dipole_density,
                          grid_gradient)
 from .grid_sampling import ONE_SIDED_CELLS, at_points, lagrange_at, one_sided_gradient
-from .node_fits import PointBins, fit_gradients, reconstruct_on_grid
+from .node_fits import FitWeights, PointBins, fit_gradients, reconstruct_on_grid
 from .options import NATURAL_EVALUATIONS
 
 #: subsamples per side of a cut cell for its inside fraction and centroid
@@ -118,12 +118,19 @@ def _grid_potentials(cells: _Cells, at_cells: np.ndarray, evaluation: str,
     return u
 
 
-def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", domain, lap) -> tuple:
-    """``(values, near)``: ``values`` (N, m, 3) each potential of ``u`` (m, nx,
-    ny) and its gradient at the points (input order): the cubic spline of the
-    potentials and their fourth-order grid gradients, the gradient within
-    ONE_SIDED_CELLS of the boundary from the one-sided fit
-    (:func:`one_sided_gradient`); ``near``: those points (sorted order)."""
+def _near_points(cells: _Cells, binned: "PointBins", domain) -> np.ndarray:
+    """The points (sorted order) within ONE_SIDED_CELLS of the boundary."""
+    grid = cells.grid
+    cell = math.hypot(grid.hx, grid.hy) / math.sqrt(2.0)
+    return _near_boundary(domain, binned.points, ONE_SIDED_CELLS * cell)
+
+
+def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap) -> np.ndarray:
+    """(N, m, 3) each potential of ``u`` (m, nx, ny) and its gradient at the
+    points (input order): the cubic spline of the potentials and their
+    fourth-order grid gradients, the gradient at the points ``near`` the
+    boundary (:func:`_near_points`) from the one-sided fit
+    (:func:`one_sided_gradient`)."""
     grid = cells.grid
     m = len(u)
     # every potential and its grid gradient, one spline through them all
@@ -135,15 +142,13 @@ def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", domain, lap) -
     at = at_points(grid, cols, sp, dest=binned.order)           # in the input order
     lap("interpolate")
     # the gradient within ONE_SIDED_CELLS of the boundary from the fit
-    cell = math.hypot(grid.hx, grid.hy) / math.sqrt(2.0)
-    near = _near_boundary(domain, sp, ONE_SIDED_CELLS * cell)
     fitted = one_sided_gradient(grid, np.moveaxis(u, 0, -1), cells.inside, sp[near])
     ok = np.isfinite(fitted).all(axis=(1, 2))
     rows = binned.order[near[ok]]
     at = at.reshape(len(sp), m, 3)
     at[rows, :, 1:] = fitted[ok]
     lap("boundary_fit")
-    return at, near
+    return at
 
 
 def natural_potentials(points, domain, sources: dict, spacing: float, *,
@@ -169,7 +174,7 @@ def natural_potentials(points, domain, sources: dict, spacing: float, *,
     at_cells = reconstruct_on_grid(grid, points, vals, cells.live, binned=binned)
     lap("reconstruct")
     u = _grid_potentials(cells, at_cells, evaluation, lap)
-    at, _ = _at_points(cells, u, binned, domain, lap)
+    at = _at_points(cells, u, binned, _near_points(cells, binned, domain), lap)
     out = {name: (at[:, m, 0].copy(), at[:, m, 1:].copy()) for m, name in enumerate(names)}
     lap("gather")
     out["grid"] = grid
@@ -200,16 +205,126 @@ class NaturalSplit:
         div v's: the nodes with centres inside the domain, every k-th along
         each axis for at most about :data:`CHECK_NODES` of them."""
         t = time.perf_counter()
-        b = self._binned
-        hs = np.asarray(h, dtype=np.float64)[b.order]
-        g = fit_gradients(self.grid, b, hs, self._check_nodes, scale=self._check_scale_of,
-                          edge=self._check_edge)
+        setup = self.setup
+        hs = np.asarray(h, dtype=np.float64)[setup.binned.order]
+        g = setup.gradients("check", hs)
         div_h = np.abs(g[:, 0, 0] + g[:, 1, 1]).mean()
         curl_h = np.abs(g[:, 1, 0] - g[:, 0, 1]).mean()
         self.seconds["harmonic"] = time.perf_counter() - t
         scale = self._check_scale
         return tuple(x / scale if scale > 0 else (0.0 if x == 0 else math.inf)
                      for x in (div_h, curl_h))
+
+
+#: the node fits kept as weights (:class:`~.node_fits.FitWeights`) for a
+#: series on the same points take about 24 bytes per point in a fit (about 45
+#: per node): above this many bytes the fits are made again per field
+FIT_WEIGHTS_BYTES = 1 << 30
+
+
+class NaturalSetup:
+    """What :func:`natural_decomposition` needs of the points alone: the grid
+    and its cells' coverage (``cells``), the points binned by cell
+    (``binned``), the fits' local spacing and boundary flags, the points
+    within ONE_SIDED_CELLS of the boundary (``near``), the harmonic check's
+    nodes, the points' areas (``volume``).  Built once for points that carry
+    many fields (:class:`~taichi_hh.hhd.decomposer.Decomposer`); with
+    ``reuse_fits`` (and the weights under :data:`FIT_WEIGHTS_BYTES`) the three
+    sets of fits (the nodes, the near points, the check nodes) are kept as
+    weights (:class:`~.node_fits.FitWeights`), each field's gradients then
+    one gather, equal to the fits to rounding."""
+
+    def __init__(self, points, domain, spacing: float, *, evaluation: str = "fft",
+                 cell_ratio: float = 1.0, reuse_fits: bool = False):
+        _check_evaluation(evaluation)
+        lap = _Stopwatch()
+        self.evaluation = evaluation
+        self.cells = cells = _Cells(domain, cell_ratio * spacing)
+        grid, live = cells.grid, cells.live
+        lap("coverage")
+        self.binned = binned = PointBins(grid, points)
+        lap("bins")
+        self.nodes = grid.centres()[live]
+        self.scale, self.edge = _local_spacing(cells, binned)
+        self.near = _near_points(cells, binned, domain)
+        self.near_cell = np.repeat(np.arange(grid.nx * grid.ny), np.diff(binned.start))[self.near]
+        check = cells.inside.ravel()[live]
+        if not check.any():
+            check = np.ones(len(live), dtype=bool)
+        # at most about CHECK_NODES of them: every k-th node along each axis
+        k = max(1, math.ceil(math.sqrt(check.sum() / CHECK_NODES)))
+        if k > 1:
+            i, j = np.divmod(live, grid.ny)
+            check &= (i % k == 0) & (j % k == 0)
+        self.check = check
+        self.volume = _volumes(cells, binned)
+        lap("setup")
+        self.fits = None
+        if reuse_fits and 24 * 45 * (len(live) + len(self.near)) <= FIT_WEIGHTS_BYTES:
+            self.fits = {}
+            for name in ("nodes", "near", "check"):
+                targets, scale, edge = self._targets(name)
+                self.fits[name] = FitWeights(grid, binned, targets, scale=scale, edge=edge)
+            lap("fit_weights")
+        self.seconds = lap.seconds
+
+    def _targets(self, which: str) -> tuple:
+        """``(targets, scale, edge)`` of the fits ``which`` (nodes, near, check)."""
+        live = self.cells.live
+        if which == "nodes":
+            return self.nodes, self.scale[live], self.edge[live]
+        if which == "near":
+            return self.binned.points[self.near], self.scale[self.near_cell], \
+                self.edge[self.near_cell]
+        return self.nodes[self.check], self.scale[live][self.check], \
+            self.edge[live][self.check]
+
+    def gradients(self, which: str, values, counts: bool = False):
+        """(T, m, 2) the gradients of the columns of ``values`` (in the bins'
+        order) at the targets ``which`` (:meth:`_targets`); with ``counts``
+        also the points in each fit."""
+        if self.fits is not None:
+            w = self.fits[which]
+            g = w.gradients(values)
+            return (g, w.counts) if counts else g
+        targets, scale, edge = self._targets(which)
+        return fit_gradients(self.cells.grid, self.binned, values, targets, counts=counts,
+                             scale=scale, edge=edge)
+
+    def split(self, vectors) -> "NaturalSplit":
+        """The natural HHD of ``vectors`` (N, 2) at these points
+        (:func:`natural_decomposition`)."""
+        lap = _Stopwatch()
+        cells, binned = self.cells, self.binned
+        grid, live = cells.grid, cells.live
+        vs = np.ascontiguousarray(np.asarray(vectors, dtype=np.float64)[binned.order])
+        g, count = self.gradients("nodes", vs, counts=True)
+        div = g[:, 0, 0] + g[:, 1, 1]
+        curl = g[:, 1, 0] - g[:, 0, 1]
+        lap("fit")
+        u = _grid_potentials(cells, np.c_[div, -curl], self.evaluation, lap)
+        at = _at_points(cells, u, binned, self.near, lap)
+        # div v and curl v at the points: the nodes' values inside, the fit at
+        # the point near the boundary (the nodes around it partly outside)
+        dc_grid = np.zeros((grid.nx * grid.ny, 2))
+        dc_grid[live, 0], dc_grid[live, 1] = div, curl
+        dc = lagrange_at(grid, dc_grid.reshape(grid.shape + (2,)), binned.points, binned.order)
+        if self.near.size:
+            gn = self.gradients("near", vs)
+            dc[binned.order[self.near]] = np.c_[gn[:, 0, 0] + gn[:, 1, 1],
+                                                gn[:, 1, 0] - gn[:, 0, 1]]
+        lap("divergence")
+        check = self.check
+        split = NaturalSplit(phi=at[:, 0, 0].copy(), d=at[:, 0, 1:].copy(),
+                             psi=at[:, 1, 0].copy(), grad_psi=at[:, 1, 1:].copy(),
+                             divergence=dc[:, 0].copy(), curl=dc[:, 1].copy(),
+                             volume=self.volume, grid=grid,
+                             mean_fit_points=float(count.mean()) if count.size else 0.0,
+                             setup=self,
+                             _check_scale=float(np.hypot(div[check], curl[check]).mean()))
+        lap("gather")
+        split.seconds = lap.seconds
+        return split
 
 
 def natural_decomposition(points, vectors, domain, spacing: float, *,
@@ -223,53 +338,10 @@ def natural_decomposition(points, vectors, domain, spacing: float, *,
     result's, and the harmonic check's scale): the nodes' values by
     tensor cubic Lagrange interpolation, and within ONE_SIDED_CELLS of the
     boundary the fit of v at the point itself.  Returns a
-    :class:`NaturalSplit`."""
-    _check_evaluation(evaluation)
-    lap = _Stopwatch()
-    cells = _Cells(domain, cell_ratio * spacing)
-    grid, live = cells.grid, cells.live
-    lap("coverage")
-    binned = PointBins(grid, points)
-    vs = np.ascontiguousarray(np.asarray(vectors, dtype=np.float64)[binned.order])
-    lap("bins")
-    nodes = grid.centres()[live]
-    spacing, edge = _local_spacing(cells, binned)
-    g, count = fit_gradients(grid, binned, vs, nodes, counts=True, scale=spacing[live],
-                             edge=edge[live])
-    div = g[:, 0, 0] + g[:, 1, 1]
-    curl = g[:, 1, 0] - g[:, 0, 1]
-    lap("fit")
-    u = _grid_potentials(cells, np.c_[div, -curl], evaluation, lap)
-    at, near = _at_points(cells, u, binned, domain, lap)
-    # div v and curl v at the points: the nodes' values inside, the fit at
-    # the point near the boundary (the nodes around it partly outside)
-    dc_grid = np.zeros((grid.nx * grid.ny, 2))
-    dc_grid[live, 0], dc_grid[live, 1] = div, curl
-    dc = lagrange_at(grid, dc_grid.reshape(grid.shape + (2,)), binned.points, binned.order)
-    if near.size:
-        cell_of = np.repeat(np.arange(grid.nx * grid.ny), np.diff(binned.start))[near]
-        gn = fit_gradients(grid, binned, vs, binned.points[near], scale=spacing[cell_of],
-                           edge=edge[cell_of])
-        dc[binned.order[near]] = np.c_[gn[:, 0, 0] + gn[:, 1, 1], gn[:, 1, 0] - gn[:, 0, 1]]
-    lap("divergence")
-    check = cells.inside.ravel()[live]
-    if not check.any():
-        check = np.ones(len(live), dtype=bool)
-    # at most about CHECK_NODES of them: every k-th node along each axis
-    k = max(1, math.ceil(math.sqrt(check.sum() / CHECK_NODES)))
-    if k > 1:
-        i, j = np.divmod(live, grid.ny)
-        check &= (i % k == 0) & (j % k == 0)
-    volume = _volumes(cells, binned)
-    split = NaturalSplit(phi=at[:, 0, 0].copy(), d=at[:, 0, 1:].copy(),
-                         psi=at[:, 1, 0].copy(), grad_psi=at[:, 1, 1:].copy(),
-                         divergence=dc[:, 0].copy(), curl=dc[:, 1].copy(), volume=volume,
-                         grid=grid, mean_fit_points=float(count.mean()) if count.size else 0.0,
-                         _binned=binned, _check_nodes=nodes[check],
-                         _check_scale_of=spacing[live][check], _check_edge=edge[live][check],
-                         _check_scale=float(np.hypot(div[check], curl[check]).mean()))
-    lap("gather")
-    split.seconds = lap.seconds
+    :class:`NaturalSplit` (:class:`NaturalSetup` then its split)."""
+    setup = NaturalSetup(points, domain, spacing, evaluation=evaluation, cell_ratio=cell_ratio)
+    split = setup.split(vectors)
+    split.seconds = {**setup.seconds, **split.seconds}
     return split
 
 

@@ -294,7 +294,9 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
                    pos: ti.types.ndarray(), vals: ti.types.ndarray(), p: ti.template(),
                    radii: ti.types.vector(3, ti.f64), min_points: ti.i32, edge_degree: ti.i32,
                    scale: ti.types.ndarray(), edge: ti.types.ndarray(),
-                   out: ti.types.ndarray()):
+                   out: ti.types.ndarray(), emit: ti.template(), wstart: ti.types.ndarray(),
+                   widx: ti.types.ndarray(), wval: ti.types.ndarray(),
+                   wref: ti.types.ndarray()):
     """The gradients of the two columns of ``vals`` at each target (T, 2) from
     their weighted least-squares polynomial of degree ``p`` over the points
     (sorted by cell, ``start`` the offsets; ``lx``, ``ly`` the grid's lower
@@ -304,7 +306,12 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
     most ``edge_degree``; fewer points than a degree's monomials and two:
     the next lower degree.  One gather per
     target; the normal equations from the weighted moments of the offsets (a
-    monomial pair's entry is one moment), solved by Cholesky."""
+    monomial pair's entry is one moment), solved by Cholesky.  With ``emit``
+    also each point's weights in the target's gradient, written to the slots
+    ``wstart[t]`` on (the counts of a pass without: :class:`FitWeights`):
+    ``widx`` the point, ``wval`` its weights in d/dx and d/dy (the rows of
+    the inverse normal matrix times the point's weighted monomials), and
+    ``wref[t]`` the point whose value the fit subtracts first."""
     NB = ti.static(len(_MONO[p]))
     NM = ti.static(len(_MOMENTS[p]))
     for t in range(targets.shape[0]):
@@ -329,6 +336,7 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
         count = 0
         R = ti.cast(1.0, ti.f64)
         a = 0
+        i0, i1, j0, j1 = 0, -1, 0, -1
         while not done:           # one copy of the loop for every radius
             R = radii[a] * h
             i0 = ti.max(ci - ti.cast(ti.ceil(R / hx - fx), ti.i32), 0)
@@ -389,6 +397,41 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
                 x = cholesky_solve(M, rhs, nq, ti.f64, 1e-30)
                 g = ti.Vector([x[1, 0], x[2, 0], x[1, 1], x[2, 1]]) / R
                 solved = True
+                if ti.static(emit):
+                    # the rows 1 and 2 of M^-1 (M symmetric: its columns)
+                    unit = ti.Matrix.zero(ti.f64, nq, 2)
+                    unit[1, 0] = 1.0
+                    unit[2, 1] = 1.0
+                    rows = cholesky_solve(M, unit, nq, ti.f64, 1e-30)
+                    slot = wstart[t]
+                    wref[t] = kref
+                    inv = 1.0 / R
+                    for i in range(i0, i1 + 1):
+                        row = i * ny
+                        for k in range(start[row + j0], start[row + j1 + 1]):
+                            dx = (pos[k, 0] - X[0]) * inv
+                            dy = (pos[k, 1] - X[1]) * inv
+                            q2 = dx * dx + dy * dy
+                            if q2 < 1.0:
+                                qq = ti.sqrt(q2)
+                                w = (1.0 - qq) ** 4 * (1.0 + 4.0 * qq)
+                                px = ti.Vector.zero(ti.f64, q + 1)
+                                py = ti.Vector.zero(ti.f64, q + 1)
+                                px[0] = w
+                                py[0] = 1.0
+                                for e in ti.static(range(1, q + 1)):
+                                    px[e] = px[e - 1] * dx
+                                    py[e] = py[e - 1] * dy
+                                gx = 0.0
+                                gy = 0.0
+                                for m in ti.static(range(nq)):
+                                    b = px[ti.static(_MONO[q][m][0])] * py[ti.static(_MONO[q][m][1])]
+                                    gx += rows[m, 0] * b
+                                    gy += rows[m, 1] * b
+                                widx[slot] = k
+                                wval[slot, 0] = gx * inv
+                                wval[slot, 1] = gy * inv
+                                slot += 1
         for c in ti.static(range(4)):
             out[t, c] = g[c]
         out[t, 4] = count
@@ -422,6 +465,87 @@ def fit_gradients(grid: Grid, binned: "PointBins", values, targets, degree: int 
                                                             else scale, len(tg)),
                                             dtype=np.float64),
                        np.ascontiguousarray(np.broadcast_to(True if edge is None else edge,
-                                                            len(tg)), dtype=np.int32), out)
+                                                            len(tg)), dtype=np.int32), out,
+                       False, _NO_SLOTS, _NO_INDEX, _NO_WEIGHTS, _NO_INDEX)
     grads = out[:, :4].reshape(-1, 2, 2)
     return (grads, out[:, 4]) if counts else grads
+
+
+_NO_SLOTS = np.zeros(1, dtype=np.int32)
+_NO_INDEX = np.zeros(1, dtype=np.int32)
+_NO_WEIGHTS = np.zeros((1, 2))
+
+
+@ti.kernel
+def _apply_weights(wstart: ti.types.ndarray(), widx: ti.types.ndarray(),
+                   wval: ti.types.ndarray(), wref: ti.types.ndarray(),
+                   values: ti.types.ndarray(), out: ti.types.ndarray()):
+    """out[t, c, :] = the sum over target t's slots of the weights times
+    column c of ``values`` (N, m) less its value at the fit's reference
+    point (as the fit subtracts it: the same rounding): one gather per
+    target."""
+    for t, c in ti.ndrange(out.shape[0], out.shape[1]):
+        gx = 0.0
+        gy = 0.0
+        ref = values[wref[t], c]
+        for s in range(wstart[t], wstart[t + 1]):
+            v = values[widx[s], c] - ref
+            gx += wval[s, 0] * v
+            gy += wval[s, 1] * v
+        out[t, c, 0] = gx
+        out[t, c, 1] = gy
+
+
+class FitWeights:
+    """The fits of :func:`fit_gradients` at fixed targets as weights: each
+    target's gradient a weighted sum of the values of the points in its fit
+    (a sparse matrix in slots, built by the fit kernel itself).  Built once
+    for points that carry many fields (a series of snapshots): each field's
+    gradients are then one gather (:meth:`gradients`), the same as
+    :func:`fit_gradients` to rounding, in any number of columns.
+    ``counts`` (T,): the points in each fit."""
+
+    def __init__(self, grid: Grid, binned: "PointBins", targets, *, scale=None, edge=None):
+        runtime.ensure_init()
+        tg = np.ascontiguousarray(targets, dtype=np.float64).reshape(-1, 2)
+        # the first pass counts each fit's points (the slots), the second
+        # writes their weights
+        zero = np.zeros((len(binned.points), 2))
+        _, count = fit_gradients(grid, binned, zero, tg, counts=True, scale=scale, edge=edge)
+        self.counts = count
+        # 32-bit slots (the kernels' loop bounds): the weights stay far below
+        # 2^31 of them (natural.FIT_WEIGHTS_BYTES)
+        self.start = np.zeros(len(tg) + 1, dtype=np.int32)
+        self.start[1:] = np.cumsum(count.astype(np.int64))
+        n = int(self.start[-1])
+        self.index = np.zeros(max(n, 1), dtype=np.int32)
+        self.weights = np.zeros((max(n, 1), 2))
+        self.reference = np.zeros(max(len(tg), 1), dtype=np.int32)
+        if len(tg) and len(binned.points):
+            lower = grid.origin - 0.5 * np.array([grid.hx, grid.hy])
+            out = np.zeros((len(tg), 5))
+            _fit_gradients(tg, grid.nx, grid.ny, float(lower[0]), float(lower[1]), grid.hx,
+                           grid.hy, binned.start, binned.points, zero, int(FIT_DEGREE),
+                           ti.Vector([float(r) for r in FIT_RADII], dt=ti.f64),
+                           int(FIT_MIN_POINTS), int(EDGE_DEGREE),
+                           np.ascontiguousarray(np.broadcast_to(
+                               max(grid.hx, grid.hy) if scale is None else scale, len(tg)),
+                               dtype=np.float64),
+                           np.ascontiguousarray(np.broadcast_to(True if edge is None else edge,
+                                                                len(tg)), dtype=np.int32),
+                           out, True, self.start, self.index, self.weights, self.reference)
+        self.n_targets = len(tg)
+
+    @property
+    def nbytes(self) -> int:
+        return self.start.nbytes + self.index.nbytes + self.weights.nbytes + self.reference.nbytes
+
+    def gradients(self, values) -> np.ndarray:
+        """(T, m, 2) the gradient of each column of ``values`` (N, m, in the
+        order of the bins' points) at the targets."""
+        v = np.ascontiguousarray(values, dtype=np.float64)
+        v = v[:, None] if v.ndim == 1 else v
+        out = np.zeros((self.n_targets, v.shape[1], 2))
+        if self.n_targets and v.shape[1]:
+            _apply_weights(self.start, self.index, self.weights, self.reference, v, out)
+        return out
