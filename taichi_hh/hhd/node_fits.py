@@ -11,6 +11,7 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
+from ..sph.cell_sort import counting_sort
 from ..sph.knn import KNearest
 from .free_space import Grid
 
@@ -176,31 +177,14 @@ def _mls_nodes(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, x0: float, y
 
 
 @ti.kernel
-def _cell_counts(pts: ti.types.ndarray(), lx: ti.f64, ly: ti.f64, hx: ti.f64, hy: ti.f64,
-                 nx: ti.i32, ny: ti.i32, cell: ti.types.ndarray(), count: ti.types.ndarray()):
+def _cells_of(pts: ti.types.ndarray(), lx: ti.f64, ly: ti.f64, hx: ti.f64, hy: ti.f64,
+              nx: ti.i32, ny: ti.i32, cell: ti.types.ndarray()):
     """cell[p]: the flat index of the grid cell holding point p (as
-    :meth:`Grid.cell_index`); count[c + 1] += 1 for each."""
+    :meth:`Grid.cell_index`)."""
     for p in range(pts.shape[0]):
         fx = ti.math.clamp(ti.floor((pts[p, 0] - lx) / hx), 0.0, ti.cast(nx - 1, ti.f64))
         fy = ti.math.clamp(ti.floor((pts[p, 1] - ly) / hy), 0.0, ti.cast(ny - 1, ti.f64))
-        c = ti.cast(fx, ti.i32) * ny + ti.cast(fy, ti.i32)
-        cell[p] = c
-        ti.atomic_add(count[c + 1], 1)
-
-
-@ti.kernel
-def _sort_by_cell(pts: ti.types.ndarray(), cell: ti.types.ndarray(), cursor: ti.types.ndarray(),
-                  order: ti.types.ndarray(), out: ti.types.ndarray()):
-    """The counting sort's stable scatter: point p to the next free slot of its
-    cell (``cursor``: the cells' starts, advanced), in input order."""
-    ti.loop_config(serialize=True)
-    for p in range(pts.shape[0]):
-        c = cell[p]
-        k = cursor[c]
-        cursor[c] = k + 1
-        order[k] = p
-        out[k, 0] = pts[p, 0]
-        out[k, 1] = pts[p, 1]
+        cell[p] = ti.cast(fx, ti.i32) * ny + ti.cast(fy, ti.i32)
 
 
 class PointBins:
@@ -213,16 +197,13 @@ class PointBins:
         pts = np.ascontiguousarray(points, dtype=np.float64)
         n = len(pts)
         lower = grid.origin - 0.5 * np.array([grid.hx, grid.hy])
-        count = np.zeros(grid.nx * grid.ny + 1, dtype=np.int32)
-        self.order = np.empty(n, dtype=np.int64)
-        self.points = np.empty((n, 2))
+        cell = np.empty(n, dtype=np.int32)
         if n:
-            cell = np.empty(n, dtype=np.int32)
-            _cell_counts(pts, float(lower[0]), float(lower[1]), grid.hx, grid.hy, grid.nx,
-                         grid.ny, cell, count)
-            np.cumsum(count, out=count)
-            _sort_by_cell(pts, cell, count[:-1].copy(), self.order, self.points)
-        self.start = count
+            _cells_of(pts, float(lower[0]), float(lower[1]), grid.hx, grid.hy, grid.nx,
+                      grid.ny, cell)
+        order, self.start = counting_sort(cell, grid.nx * grid.ny)
+        self.order = order.astype(np.int64)
+        self.points = pts[self.order]
 
 
 def reconstruct_on_grid(grid: "Grid", points, values, live, *, binned=None) -> np.ndarray:
