@@ -269,6 +269,29 @@ _GRAM = {p: [[_MOMENTS[p].index((a + c, b + d)) for (c, d) in _MONO[p]] for (a, 
 _RHS = {p: [_MOMENTS[p].index(m) for m in _MONO[p]] for p in (1, 2, 3)}
 
 
+@ti.func
+def _fit_powers(pos: ti.template(), k, X, inv, n: ti.template()):
+    """``(near, px, py)``: whether point k lies within the fit's radius of X
+    (``inv`` = 1 / radius), its Wendland weight w times the powers of its
+    offset's x over the radius (px[e] = w dx^e) and the powers of its y
+    (py[e] = dy^e), e = 0 .. n (a monomial's weighted value: px[a] py[b])."""
+    dx = (pos[k, 0] - X[0]) * inv
+    dy = (pos[k, 1] - X[1]) * inv
+    q2 = dx * dx + dy * dy
+    w = 0.0
+    if q2 < 1.0:
+        q = ti.sqrt(q2)
+        w = (1.0 - q) ** 4 * (1.0 + 4.0 * q)
+    px = ti.Vector.zero(ti.f64, n + 1)
+    py = ti.Vector.zero(ti.f64, n + 1)
+    px[0] = w
+    py[0] = 1.0
+    for e in ti.static(range(1, n + 1)):
+        px[e] = px[e - 1] * dx
+        py[e] = py[e - 1] * dy
+    return q2 < 1.0, px, py
+
+
 @ti.kernel
 def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f64,
                    ly: ti.f64, hx: ti.f64, hy: ti.f64, start: ti.types.ndarray(),
@@ -332,20 +355,9 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
             for i in range(i0, i1 + 1):
                 row = i * ny
                 for k in range(start[row + j0], start[row + j1 + 1]):
-                    dx = (pos[k, 0] - X[0]) * inv
-                    dy = (pos[k, 1] - X[1]) * inv
-                    q2 = dx * dx + dy * dy
-                    if q2 < 1.0:
+                    near, px, py = _fit_powers(pos, k, X, inv, 2 * p)
+                    if near:
                         count += 1
-                        q = ti.sqrt(q2)
-                        w = (1.0 - q) ** 4 * (1.0 + 4.0 * q)
-                        px = ti.Vector.zero(ti.f64, 2 * p + 1)
-                        py = ti.Vector.zero(ti.f64, 2 * p + 1)
-                        px[0] = w
-                        py[0] = 1.0
-                        for e in ti.static(range(1, 2 * p + 1)):
-                            px[e] = px[e - 1] * dx
-                            py[e] = py[e - 1] * dy
                         inc = ti.Vector.zero(ti.f64, NM)
                         for m in ti.static(range(NM)):
                             inc[m] = px[ti.static(_MOMENTS[p][m][0])] \
@@ -390,19 +402,8 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
                     for i in range(i0, i1 + 1):
                         row = i * ny
                         for k in range(start[row + j0], start[row + j1 + 1]):
-                            dx = (pos[k, 0] - X[0]) * inv
-                            dy = (pos[k, 1] - X[1]) * inv
-                            q2 = dx * dx + dy * dy
-                            if q2 < 1.0:
-                                qq = ti.sqrt(q2)
-                                w = (1.0 - qq) ** 4 * (1.0 + 4.0 * qq)
-                                px = ti.Vector.zero(ti.f64, q + 1)
-                                py = ti.Vector.zero(ti.f64, q + 1)
-                                px[0] = w
-                                py[0] = 1.0
-                                for e in ti.static(range(1, q + 1)):
-                                    px[e] = px[e - 1] * dx
-                                    py[e] = py[e - 1] * dy
+                            near, px, py = _fit_powers(pos, k, X, inv, q)
+                            if near:
                                 gx = 0.0
                                 gy = 0.0
                                 for m in ti.static(range(nq)):
