@@ -311,13 +311,8 @@ class GridSeries:
             return value
         raise AttributeError(name)
 
-    @property
-    def boundary_condition(self) -> list:
-        return [s.get("boundary_condition", "") for s in self.stats]
-
-    @property
-    def energy_ratio(self) -> np.ndarray:
-        return np.array([s.get("energy_ratio", np.nan) for s in self.stats])
+    boundary_condition = SeriesResult.boundary_condition
+    energy_ratio = SeriesResult.energy_ratio
 
 
 class GridDecomposer:

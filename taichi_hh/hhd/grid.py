@@ -200,6 +200,12 @@ def check_grid_options(options: dict, hole_size, min_neighbours) -> None:
         raise InputError("decompose_grid makes its domain from the valid nodes: give "
                          "mask= (True where invalid) to cut regions out, or use "
                          "decompose() with a domain")
+    check_outline_rules(hole_size, min_neighbours)
+
+
+def check_outline_rules(hole_size, min_neighbours) -> None:
+    """The rules of a grid's outline (:func:`cut_out`, :func:`isolated_nodes`)
+    checked (InputError)."""
     if isinstance(hole_size, bool) or not isinstance(hole_size, (int, np.integer)) \
             or hole_size < 2:
         raise InputError(f"hole_size must be an integer >= 2 (nodes), got {hole_size!r}")

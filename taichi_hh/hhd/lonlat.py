@@ -32,7 +32,7 @@ from ..checks import as_real_array
 from ..errors import InputError
 from ..geometry.polygon import Polygon
 from ..geometry.raster import cell_outlines, check_axis
-from .grid import HOLE_SIZE, MIN_NEIGHBOURS, cut_out, isolated_nodes
+from .grid import HOLE_SIZE, MIN_NEIGHBOURS, check_outline_rules, cut_out, isolated_nodes
 from .sphere_map import MAX_DISTANCE, Stereographic, centre_of, unwrap_longitudes
 
 __all__ = ["decompose_lonlat", "LonLatResult", "EARTH_RADIUS"]
@@ -490,12 +490,7 @@ def _grid_domain(proj, lon, lat, invalid, hole_size, min_neighbours) -> tuple:
     axes: the valid nodes' outline in degrees (the rules of
     :func:`~taichi_hh.hhd.grid.decompose_grid`: isolated valid nodes left out,
     invalid blocks of ``hole_size`` cut out, the largest piece kept), mapped."""
-    if isinstance(hole_size, bool) or not isinstance(hole_size, (int, np.integer)) \
-            or hole_size < 2:
-        raise InputError(f"hole_size must be an integer >= 2 (nodes), got {hole_size!r}")
-    if isinstance(min_neighbours, bool) or not isinstance(min_neighbours, (int, np.integer)) \
-            or not 0 <= min_neighbours <= 8:
-        raise InputError(f"min_neighbours must be an integer 0..8, got {min_neighbours!r}")
+    check_outline_rules(hole_size, min_neighbours)
     isolated = isolated_nodes(invalid, int(min_neighbours))
     invalid = invalid | isolated
     if invalid.all():
