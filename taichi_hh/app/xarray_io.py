@@ -68,16 +68,7 @@ def decompose_dataset(ds, u: str = "u", v: str = "v", *, x: str | None = None,
     doc); ``options`` as :func:`~taichi_hh.hhd.grid.decompose_grid` takes
     them.  Returns an ``xarray.Dataset``."""
     xr = _xarray()
-    if not isinstance(ds, xr.Dataset):
-        raise InputError(f"decompose_dataset takes an xarray.Dataset, got {type(ds).__name__}")
-    for name in (u, v):
-        if name not in ds.data_vars:
-            raise InputError(f"the dataset has no variable {name!r} (its variables: "
-                             f"{', '.join(map(str, ds.data_vars)) or 'none'}); name the "
-                             "components with u=..., v=...")
-    U, V = ds[u], ds[v]
-    if U.dims != V.dims:
-        raise InputError(f"{u!r} and {v!r} have different dimensions: {U.dims} and {V.dims}")
+    U, V = vector_variables(ds, u, v, "decompose_dataset", "components")
     xdim, ydim = _spatial_dims(ds, U, x, y)
     for dim in (xdim, ydim):
         _refuse_degrees(ds, dim)
@@ -122,6 +113,24 @@ def decompose_dataset(ds, u: str = "u", v: str = "v", *, x: str | None = None,
         "taichi_hh_options": repr(dict(sorted(options.items()))),
     })
     return out
+
+
+def vector_variables(ds, u: str, v: str, caller: str, what: str) -> tuple:
+    """``(U, V)``: the Dataset ``ds``'s variables ``u`` and ``v`` (the vector's
+    ``what``, named in the messages), checked: a Dataset, both present, the
+    same dimensions (InputError naming ``caller``)."""
+    xr = _xarray()
+    if not isinstance(ds, xr.Dataset):
+        raise InputError(f"{caller} takes an xarray.Dataset, got {type(ds).__name__}")
+    for name in (u, v):
+        if name not in ds.data_vars:
+            raise InputError(f"the dataset has no variable {name!r} (its variables: "
+                             f"{', '.join(map(str, ds.data_vars)) or 'none'}); name the "
+                             f"{what} with u=..., v=...")
+    U, V = ds[u], ds[v]
+    if U.dims != V.dims:
+        raise InputError(f"{u!r} and {v!r} have different dimensions: {U.dims} and {V.dims}")
+    return U, V
 
 
 def _spatial_dims(ds, da, x, y) -> tuple:

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from .xarray_io import vector_variables
 
 __all__ = ["decompose_lonlat_dataset", "lonlat_dims", "VARIABLES"]
 
@@ -103,17 +104,7 @@ def decompose_lonlat_dataset(ds, u: str = "u", v: str = "v", *, lon: str | None 
     except ImportError:
         raise InputError("decompose_lonlat_dataset needs xarray: pip install xarray") from None
     from ..hhd.lonlat import EARTH_RADIUS, decompose_lonlat
-    if not isinstance(ds, xr.Dataset):
-        raise InputError(f"decompose_lonlat_dataset takes an xarray.Dataset, got "
-                         f"{type(ds).__name__}")
-    for name in (u, v):
-        if name not in ds.data_vars:
-            raise InputError(f"the dataset has no variable {name!r} (its variables: "
-                             f"{', '.join(map(str, ds.data_vars)) or 'none'}); name the wind "
-                             "components with u=..., v=...")
-    U, V = ds[u], ds[v]
-    if U.dims != V.dims:
-        raise InputError(f"{u!r} and {v!r} have different dimensions: {U.dims} and {V.dims}")
+    U, V = vector_variables(ds, u, v, "decompose_lonlat_dataset", "wind components")
     found = lonlat_dims(ds, U, lon, lat)
     if found is None:
         raise InputError(f"cannot tell the longitude and latitude dimensions among {U.dims}: "
