@@ -594,8 +594,13 @@ def _condition_said(stats: dict) -> str:
     flux = stats.get("boundary_flux")
     if flux is None:
         return f"boundary condition {condition}"
-    why = ("the flow does not cross the boundary" if condition == "no-flux"
-           else "the flow crosses the boundary")
+    from ..hhd.auto import CLOSED_FLUX
+    if condition == "no-flux":
+        why = "the flow runs along the boundary without crossing it"
+    elif flux < CLOSED_FLUX:        # NaN (no data next to the boundary) compares False
+        why = "no flow next to the boundary: no wall in the data"
+    else:
+        why = "the flow crosses the boundary"
     cancelled = stats.get("natural_energy_ratio")
     if cancelled is not None:
         why += (f", and the natural split's parts cancel (they carry {cancelled:.3g} times "

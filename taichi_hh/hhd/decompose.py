@@ -182,14 +182,15 @@ def resolved_options(opts: HHDOptions, data: Data, *, near=None) -> tuple:
     the data call for (:func:`~taichi_hh.hhd.auto.choose_boundary_condition`;
     ``near``: its band of points, :func:`~taichi_hh.hhd.auto.flux_band`, if
     made already); ``stats``: ``boundary_condition`` (the one used) and, for
-    ``auto``, ``boundary_flux``."""
+    ``auto``, ``boundary_flux`` and ``boundary_along`` (the normal and the
+    tangential flow next to the boundary)."""
     if opts.boundary_condition != "auto":
         return opts, {"boundary_condition": opts.boundary_condition}
-    condition, flux = choose_boundary_condition(data.unit_points, data.unit_vectors,
-                                                data.unit_domain, unit_spacing(data),
-                                                opts.boundary, near=near)
-    return replace(opts, boundary_condition=condition), {"boundary_condition": condition,
-                                                         "boundary_flux": flux}
+    condition, flux, along = choose_boundary_condition(data.unit_points, data.unit_vectors,
+                                                       data.unit_domain, unit_spacing(data),
+                                                       opts.boundary, near=near)
+    return replace(opts, boundary_condition=condition), {
+        "boundary_condition": condition, "boundary_flux": flux, "boundary_along": along}
 
 
 def unit_spacing(data: Data) -> float:

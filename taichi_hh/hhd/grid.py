@@ -320,6 +320,7 @@ class GridLayout:
                         orth.stats.update(
                             boundary_condition=ORTHOGONAL_CONDITION,
                             boundary_flux=chosen["boundary_flux"],
+                            boundary_along=chosen["boundary_along"],
                             natural_energy_ratio=res.stats["energy_ratio"])
                         res, caught = orth, orthogonal_warnings
                     else:
@@ -388,12 +389,12 @@ def _orthogonal_attempt(points, vectors, domain, method, progress, options):
 def _auto_condition(xs, ys, used, inside, u, v, domain, steps, boundary: str) -> dict:
     """``auto``'s choice on a uniform grid's used nodes, as
     :func:`~taichi_hh.hhd.auto.choose_boundary_condition` makes it:
-    ``{"boundary_condition", "boundary_flux"}``.  The flux
+    ``{"boundary_condition", "boundary_flux", "boundary_along"}``.  The flux
     (:func:`~taichi_hh.hhd.auto.boundary_flux`: RMS of v.n over the nodes
     within its band of the outline over the RMS of abs(v)) with the
     distances and normals from the grid rather than the domain's locator
     (:func:`~taichi_hh.hhd.natural_grid.outline_distance`)."""
-    from .auto import CLOSED_FLUX, FLUX_BAND
+    from .auto import FLUX_BAND, band_flow, is_closed
     from .natural_grid import outline_distance
     hx, hy = steps
     n = int(used.sum())
@@ -403,15 +404,10 @@ def _auto_condition(xs, ys, used, inside, u, v, domain, steps, boundary: str) ->
     reach = FLUX_BAND * spacing
     jj, ii, best, normal = outline_distance(used, inside, hx, hy, reach)
     keep = best < reach
-    if not keep.any():
-        flux = float("nan")
-    elif size == 0.0:
-        flux = 0.0
-    else:
-        normal_part = (vec[jj[keep], ii[keep]] * normal[keep]).sum(axis=1)
-        flux = float(np.sqrt(np.mean(normal_part ** 2) / size))
-    closed = np.isfinite(flux) and flux < CLOSED_FLUX and boundary == "collocation"
-    return {"boundary_condition": "no-flux" if closed else "natural", "boundary_flux": flux}
+    flux, along = band_flow(vec[jj[keep], ii[keep]], normal[keep], size)
+    closed = is_closed(flux, along, boundary)
+    return {"boundary_condition": "no-flux" if closed else "natural", "boundary_flux": flux,
+            "boundary_along": along}
 
 
 def grid_of(points) -> tuple | None:
