@@ -13,13 +13,16 @@ boundary condition; taichi_hh/validation/sphere.py), sampled
   parts of it without data, which the natural condition refuses).
 
 The bumps' radii are 0.28-0.4 of the region's smaller side, at most 8
-degrees, more bumps in larger regions: a 10 x 10 region's 2.7 degree bumps
-span 11 grid steps, a 60 x 35 region's 8 degree ones 32.
+degrees, more bumps in larger regions (each 0.7-1 times that): a 10 x 10
+region's 2.0-2.6 degree bumps span 8-10 grid steps of radius, a 60 x 35
+region's 5.9-6.8 degree ones 24-27.
 
 The same field plus a stream through the region (curl-free and
 divergence-free on the sphere: harmonic_stream) is a window of a larger flow:
 the default condition chooses natural, whose exact answer it still is (the
-stream all harmonic); on the calm-edged field alone it chooses no-flux.
+stream all harmonic); on the calm-edged field alone it chooses natural too
+(no flow next to the edges, across them or along them: no wall in the data;
+it chose no-flux before, whose solve errs 4-5 times more on random points).
 
 Errors: mean |part - exact| over the mean |exact part| of each wind (the
 rotational k x grad psi and the divergent grad chi), and the same over the
