@@ -35,7 +35,7 @@ from ..geometry.raster import cell_outlines, check_axis
 from .grid import HOLE_SIZE, MIN_NEIGHBOURS, check_outline_rules, cut_out, isolated_nodes
 from .sphere_map import MAX_DISTANCE, Stereographic, centre_of, unwrap_longitudes
 
-__all__ = ["decompose_lonlat", "LonLatResult", "EARTH_RADIUS"]
+__all__ = ["decompose_lonlat", "LonLatResult", "EARTH_RADIUS", "grid_domain"]
 
 #: the mean radius of the earth, metres (IUGG)
 EARTH_RADIUS = 6.371e6
@@ -428,7 +428,7 @@ def _gridded(lon, lat, u, v, radius, mask, region, hole_size, min_neighbours,
         invalid = invalid_base | np.isnan(u_s[index]) | np.isnan(v_s[index])
         key = invalid.tobytes()
         if key not in domains:
-            domains[key] = _grid_domain(proj, lon_s[fx], lat_s[fy], invalid[fy, fx],
+            domains[key] = grid_domain(proj, lon_s[fx], lat_s[fy], invalid[fy, fx],
                                         hole_size, min_neighbours)
         dom, used_sorted, extra = domains[key]
         used = used_sorted[fy, fx]
@@ -485,7 +485,8 @@ def _polar_cap(lon, lat, u, v, invalid, radius, options, t0) -> LonLatResult:
                         stats=stats, plane=planes, **out)
 
 
-def _grid_domain(proj, lon, lat, invalid, hole_size, min_neighbours) -> tuple:
+def grid_domain(proj, lon, lat, invalid, hole_size: int = HOLE_SIZE,
+                min_neighbours: int = MIN_NEIGHBOURS) -> tuple:
     """``(polygon on the map, used nodes, stats)`` of a grid with increasing
     axes: the valid nodes' outline in degrees (the rules of
     :func:`~taichi_hh.hhd.grid.decompose_grid`: isolated valid nodes left out,
