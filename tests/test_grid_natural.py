@@ -278,9 +278,9 @@ def _numpy_split(vec, inside, hx, hy, P=None):
 def test_fused_kernels_are_their_numpy_reference():
     """The two launches of the grid path (hhd/grid_differences.py): the stencil
     codes each node picks in the kernel are stencil_codes' (both tables), and
-    div/curl of the data, d, r, h and div/curl of h equal the numpy reference
-    node by node, on random masks (strips, corners, single nodes) and a full
-    grid."""
+    div/curl of the data (the codes picked, or kept from the last call on the
+    same nodes), d, r, h and div/curl of h equal the numpy reference node by
+    node, on random masks (strips, corners, single nodes) and a full grid."""
     from taichi_hh.hhd import grid_differences as gd
     rng = np.random.default_rng(5)
     for k in range(6):
@@ -296,6 +296,10 @@ def test_fused_kernels_are_their_numpy_reference():
         scale = np.abs(want_dc).max()
         np.testing.assert_allclose(dc, np.where(inside[..., None], want_dc, 0.0),
                                    rtol=0, atol=1e-13 * scale)
+        again, dc2 = gd.codes_div_curl(inside, 2.0 * F + 1.0, hx, hy)   # codes kept
+        assert again is codes
+        np.testing.assert_allclose(dc2, np.where(inside[..., None], 2.0 * want_dc, 0.0),
+                                   rtol=0, atol=3e-13 * scale)
         got = gd.components_checks(F, F, codes, hx, hy)
         np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
         np.testing.assert_allclose(np.nan_to_num(got), np.nan_to_num(want), rtol=0,

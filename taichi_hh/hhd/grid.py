@@ -38,7 +38,8 @@ from ..geometry.polygon import Polygon
 from ..geometry.raster import cell_outlines, check_axis
 from .auto import ORTHOGONAL_CONDITION, energy_closer, natural_cancels
 
-__all__ = ["decompose_grid", "GridResult", "GridLayout", "grid_components", "HOLE_SIZE"]
+__all__ = ["decompose_grid", "GridResult", "GridLayout", "grid_components", "forget_layouts",
+           "HOLE_SIZE", "KEPT_LAYOUTS"]
 
 #: invalid regions holding a block of this many x this many nodes are cut out
 #: of the domain (holes, cut-off corners); smaller gaps are bridged
@@ -237,6 +238,13 @@ def grid_components(x_in, y_in, u, v, mask=None) -> tuple:
 KEPT_LAYOUTS = 4
 _LAYOUTS: dict = {}
 _OUTLINES: dict = {}
+
+
+def forget_layouts() -> None:
+    """Drop the layouts and outlines :func:`decompose_grid` keeps (their
+    memory; or to time a call on a grid seen for the first time)."""
+    _LAYOUTS.clear()
+    _OUTLINES.clear()
 
 
 def _keep(cache: dict, key, value) -> None:

@@ -8,7 +8,9 @@ five), their choice per node (:func:`stencil_codes`), the numpy reference
 The decomposition's differences take two kernel launches in all (at 161 x 81
 nodes a launch's fixed cost is about what its arithmetic costs):
 :func:`codes_div_curl` picks every node's stencils from the runs of
-available nodes next to it and takes div v and curl v in the same pass;
+available nodes next to it and takes div v and curl v in the same pass (the
+codes kept for the next call on the same nodes, which then only
+differentiates);
 :func:`components_checks` takes d = grad phi, r = J grad psi, h = v - d - r
 and then, in a second loop of the same launch, div h and curl h.  The
 stencils' weights are compile-time constants of the kernels.
@@ -308,17 +310,35 @@ def div_curl(F: np.ndarray, avail: np.ndarray, hx: float, hy: float, codes=None)
     return out
 
 
+#: the stencil codes of the last few sets of available nodes (a field
+#: decomposed again, the frames of a run with a fixed mask)
+KEPT_CODES = 4
+_CODES: dict = {}
+
+
 def codes_div_curl(avail: np.ndarray, F: np.ndarray, hx: float, hy: float) -> tuple:
-    """``(codes, dc)``: codes (4, ny, nx) int8, the stencils of the nodes
-    ``avail`` along x and y (:func:`stencil_codes`), then those of measured
-    vectors (:data:`DATA_CODE_OF_RUNS`); dc (ny, nx, 2): div F and curl F of
-    ``F`` (ny, nx, 2) by the latter (0 off ``avail``).  One kernel launch."""
+    """``(codes, dc)``: codes (4, ny, nx) int8 (read-only), the stencils of
+    the nodes ``avail`` along x and y (:func:`stencil_codes`), then those of
+    measured vectors (:data:`DATA_CODE_OF_RUNS`); dc (ny, nx, 2): div F and
+    curl F of ``F`` (ny, nx, 2) by the latter (0 off ``avail``).  One kernel
+    launch: the codes picked in it, or those of the same ``avail`` kept from
+    the last few calls (the launch then only differentiates)."""
     runtime.ensure_init()
     ny, nx = avail.shape
-    codes = np.empty((4, ny, nx), dtype=np.int8)
+    F = np.ascontiguousarray(F, dtype=np.float64)
     dc = np.empty((ny, nx, 2))
-    _codes_div_curl(avail.view(np.uint8) if avail.dtype == bool else avail.astype(np.uint8),
-                    np.ascontiguousarray(F, dtype=np.float64), float(hx), float(hy), codes, dc)
+    key = (avail.shape, avail.tobytes())
+    codes = _CODES.pop(key, None)
+    if codes is None:
+        codes = np.empty((4, ny, nx), dtype=np.int8)
+        _codes_div_curl(np.ascontiguousarray(avail, dtype=np.uint8), F, float(hx), float(hy),
+                        codes, dc)
+        codes.setflags(write=False)
+    else:
+        _div_curl(F, codes[2], codes[3], float(hx), float(hy), dc)
+    _CODES[key] = codes                                  # the most recent last
+    while len(_CODES) > KEPT_CODES:
+        _CODES.pop(next(iter(_CODES)))
     return codes, dc
 
 

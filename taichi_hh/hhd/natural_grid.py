@@ -273,12 +273,12 @@ def natural_on_nodes(hx: float, hy: float, u: np.ndarray, v: np.ndarray, inside:
         clock[0] = now
 
     ny, nx = inside.shape
-    vec = np.zeros((ny, nx, 2))
-    vec[used, 0] = u[used]
-    vec[used, 1] = v[used]
-    gaps = inside & ~used
-    if gaps.any():
-        vec = fill_gaps(vec, used, gaps, hx, hy)
+    vec = np.stack([u, v], axis=-1, dtype=np.float64)
+    if not used.all():
+        vec[~used] = 0.0
+        gaps = inside & ~used
+        if gaps.any():
+            vec = fill_gaps(vec, used, gaps, hx, hy)
     lap("fill")
     codes, dc = codes_div_curl(inside, vec, hx, hy)      # the data's differences
     div, curl = dc[..., 0], dc[..., 1]
@@ -441,7 +441,7 @@ def decompose_nodes(xs: np.ndarray, ys: np.ndarray, steps: tuple, u: np.ndarray,
     d, r, h = take(nat["curl_free"]), take(nat["div_free"]), take(nat["harmonic"])
     _energy_check(stats, vec, d, r, h, opts)
     div_v, curl_v = take(nat["divergence"]), take(nat["curl"])
-    scale = float(np.hypot(div_v, curl_v).mean())
+    scale = _mean_norm(div_v, curl_v)
     ratios = {}
     for name in ("divergence", "curl"):
         mean = float(np.abs(take(nat[f"h_{name}"])).mean())
@@ -458,6 +458,16 @@ def decompose_nodes(xs: np.ndarray, ys: np.ndarray, steps: tuple, u: np.ndarray,
                       divergence=nat["divergence"], curl=nat["curl"], codes=nat["codes"],
                       data_codes=nat["data_codes"],
                       spacing=spacing, domain=domain, stats=stats, options=opts, frame=frame)
+
+
+def _mean_norm(a: np.ndarray, b: np.ndarray) -> float:
+    """mean sqrt(a^2 + b^2), by the squares where the mean is far from
+    overflow and underflow (np.hypot, whose guard costs five times as much:
+    0.25 ms at 161 x 81 nodes, elsewhere)."""
+    mean = float(np.sqrt(a * a + b * b).mean())
+    if not 1e-100 < mean < 1e100:
+        mean = float(np.hypot(a, b).mean())
+    return mean
 
 
 def _energy_check(stats: dict, v, d, r, h, opts) -> None:
