@@ -241,10 +241,13 @@ _OUTLINES: dict = {}
 
 
 def forget_layouts() -> None:
-    """Drop the layouts and outlines :func:`decompose_grid` keeps (their
-    memory; or to time a call on a grid seen for the first time)."""
+    """Drop the layouts, outlines and stencil codes :func:`decompose_grid`
+    keeps (their memory; or to time a call on a grid seen for the first
+    time)."""
+    from .grid_differences import forget_codes
     _LAYOUTS.clear()
     _OUTLINES.clear()
+    forget_codes()
 
 
 def _keep(cache: dict, key, value) -> None:

@@ -21,7 +21,7 @@ import taichi as ti
 from .. import runtime
 
 __all__ = ["STENCILS", "PAD", "NO_STENCIL", "UNAVAILABLE", "CODE_OF_RUNS", "DATA_CODE_OF_RUNS",
-           "stencil_codes", "axis_derivative", "div_curl", "codes_div_curl",
+           "stencil_codes", "axis_derivative", "div_curl", "codes_div_curl", "forget_codes",
            "components_checks"]
 
 #: first-derivative stencils on offsets -4 .. 4 (times 1 / step), in order of
@@ -314,6 +314,11 @@ def div_curl(F: np.ndarray, avail: np.ndarray, hx: float, hy: float, codes=None)
 #: decomposed again, the frames of a run with a fixed mask)
 KEPT_CODES = 4
 _CODES: dict = {}
+
+
+def forget_codes() -> None:
+    """Drop the kept stencil codes (:func:`codes_div_curl`)."""
+    _CODES.clear()
 
 
 def codes_div_curl(avail: np.ndarray, F: np.ndarray, hx: float, hy: float) -> tuple:
