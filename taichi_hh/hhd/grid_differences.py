@@ -5,15 +5,18 @@ holes, lower order only where a line of available nodes is shorter than
 five), their choice per node (:func:`stencil_codes`), the numpy reference
 (:func:`axis_derivative`) and the Taichi kernels the decomposition runs.
 
-The decomposition's differences take two kernel launches in all (at 161 x 81
-nodes a launch's fixed cost is about what its arithmetic costs):
-:func:`codes_div_curl` picks every node's stencils from the runs of
-available nodes next to it and takes div v and curl v in the same pass (the
-codes kept for the next call on the same nodes, which then only
-differentiates);
+The decomposition's differences take two kernel launches (at 161 x 81 nodes
+a launch's fixed cost is about what its arithmetic costs):
+:func:`codes_div_curl` takes div v and curl v by the stencils each node
+picks from the runs of available nodes next to it (:func:`node_codes`,
+kept for the next calls on the same nodes);
 :func:`components_checks` takes d = grad phi, r = J grad psi, h = v - d - r
-and then, in a second loop of the same launch, div h and curl h.  The
-stencils' weights are compile-time constants of the kernels.
+and then, in a second loop of the same launch, div h and curl h.  Every
+array they differentiate is read as (layer, ny, nx, 2), so one function
+serves the potentials, the vectors and h, and the stencils next to the
+outline loop over their row of :data:`STENCILS` rather than being unrolled:
+Taichi transforms each call site's syntax tree in every process, before its
+offline cache is looked up (the first call's cost).
 """
 import numpy as np
 import taichi as ti
@@ -21,8 +24,8 @@ import taichi as ti
 from .. import runtime
 
 __all__ = ["STENCILS", "PAD", "NO_STENCIL", "UNAVAILABLE", "CODE_OF_RUNS", "DATA_CODE_OF_RUNS",
-           "stencil_codes", "axis_derivative", "div_curl", "codes_div_curl", "forget_codes",
-           "components_checks"]
+           "stencil_codes", "node_codes", "axis_derivative", "div_curl", "codes_div_curl",
+           "forget_codes", "components_checks"]
 
 #: first-derivative stencils on offsets -4 .. 4 (times 1 / step), in order of
 #: preference: the first whose nodes are all available is used at a node.
@@ -64,6 +67,13 @@ def stencil_codes(avail: np.ndarray, axis: int, table=None) -> np.ndarray:
     all available (from the runs of available nodes on each side, up to 4);
     :data:`NO_STENCIL` where none is (derivative 0), :data:`UNAVAILABLE` where
     the node itself is not available."""
+    return _codes(_runs(avail, axis), CODE_OF_RUNS if table is None else table, axis)
+
+
+def _runs(avail: np.ndarray, axis: int) -> tuple:
+    """``(index, a)``: per node, its runs (left, right) of available nodes
+    along ``axis`` (up to PAD each) as ``left * (PAD + 1) + right``, and the
+    available nodes, both with ``axis`` first."""
     a = np.moveaxis(np.asarray(avail, dtype=bool), axis, 0)
     n = a.shape[0]
     pad = np.zeros((n + 2 * PAD,) + a.shape[1:], dtype=bool)
@@ -76,10 +86,25 @@ def stencil_codes(avail: np.ndarray, axis: int, table=None) -> np.ndarray:
             cur &= pad[PAD + sign * k:PAD + sign * k + n]
             run += cur
         runs.append(run)
-    table = CODE_OF_RUNS if table is None else table
-    codes = table[runs[0] * (PAD + 1) + runs[1]]
+    return runs[0] * (PAD + 1) + runs[1], a
+
+
+def _codes(runs: tuple, table: np.ndarray, axis: int) -> np.ndarray:
+    """The codes of ``table`` for the runs of :func:`_runs`, ``axis`` back in
+    its place."""
+    index, a = runs
+    codes = table[index]
     codes[~a] = UNAVAILABLE
     return np.moveaxis(codes, 0, axis)
+
+
+def node_codes(avail: np.ndarray) -> np.ndarray:
+    """(4, ny, nx) int8: :func:`stencil_codes` of the nodes ``avail`` along x
+    and y, then those of measured vectors (:data:`DATA_CODE_OF_RUNS`) along x
+    and y (the runs found once per axis)."""
+    x, y = _runs(avail, 1), _runs(avail, 0)
+    return np.stack([_codes(x, CODE_OF_RUNS, 1), _codes(y, CODE_OF_RUNS, 0),
+                     _codes(x, DATA_CODE_OF_RUNS, 1), _codes(y, DATA_CODE_OF_RUNS, 0)])
 
 
 def _code_of_runs() -> np.ndarray:
@@ -131,151 +156,71 @@ def axis_derivative(F: np.ndarray, avail: np.ndarray, axis: int, h: float,
 
 
 
-#: each stencil's (offset, weight) terms, offsets increasing: compile-time
-#: constants of the kernels (the sums in the order of the numpy reference's)
-_TERMS = [[(o, float(STENCILS[c, o + PAD])) for o in range(-PAD, PAD + 1)
-           if STENCILS[c, o + PAD] != 0.0] for c in range(NO_STENCIL)]
-
-
-@ti.func
-def _at(F: ti.template(), layer: ti.template(), j, i, comp: ti.template()):
-    """F[j, i, comp], or F[layer, j, i, comp] for a ``layer`` >= 0."""
-    value = ti.f64(0.0)
-    if ti.static(layer < 0):
-        value = F[j, i, comp]
-    else:
-        value = F[layer, j, i, comp]
-    return value
-
-
 @ti.func
 def _derivative(F: ti.template(), layer: ti.template(), c, comp: ti.template(), j, i,
-                dj: ti.template(), di: ti.template()):
-    """sum_o w_o F[(j, i) + o (dj, di), comp] (of ``layer``: :func:`_at`) for
-    the stencil ``c`` (times 1 / step): the central one (code 0, nearly every
-    node) first, the others by their constant terms; 0 for
-    :data:`NO_STENCIL`."""
+                dj: ti.template(), di: ti.template(), table: ti.template()):
+    """sum_o w_o F[layer, (j, i) + o (dj, di), comp] for the stencil ``c`` of
+    ``table`` (:data:`STENCILS`; times 1 / step): the central one (code 0,
+    nearly every node) unrolled, the others (next to the outline) by a loop
+    over the table's row; 0 for :data:`NO_STENCIL`."""
     acc = ti.f64(0.0)
     if c == 0:
-        acc = ((_at(F, layer, j - 2 * dj, i - 2 * di, comp)
-                - _at(F, layer, j + 2 * dj, i + 2 * di, comp))
-               + 8.0 * (_at(F, layer, j + dj, i + di, comp)
-                        - _at(F, layer, j - dj, i - di, comp))) / 12.0
+        acc = ((F[layer, j - 2 * dj, i - 2 * di, comp] - F[layer, j + 2 * dj, i + 2 * di, comp])
+               + 8.0 * (F[layer, j + dj, i + di, comp] - F[layer, j - dj, i - di, comp])) / 12.0
     else:
-        for code in ti.static(range(1, NO_STENCIL)):
-            if c == code:
-                for t in ti.static(_TERMS[code]):
-                    acc += t[1] * _at(F, layer, j + dj * t[0], i + di * t[0], comp)
+        for k in range(2 * PAD + 1):
+            w = table[c, k]
+            if w != 0.0:
+                o = k - PAD
+                acc += w * F[layer, j + dj * o, i + di * o, comp]
     return acc
 
 
 @ti.func
-def _div_curl_at(F: ti.template(), layer: ti.template(), a, b, j, i, hx, hy):
-    """(div F, curl F) (of ``layer``: :func:`_at`) at node (j, i) by the
-    stencils ``a`` along x and ``b`` along y."""
-    dudx = _derivative(F, layer, a, 0, j, i, 0, 1) / hx
-    dvdx = _derivative(F, layer, a, 1, j, i, 0, 1) / hx
-    dudy = _derivative(F, layer, b, 0, j, i, 1, 0) / hy
-    dvdy = _derivative(F, layer, b, 1, j, i, 1, 0) / hy
+def _div_curl_at(F: ti.template(), layer: ti.template(), a, b, j, i, hx, hy,
+                 table: ti.template()):
+    """(div F, curl F) of F[layer] at node (j, i) by the stencils ``a`` along
+    x and ``b`` along y."""
+    dudx = _derivative(F, layer, a, 0, j, i, 0, 1, table) / hx
+    dvdx = _derivative(F, layer, a, 1, j, i, 0, 1, table) / hx
+    dudy = _derivative(F, layer, b, 0, j, i, 1, 0, table) / hy
+    dvdy = _derivative(F, layer, b, 1, j, i, 1, 0, table) / hy
     return dudx + dvdy, dvdx - dudy
 
 
-@ti.func
-def _run(avail: ti.template(), j, i, dj: ti.template(), di: ti.template()):
-    """The number of available nodes next to (j, i) in the direction (dj, di)
-    before the first one not available or the grid's edge, up to PAD."""
-    ny, nx = avail.shape[0], avail.shape[1]
-    run = 0
-    going = 1
-    for k in ti.static(range(1, PAD + 1)):
-        if going == 1:
-            going = 0
-            jj, ii = j + k * dj, i + k * di
-            if jj >= 0 and jj < ny and ii >= 0 and ii < nx:
-                if avail[jj, ii] != 0:
-                    going = 1
-                    run += 1
-    return run
-
-
-@ti.func
-def _code(left, right):
-    """:data:`CODE_OF_RUNS` of the runs ``left``, ``right``: the first stencil
-    in the order of preference that they carry."""
-    code = NO_STENCIL
-    for c in ti.static(range(NO_STENCIL - 1, -1, -1)):
-        if left >= _REACH[c][0] and right >= _REACH[c][1]:
-            code = c
-    return code
-
-
-@ti.func
-def _data_code(code):
-    """:data:`DATA_CODE_OF_RUNS`'s replacement of a stencil code."""
-    out = code
-    for c in ti.static(range(1, 5)):
-        if code == c:
-            out = int(_DATA_CODE[c])
-    return out
-
-
 @ti.kernel
-def _div_curl(F: ti.types.ndarray(), cx: ti.types.ndarray(), cy: ti.types.ndarray(),
-              hx: ti.f64, hy: ti.f64, out: ti.types.ndarray()):
-    """out[j, i] = (div F, curl F) by the stencils ``cx``, ``cy``
-    (:func:`stencil_codes`; (0, 0) at the nodes not available)."""
-    for j, i in ti.ndrange(F.shape[0], F.shape[1]):
+def _div_curl(F: ti.types.ndarray(), codes: ti.types.ndarray(), x: ti.i32,
+              table: ti.types.ndarray(), hx: ti.f64, hy: ti.f64, out: ti.types.ndarray()):
+    """out[j, i] = (div F[0], curl F[0]) by the stencils codes[x] along x and
+    codes[x + 1] along y (:func:`stencil_codes`; (0, 0) at the nodes not
+    available)."""
+    for j, i in ti.ndrange(F.shape[1], F.shape[2]):
         div = ti.f64(0.0)
         curl = ti.f64(0.0)
-        a = ti.cast(cx[j, i], ti.i32)
+        a = ti.cast(codes[x, j, i], ti.i32)
         if a != UNAVAILABLE:
-            div, curl = _div_curl_at(F, -1, a, ti.cast(cy[j, i], ti.i32), j, i, hx, hy)
-        out[j, i, 0] = div
-        out[j, i, 1] = curl
-
-
-@ti.kernel
-def _codes_div_curl(avail: ti.types.ndarray(), F: ti.types.ndarray(), hx: ti.f64, hy: ti.f64,
-                    codes: ti.types.ndarray(), out: ti.types.ndarray()):
-    """codes[0..3, j, i]: the stencils along x and y, then those of the data
-    along x and y (:func:`stencil_codes` with :data:`CODE_OF_RUNS` and
-    :data:`DATA_CODE_OF_RUNS`); out[j, i] = (div F, curl F) by the data's
-    ((0, 0) at the nodes not available)."""
-    for j, i in ti.ndrange(F.shape[0], F.shape[1]):
-        div = ti.f64(0.0)
-        curl = ti.f64(0.0)
-        if avail[j, i] != 0:
-            a = _code(_run(avail, j, i, 0, -1), _run(avail, j, i, 0, 1))
-            b = _code(_run(avail, j, i, -1, 0), _run(avail, j, i, 1, 0))
-            da, db = _data_code(a), _data_code(b)
-            codes[0, j, i] = ti.cast(a, ti.i8)
-            codes[1, j, i] = ti.cast(b, ti.i8)
-            codes[2, j, i] = ti.cast(da, ti.i8)
-            codes[3, j, i] = ti.cast(db, ti.i8)
-            div, curl = _div_curl_at(F, -1, da, db, j, i, hx, hy)
-        else:
-            for k in ti.static(range(4)):
-                codes[k, j, i] = ti.i8(UNAVAILABLE)
+            div, curl = _div_curl_at(F, 0, a, ti.cast(codes[x + 1, j, i], ti.i32), j, i, hx,
+                                     hy, table)
         out[j, i, 0] = div
         out[j, i, 1] = curl
 
 
 @ti.kernel
 def _components_checks(P: ti.types.ndarray(), V: ti.types.ndarray(),
-                       codes: ti.types.ndarray(), hx: ti.f64, hy: ti.f64,
-                       out: ti.types.ndarray()):
-    """out[0], out[1], out[2]: d = grad P[..., 0], r = J grad P[..., 1] =
+                       codes: ti.types.ndarray(), table: ti.types.ndarray(), hx: ti.f64,
+                       hy: ti.f64, out: ti.types.ndarray()):
+    """out[0], out[1], out[2]: d = grad P[0, ..., 0], r = J grad P[0, ..., 1] =
     (dpsi/dy, -dpsi/dx), h = V - d - r by the stencils codes[0], codes[1]
     (NaN at the nodes not available); then out[3] = (div h, curl h) by the
     data's stencils codes[2], codes[3] (0 at the nodes not available)."""
-    for j, i in ti.ndrange(P.shape[0], P.shape[1]):
+    for j, i in ti.ndrange(P.shape[1], P.shape[2]):
         a = ti.cast(codes[0, j, i], ti.i32)
         b = ti.cast(codes[1, j, i], ti.i32)
         if a != UNAVAILABLE:
-            px = _derivative(P, -1, a, 0, j, i, 0, 1) / hx
-            py = _derivative(P, -1, b, 0, j, i, 1, 0) / hy
-            sx = _derivative(P, -1, a, 1, j, i, 0, 1) / hx
-            sy = _derivative(P, -1, b, 1, j, i, 1, 0) / hy
+            px = _derivative(P, 0, a, 0, j, i, 0, 1, table) / hx
+            py = _derivative(P, 0, b, 0, j, i, 1, 0, table) / hy
+            sx = _derivative(P, 0, a, 1, j, i, 0, 1, table) / hx
+            sy = _derivative(P, 0, b, 1, j, i, 1, 0, table) / hy
             out[0, j, i, 0] = px
             out[0, j, i, 1] = py
             out[1, j, i, 0] = sy
@@ -286,15 +231,21 @@ def _components_checks(P: ti.types.ndarray(), V: ti.types.ndarray(),
             for k, c in ti.static(ti.ndrange(3, 2)):
                 out[k, j, i, c] = ti.math.nan
     # the second loop runs after the first (a kernel's top-level loops in turn)
-    for j, i in ti.ndrange(P.shape[0], P.shape[1]):
+    for j, i in ti.ndrange(P.shape[1], P.shape[2]):
         div = ti.f64(0.0)
         curl = ti.f64(0.0)
         a = ti.cast(codes[2, j, i], ti.i32)
         if a != UNAVAILABLE:
             div, curl = _div_curl_at(out, 2, a, ti.cast(codes[3, j, i], ti.i32), j, i, hx,
-                                     hy)
+                                     hy, table)
         out[3, j, i, 0] = div
         out[3, j, i, 1] = curl
+
+
+def _layered(F: np.ndarray) -> np.ndarray:
+    """``F`` (ny, nx, 2) as the kernels read it: float64, contiguous, (1, ny,
+    nx, 2)."""
+    return np.ascontiguousarray(F, dtype=np.float64)[None]
 
 
 def div_curl(F: np.ndarray, avail: np.ndarray, hx: float, hy: float, codes=None) -> np.ndarray:
@@ -305,8 +256,8 @@ def div_curl(F: np.ndarray, avail: np.ndarray, hx: float, hy: float, codes=None)
     runtime.ensure_init()
     cx, cy = codes if codes is not None else (stencil_codes(avail, 1), stencil_codes(avail, 0))
     out = np.empty(F.shape[:2] + (2,))
-    _div_curl(np.ascontiguousarray(F, dtype=np.float64), np.ascontiguousarray(cx),
-              np.ascontiguousarray(cy), float(hx), float(hy), out)
+    _div_curl(_layered(F), np.stack([cx, cy]).astype(np.int8, copy=False), 0, STENCILS,
+              float(hx), float(hy), out)
     return out
 
 
@@ -325,25 +276,21 @@ def codes_div_curl(avail: np.ndarray, F: np.ndarray, hx: float, hy: float) -> tu
     """``(codes, dc)``: codes (4, ny, nx) int8 (read-only), the stencils of
     the nodes ``avail`` along x and y (:func:`stencil_codes`), then those of
     measured vectors (:data:`DATA_CODE_OF_RUNS`); dc (ny, nx, 2): div F and
-    curl F of ``F`` (ny, nx, 2) by the latter (0 off ``avail``).  One kernel
-    launch: the codes picked in it, or those of the same ``avail`` kept from
-    the last few calls (the launch then only differentiates)."""
+    curl F of ``F`` (ny, nx, 2) by the latter (0 off ``avail``): one kernel
+    launch, the codes (:func:`node_codes`) kept from the last few calls on
+    the same ``avail``."""
     runtime.ensure_init()
     ny, nx = avail.shape
-    F = np.ascontiguousarray(F, dtype=np.float64)
-    dc = np.empty((ny, nx, 2))
     key = (avail.shape, avail.tobytes())
     codes = _CODES.pop(key, None)
     if codes is None:
-        codes = np.empty((4, ny, nx), dtype=np.int8)
-        _codes_div_curl(np.ascontiguousarray(avail, dtype=np.uint8), F, float(hx), float(hy),
-                        codes, dc)
+        codes = node_codes(avail)
         codes.setflags(write=False)
-    else:
-        _div_curl(F, codes[2], codes[3], float(hx), float(hy), dc)
     _CODES[key] = codes                                  # the most recent last
     while len(_CODES) > KEPT_CODES:
         _CODES.pop(next(iter(_CODES)))
+    dc = np.empty((ny, nx, 2))
+    _div_curl(_layered(F), codes, 2, STENCILS, float(hx), float(hy), dc)
     return codes, dc
 
 
@@ -355,7 +302,6 @@ def components_checks(P: np.ndarray, V: np.ndarray, codes: np.ndarray, hx: float
     them).  One kernel launch."""
     runtime.ensure_init()
     out = np.empty((4,) + P.shape[:2] + (2,))
-    _components_checks(np.ascontiguousarray(P, dtype=np.float64),
-                       np.ascontiguousarray(V, dtype=np.float64), codes, float(hx), float(hy),
-                       out)
+    _components_checks(_layered(P), np.ascontiguousarray(V, dtype=np.float64), codes,
+                       STENCILS, float(hx), float(hy), out)
     return out
