@@ -30,7 +30,10 @@ the constructor) and the ``decompose`` call alone; loaded with the shims of
 benchmarks/natural_peer.py.
 
 Timing: each timed call repeated ``--repeats`` times after a warm-up, the
-variants interleaved round by round on the same machine, the median (and
+variants interleaved round by round on the same machine (each round in a
+random order: a call right after another library's can find Taichi's worker
+threads asleep and the other's threads still spinning, which a busy
+machine makes costly), the median (and
 the minimum) reported, and each median over pynhhd's whole call's median
 (``ratio``; the machine's load average printed with it).  Writes
 ``outputs/benchmarks/grid_peer.csv``.
@@ -40,6 +43,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import random
 import statistics
 import time
 import warnings
@@ -109,10 +113,12 @@ def main(argv=None) -> int:
             calls["pynhhd_decompose"] = peer_decompose
         results = {name: fn() for name, fn in calls.items()}          # warm-up
         times = {name: [] for name in calls}
-        for _ in range(args.repeats):                                # interleaved rounds
-            for name, fn in calls.items():
+        order, shuffle = list(calls), random.Random(0).shuffle
+        for _ in range(args.repeats):                    # interleaved rounds, order shuffled
+            shuffle(order)
+            for name in order:
                 t = time.perf_counter()
-                fn()
+                calls[name]()
                 times[name].append(time.perf_counter() - t)
         if not args.no_scattered:
             call = lambda: thh.decompose_grid(x, y, u, v, _path="scattered")  # noqa: E731
