@@ -365,3 +365,22 @@ def test_repeated_calls_share_the_layout_not_the_results():
     assert not d.used[20, 30] and c.used[20, 30]
     e = thh.decompose_grid(x + 1.0, y, u, v)
     assert e.domain.bounds[0][0] == pytest.approx(c.domain.bounds[0][0] + 1.0)
+
+
+@pytest.mark.slow
+def test_grid_peer_benchmark_runs(tmp_path):
+    """benchmarks/grid_peer.py end to end on a small grid without the peer:
+    the call as users run it and the one with a new layout each time give the
+    same split (the kept layout changes no answer)."""
+    import csv
+    import os
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    subprocess.run([sys.executable, os.path.join(root, "benchmarks", "grid_peer.py"),
+                    "--sizes", "41x21", "--repeats", "2", "--no-scattered",
+                    "--out-dir", str(tmp_path)], check=True, capture_output=True, timeout=900)
+    rows = list(csv.DictReader(open(tmp_path / "grid_peer.csv")))
+    assert [r["method"] for r in rows] == ["ours (grid-native)", "ours (new layout each call)"]
+    for key in ("err_d", "err_r", "err_h"):
+        assert rows[0][key] == rows[1][key] and float(rows[0][key]) < 5e-3
