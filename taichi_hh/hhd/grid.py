@@ -254,7 +254,10 @@ def _keep(cache: dict, key, value) -> None:
     """``value`` the most recent of ``cache`` (at most :data:`KEPT_LAYOUTS`)."""
     cache[key] = value
     while len(cache) > KEPT_LAYOUTS:
-        cache.pop(next(iter(cache)))
+        try:
+            cache.pop(next(iter(cache)), None)
+        except (RuntimeError, StopIteration):    # another thread's change: it trims too
+            break
 
 
 def _outline(xs, ys, outside) -> tuple:

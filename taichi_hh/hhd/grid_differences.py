@@ -288,7 +288,10 @@ def codes_div_curl(avail: np.ndarray, F: np.ndarray, hx: float, hy: float) -> tu
         codes.setflags(write=False)
     _CODES[key] = codes                                  # the most recent last
     while len(_CODES) > KEPT_CODES:
-        _CODES.pop(next(iter(_CODES)))
+        try:
+            _CODES.pop(next(iter(_CODES)), None)
+        except (RuntimeError, StopIteration):    # another thread's change: it trims too
+            break
     dc = np.empty((ny, nx, 2))
     _div_curl(_layered(F), codes, 2, STENCILS, float(hx), float(hy), dc)
     return codes, dc
