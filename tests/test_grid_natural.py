@@ -343,11 +343,13 @@ def test_the_split_is_its_reference_and_as_accurate_as_before():
     assert err[0] < 4.6e-5 and err[1] < 4.5e-5 and err[2] < 8.7e-5, err
 
 
-def test_repeated_calls_share_the_layout_not_the_results():
+def test_repeated_calls_share_the_layout_not_the_results(monkeypatch):
     """A field decomposed again (the same axes and invalid nodes) reuses its
     layout (grid.GridLayout.of: the outline, the auto flux's band) and gives
     the same result; the arrays returned are the caller's own; another mask
-    or other axes get their own layout."""
+    or other axes get their own layout; grids over KEPT_NODES keep none."""
+    from taichi_hh.hhd import grid as grid_module
+    from taichi_hh.hhd import grid_differences
     x, y, u, v, split = _window(41)
     u = u.copy()
     u[5, 7] = np.nan
@@ -365,6 +367,12 @@ def test_repeated_calls_share_the_layout_not_the_results():
     assert not d.used[20, 30] and c.used[20, 30]
     e = thh.decompose_grid(x + 1.0, y, u, v)
     assert e.domain.bounds[0][0] == pytest.approx(c.domain.bounds[0][0] + 1.0)
+    monkeypatch.setattr(grid_module, "KEPT_NODES", 100)
+    monkeypatch.setattr(grid_differences, "KEPT_CODES_NODES", 100)
+    f, g = thh.decompose_grid(x, y, u, v), thh.decompose_grid(x, y, u, v)
+    assert f.domain is not g.domain and f.lattice.codes[0] is not g.lattice.codes[0]
+    for name in ("curl_free", "div_free", "harmonic", "phi", "psi"):
+        np.testing.assert_array_equal(getattr(f, name), getattr(a, name))
 
 
 @pytest.mark.slow

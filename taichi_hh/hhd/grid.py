@@ -236,6 +236,9 @@ def grid_components(x_in, y_in, u, v, mask=None) -> tuple:
 
 #: the layouts :meth:`GridLayout.of` keeps, and the outlines :func:`_outline` keeps
 KEPT_LAYOUTS = 4
+#: grids of more nodes are not kept (their arrays' memory; their set-up is a
+#: small part of their decomposition)
+KEPT_NODES = 1_000_000
 _LAYOUTS: dict = {}
 _OUTLINES: dict = {}
 
@@ -266,7 +269,7 @@ def _outline(xs, ys, outside) -> tuple:
     piece) and the nodes inside it, kept for the last few ``outside`` (dropouts
     that change from frame to frame leave the regions cut out as they are)."""
     key = (xs.tobytes(), ys.tobytes(), outside.shape, outside.tobytes())
-    found = _OUTLINES.pop(key, None)
+    found = _OUTLINES.pop(key, None) if outside.size <= KEPT_NODES else None
     if found is None:
         pieces = cell_outlines(xs, ys, ~outside)
         outer, holes = pieces[0]
@@ -279,7 +282,8 @@ def _outline(xs, ys, outside) -> tuple:
                 & ~outside
         inside.setflags(write=False)
         found = (domain, holes, len(pieces), inside)
-    _keep(_OUTLINES, key, found)
+    if outside.size <= KEPT_NODES:
+        _keep(_OUTLINES, key, found)
     return found
 
 
@@ -319,7 +323,10 @@ class GridLayout:
     def of(cls, x_in, y_in, invalid, hole_size: int, min_neighbours: int) -> "GridLayout":
         """The layout of these axes and invalid nodes: one of the last
         :data:`KEPT_LAYOUTS` made, where it is the same (a field decomposed
-        again, the frames of a run with a fixed mask), else a new one."""
+        again, the frames of a run with a fixed mask), else a new one (kept
+        up to :data:`KEPT_NODES` nodes)."""
+        if invalid.size > KEPT_NODES:
+            return cls(x_in, y_in, invalid, hole_size, min_neighbours)
         key = (x_in.tobytes(), y_in.tobytes(), invalid.shape, invalid.tobytes(), hole_size,
                min_neighbours)
         layout = _LAYOUTS.pop(key, None)

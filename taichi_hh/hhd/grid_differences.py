@@ -264,6 +264,9 @@ def div_curl(F: np.ndarray, avail: np.ndarray, hx: float, hy: float, codes=None)
 #: the stencil codes of the last few sets of available nodes (a field
 #: decomposed again, the frames of a run with a fixed mask)
 KEPT_CODES = 4
+#: grids of more nodes keep none (the codes' memory, 4 bytes a node, and
+#: their key's)
+KEPT_CODES_NODES = 1_000_000
 _CODES: dict = {}
 
 
@@ -281,12 +284,14 @@ def codes_div_curl(avail: np.ndarray, F: np.ndarray, hx: float, hy: float) -> tu
     the same ``avail``."""
     runtime.ensure_init()
     ny, nx = avail.shape
-    key = (avail.shape, avail.tobytes())
-    codes = _CODES.pop(key, None)
+    kept = avail.size <= KEPT_CODES_NODES
+    key = (avail.shape, avail.tobytes()) if kept else None
+    codes = _CODES.pop(key, None) if kept else None
     if codes is None:
         codes = node_codes(avail)
         codes.setflags(write=False)
-    _CODES[key] = codes                                  # the most recent last
+    if kept:
+        _CODES[key] = codes                              # the most recent last
     while len(_CODES) > KEPT_CODES:
         try:
             _CODES.pop(next(iter(_CODES)), None)
