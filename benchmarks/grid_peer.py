@@ -16,6 +16,11 @@ energy and harmonicity checks), on the grid-native path
 (:mod:`taichi_hh.hhd.natural_grid`), and the same call through the
 scattered machinery (``_path="scattered"``: neighbour search, MLS stencils,
 cut-cell coverage, the particle-mesh FFT of :mod:`taichi_hh.hhd.natural`).
+``decompose_grid`` keeps the last layouts (the outline, the auto flux's band:
+``GridLayout.of``), which a field decomposed again or a run of frames with
+the same invalid nodes reuses; the row "ours (new layout each call)" drops
+them before each call (``forget_layouts``): a grid's first call after
+compilation, or frames whose mask changes.
 
 Peer (``--peer``): pynhhd v1.1's grid path, ``nHHD(grid=(ny, nx),
 spacings=(dy, dx))`` then ``decompose(vfield)`` (second-order differences
@@ -25,13 +30,20 @@ the constructor) and the ``decompose`` call alone; loaded with the shims of
 benchmarks/natural_peer.py.
 
 Timing: each timed call repeated ``--repeats`` times after a warm-up, the
-variants interleaved round by round on the same machine, the median (and
-the minimum) reported.  Writes ``outputs/benchmarks/grid_peer.csv``.
+variants interleaved round by round on the same machine (each round in a
+random order: a call right after another library's can find Taichi's worker
+threads asleep and the other's threads still spinning, which a busy
+machine makes costly), the median (and
+the minimum) reported, and each median over pynhhd's whole call's median
+(``ratio``; the machine's load average printed with it).  Writes
+``outputs/benchmarks/grid_peer.csv``.
 """
 from __future__ import annotations
 
 import argparse
+import math
 import os
+import random
 import statistics
 import time
 import warnings
@@ -53,7 +65,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--peer", default=None, help="a pynhhd-v1.1 directory of naturalHHD")
     ap.add_argument("--sizes", default="161x81,321x161")
-    ap.add_argument("--repeats", type=int, default=9)
+    ap.add_argument("--repeats", type=int, default=21)
     ap.add_argument("--scattered-repeats", type=int, default=3)
     ap.add_argument("--no-scattered", action="store_true",
                     help="leave out the scattered path (slow)")
@@ -61,6 +73,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     import numpy as np
     import taichi_hh as thh
+    from taichi_hh.hhd.grid import forget_layouts
     from taichi_hh.validation.windows import window_field
     pynhhd = None
     if args.peer:
@@ -82,7 +95,10 @@ def main(argv=None) -> int:
         u = ex.v[:, 0].reshape(X.shape).copy()
         v = ex.v[:, 1].reshape(X.shape).copy()
         vfield = ex.v.reshape(ny, nx, 2).copy()
-        calls = {"ours": lambda: thh.decompose_grid(x, y, u, v)}
+        def ours_new_layout():
+            forget_layouts()
+            return thh.decompose_grid(x, y, u, v)
+        calls = {"ours": lambda: thh.decompose_grid(x, y, u, v), "ours_new": ours_new_layout}
         if pynhhd is not None:
             def peer_whole():
                 p = pynhhd.nHHD(grid=(ny, nx), spacings=(y[1] - y[0], x[1] - x[0]))
@@ -97,10 +113,12 @@ def main(argv=None) -> int:
             calls["pynhhd_decompose"] = peer_decompose
         results = {name: fn() for name, fn in calls.items()}          # warm-up
         times = {name: [] for name in calls}
-        for _ in range(args.repeats):                                # interleaved rounds
-            for name, fn in calls.items():
+        order, shuffle = list(calls), random.Random(0).shuffle
+        for _ in range(args.repeats):                    # interleaved rounds, order shuffled
+            shuffle(order)
+            for name in order:
                 t = time.perf_counter()
-                fn()
+                calls[name]()
                 times[name].append(time.perf_counter() - t)
         if not args.no_scattered:
             call = lambda: thh.decompose_grid(x, y, u, v, _path="scattered")  # noqa: E731
@@ -116,23 +134,28 @@ def main(argv=None) -> int:
                 label = ("pynhhd (whole)" if name == "pynhhd" else "pynhhd (decompose only)")
             else:
                 err = errors(res.curl_free, res.div_free, res.harmonic, ex)
-                label = ("ours (grid-native)" if name == "ours"
-                         else "ours (scattered path)")
+                label = {"ours": "ours (grid-native)",
+                         "ours_new": "ours (new layout each call)"}.get(name,
+                                                                        "ours (scattered path)")
                 if name == "ours" and not res.stats.get("grid_native"):
                     label = "ours (took the scattered path)"
-            row = {"grid": f"{nx}x{ny}", "method": label,
-                   "median_s": statistics.median(times[name]), "min_s": min(times[name]),
+            median = statistics.median(times[name])
+            peer = statistics.median(times["pynhhd"]) if "pynhhd" in times else math.nan
+            row = {"grid": f"{nx}x{ny}", "method": label, "median_s": median,
+                   "min_s": min(times[name]), "ratio": median / peer,
                    "repeats": len(times[name]), "err_d": err[0], "err_r": err[1],
-                   "err_h": err[2]}
+                   "err_h": err[2], "load": os.getloadavg()[0]}
             rows.append(row)
             print({k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()},
                   flush=True)
-    names = ["grid", "method", "median_s", "min_s", "repeats", "err_d", "err_r", "err_h"]
+    names = ["grid", "method", "median_s", "min_s", "ratio", "repeats", "err_d", "err_r",
+             "err_h", "load"]
     print(_common.format_table(
-        ["grid", "method", "median ms", "min ms", "err d %", "err r %", "err h %"],
+        ["grid", "method", "median ms", "min ms", "/ pynhhd", "err d %", "err r %", "err h %",
+         "load"],
         [[r["grid"], r["method"], f"{1e3 * r['median_s']:.1f}", f"{1e3 * r['min_s']:.1f}",
-          f"{100 * r['err_d']:.4f}", f"{100 * r['err_r']:.4f}", f"{100 * r['err_h']:.4f}"]
-         for r in rows]))
+          f"{r['ratio']:.2f}", f"{100 * r['err_d']:.4f}", f"{100 * r['err_r']:.4f}",
+          f"{100 * r['err_h']:.4f}", f"{r['load']:.1f}"] for r in rows]))
     os.makedirs(args.out_dir, exist_ok=True)
     path = os.path.join(args.out_dir, "grid_peer.csv")
     _common.write_csv_atomic(path, rows, names)

@@ -38,7 +38,8 @@ from ..geometry.polygon import Polygon
 from ..geometry.raster import cell_outlines, check_axis
 from .auto import ORTHOGONAL_CONDITION, energy_closer, natural_cancels
 
-__all__ = ["decompose_grid", "GridResult", "GridLayout", "grid_components", "HOLE_SIZE"]
+__all__ = ["decompose_grid", "GridResult", "GridLayout", "grid_components", "forget_layouts",
+           "HOLE_SIZE", "KEPT_LAYOUTS"]
 
 #: invalid regions holding a block of this many x this many nodes are cut out
 #: of the domain (holes, cut-off corners); smaller gaps are bridged
@@ -141,10 +142,10 @@ def isolated_nodes(invalid: np.ndarray, min_neighbours: int = MIN_NEIGHBOURS) ->
     if not invalid.any():          # a full grid: each node has its share of neighbours
         return np.zeros_like(invalid)
 
-    def neighbours(a):
-        pad = np.pad(a, 1, constant_values=False)
-        return sum(pad[1 + dj:1 + dj + ny, 1 + di:1 + di + nx].astype(int)
-                   for dj in (-1, 0, 1) for di in (-1, 0, 1) if dj or di)
+    def neighbours(a):               # the 3 x 3 box's sum by rows then columns, less a
+        pad = np.pad(a.astype(np.int8), 1)
+        rows = pad[:, :-2] + pad[:, 1:-1] + pad[:, 2:]
+        return rows[:-2] + rows[1:-1] + rows[2:] - pad[1:-1, 1:-1]
     valid = neighbours(~invalid)
     on_grid = neighbours(np.ones_like(invalid))
     # the same share of the neighbours the node has: 4 of 8, 3 of 5, 2 of 3
@@ -189,7 +190,7 @@ def decompose_grid(x, y, u, v, mask=None, *, hole_size: int = HOLE_SIZE,
     check_grid_options(options, hole_size, min_neighbours)
     x_in, y_in = check_axis(x, "x"), check_axis(y, "y")
     u_arr, v_arr, invalid = grid_components(x_in, y_in, u, v, mask)
-    layout = GridLayout(x_in, y_in, invalid, int(hole_size), int(min_neighbours))
+    layout = GridLayout.of(x_in, y_in, invalid, int(hole_size), int(min_neighbours))
     res = layout.split(u_arr, v_arr, method, progress, options, scattered_only=_path != "auto")
     return layout.result(res)
 
@@ -233,6 +234,59 @@ def grid_components(x_in, y_in, u, v, mask=None) -> tuple:
     return u_arr, v_arr, invalid
 
 
+#: the layouts :meth:`GridLayout.of` keeps, and the outlines :func:`_outline` keeps
+KEPT_LAYOUTS = 4
+#: grids of more nodes are not kept (their arrays' memory; their set-up is a
+#: small part of their decomposition)
+KEPT_NODES = 1_000_000
+_LAYOUTS: dict = {}
+_OUTLINES: dict = {}
+
+
+def forget_layouts() -> None:
+    """Drop the layouts, outlines and stencil codes :func:`decompose_grid`
+    keeps (their memory; or to time a call on a grid seen for the first
+    time)."""
+    from .grid_differences import forget_codes
+    _LAYOUTS.clear()
+    _OUTLINES.clear()
+    forget_codes()
+
+
+def _keep(cache: dict, key, value) -> None:
+    """``value`` the most recent of ``cache`` (at most :data:`KEPT_LAYOUTS`)."""
+    cache[key] = value
+    while len(cache) > KEPT_LAYOUTS:
+        try:
+            cache.pop(next(iter(cache)), None)
+        except (RuntimeError, StopIteration):    # another thread's change: it trims too
+            break
+
+
+def _outline(xs, ys, outside) -> tuple:
+    """``(domain, holes, n_pieces, inside)``: the outline of the nodes not
+    ``outside`` (:func:`~taichi_hh.geometry.raster.cell_outlines`; its largest
+    piece) and the nodes inside it, kept for the last few ``outside`` (dropouts
+    that change from frame to frame leave the regions cut out as they are)."""
+    key = (xs.tobytes(), ys.tobytes(), outside.shape, outside.tobytes())
+    found = _OUTLINES.pop(key, None) if outside.size <= KEPT_NODES else None
+    if found is None:
+        pieces = cell_outlines(xs, ys, ~outside)
+        outer, holes = pieces[0]
+        domain = Polygon(outer, holes)
+        if len(pieces) == 1:             # every node not cut out is inside the one outline
+            inside = ~outside
+        else:
+            X, Y = np.meshgrid(xs, ys)
+            inside = domain.contains(np.c_[X.ravel(), Y.ravel()]).reshape(outside.shape) \
+                & ~outside
+        inside.setflags(write=False)
+        found = (domain, holes, len(pieces), inside)
+    if outside.size <= KEPT_NODES:
+        _keep(_OUTLINES, key, found)
+    return found
+
+
 class GridLayout:
     """What a gridded decomposition takes from the axes and the invalid nodes
     alone (module doc): the nodes left out as isolated, the regions cut out,
@@ -242,7 +296,7 @@ class GridLayout:
 
     def __init__(self, x_in, y_in, invalid, hole_size: int, min_neighbours: int):
         self.x_in, self.y_in, self.hole_size = x_in, y_in, hole_size
-        self.shape = shape = (len(y_in), len(x_in))
+        self.shape = (len(y_in), len(x_in))
         self.missing = invalid.copy()
         self.isolated = isolated_nodes(invalid, min_neighbours)
         invalid = invalid | self.isolated
@@ -255,18 +309,47 @@ class GridLayout:
             raise InputError(f"all {invalid.size} nodes are invalid: there is no field to "
                              "decompose")
         self.outside = cut_out(invalid_s, hole_size)
-        pieces = cell_outlines(self.xs, self.ys, ~self.outside)
-        outer, self.holes = pieces[0]
-        self.n_pieces = len(pieces)
-        self.domain = Polygon(outer, self.holes)
-        if len(pieces) == 1:             # every node not cut out is inside the one outline
-            self.inside = ~self.outside
-        else:
-            self.inside = self.domain.contains(self.nodes()).reshape(shape) & ~self.outside
+        self.domain, self.holes, self.n_pieces, self.inside = _outline(self.xs, self.ys,
+                                                                       self.outside)
         self.used = self.inside & ~invalid_s
         self.left_out = int((~invalid_s & ~self.inside).sum())
         from .natural_grid import uniform_steps
         self.steps = uniform_steps(self.xs, self.ys)
+        self._band = None
+        for name in ("missing", "isolated", "invalid_s", "outside", "used"):
+            getattr(self, name).setflags(write=False)      # shared by calls (GridLayout.of)
+
+    @classmethod
+    def of(cls, x_in, y_in, invalid, hole_size: int, min_neighbours: int) -> "GridLayout":
+        """The layout of these axes and invalid nodes: one of the last
+        :data:`KEPT_LAYOUTS` made, where it is the same (a field decomposed
+        again, the frames of a run with a fixed mask), else a new one (kept
+        up to :data:`KEPT_NODES` nodes)."""
+        if invalid.size > KEPT_NODES:
+            return cls(x_in, y_in, invalid, hole_size, min_neighbours)
+        key = (x_in.tobytes(), y_in.tobytes(), invalid.shape, invalid.tobytes(), hole_size,
+               min_neighbours)
+        layout = _LAYOUTS.pop(key, None)
+        if layout is None:
+            layout = cls(x_in, y_in, invalid, hole_size, min_neighbours)
+        _keep(_LAYOUTS, key, layout)
+        return layout
+
+    def flux_band(self) -> tuple:
+        """``(rows, cols, normal)``: the used nodes within auto's band of the
+        outline (:data:`~taichi_hh.hhd.auto.FLUX_BAND` times the spacing,
+        sqrt(area / nodes used)) and the outward normals there, from the grid
+        (:func:`~taichi_hh.hhd.natural_grid.outline_distance`; made once)."""
+        if self._band is None:
+            from .auto import FLUX_BAND
+            from .natural_grid import outline_distance
+            hx, hy = self.steps
+            n = int(self.used.sum())
+            reach = FLUX_BAND * math.sqrt(self.domain.area / max(n, 1))
+            jj, ii, best, normal = outline_distance(self.used, self.inside, hx, hy, reach)
+            keep = best < reach
+            self._band = (jj[keep], ii[keep], normal[keep])
+        return self._band
 
     def nodes(self) -> np.ndarray:
         """(ny * nx, 2) every node, on the increasing axes."""
@@ -289,7 +372,7 @@ class GridLayout:
         ``orthogonal(points, vectors)`` (auto's fallback): how the scattered
         decompositions are made (default: a :func:`decompose` call each;
         :class:`~taichi_hh.hhd.decomposer.GridDecomposer` passes its kept ones)."""
-        from .decompose import decompose, options_for
+        from .decompose import decompose
         from .natural_grid import decompose_nodes
         u_s, v_s = u_arr[self.sl], v_arr[self.sl]
         used, inside = self.used, self.inside
@@ -297,18 +380,15 @@ class GridLayout:
         if not scattered_only and self.native(method, options):
             # a uniform grid under the natural condition: on its own nodes
             # (hhd.natural_grid); the default condition (auto) measured alike
-            opts = options_for(method, **options)
+            opts, natural = _native_options(method, options)
             chosen = {"boundary_condition": opts.boundary_condition}
             if opts.boundary_condition == "auto":
-                chosen = _auto_condition(self.xs, self.ys, used, inside, u_s, v_s,
-                                         self.domain, self.steps, opts.boundary)
+                chosen = _auto_condition(self, u_s, v_s, opts.boundary)
             if chosen["boundary_condition"] == "natural":
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
                     res = decompose_nodes(self.xs, self.ys, self.steps, u_s, v_s, inside, used,
-                                          self.domain,
-                                          replace(opts, boundary_condition="natural"), chosen,
-                                          progress)
+                                          self.domain, natural, chosen, progress)
                 if "boundary_flux" in chosen and natural_cancels(res.stats["energy_ratio"]):
                     # auto's window split whose parts cancel: the orthogonal one if
                     # its energy is closer to the field's (hhd/auto.py)
@@ -370,8 +450,32 @@ class GridLayout:
                           div_free=on_grid("div_free"), harmonic=on_grid("harmonic"),
                           phi=on_grid("phi"), psi=on_grid("psi"),
                           divergence=on_grid("divergence"), curl=on_grid("curl"),
-                          used=used[sl], inside=inside[sl], domain=self.domain, stats=stats,
+                          used=used[sl].copy(), inside=inside[sl].copy(), domain=self.domain,
+                          stats=stats,
                           lattice=lattice, _scattered=None if lattice is not None else res)
+
+
+_NATIVE_OPTIONS: dict = {}
+
+
+def _native_options(method: str, options: dict) -> tuple:
+    """``(opts, natural)``: the options of ``method`` with ``options``
+    (:func:`~taichi_hh.hhd.options.options_for`: checked) and those with the
+    natural condition, which the grid-native path runs; kept per options
+    given (a few names, string values: each check costs as much as the
+    decomposition's smallest stages)."""
+    from .options import options_for
+    try:
+        key = (method, tuple(sorted(options.items())))
+        found = _NATIVE_OPTIONS.get(key)
+    except TypeError:                       # an unhashable value: options_for names it
+        key, found = None, None
+    if found is None:
+        opts = options_for(method, **options)
+        found = (opts, replace(opts, boundary_condition="natural"))
+        if key is not None and len(_NATIVE_OPTIONS) < 64:
+            _NATIVE_OPTIONS[key] = found
+    return found
 
 
 def _orthogonal_attempt(points, vectors, domain, method, progress, options):
@@ -386,25 +490,21 @@ def _orthogonal_attempt(points, vectors, domain, method, progress, options):
     return res, caught
 
 
-def _auto_condition(xs, ys, used, inside, u, v, domain, steps, boundary: str) -> dict:
+def _auto_condition(layout: GridLayout, u, v, boundary: str) -> dict:
     """``auto``'s choice on a uniform grid's used nodes, as
     :func:`~taichi_hh.hhd.auto.choose_boundary_condition` makes it:
     ``{"boundary_condition", "boundary_flux", "boundary_along"}``.  The flux
     (:func:`~taichi_hh.hhd.auto.boundary_flux`: RMS of v.n over the nodes
     within its band of the outline over the RMS of abs(v)) with the
     distances and normals from the grid rather than the domain's locator
-    (:func:`~taichi_hh.hhd.natural_grid.outline_distance`)."""
-    from .auto import FLUX_BAND, band_flow, is_closed
-    from .natural_grid import outline_distance
-    hx, hy = steps
-    n = int(used.sum())
-    vec = np.stack([u, v], axis=-1)
-    size = float(np.mean((vec[used] ** 2).sum(axis=1)))
-    spacing = math.sqrt(domain.area / max(n, 1))
-    reach = FLUX_BAND * spacing
-    jj, ii, best, normal = outline_distance(used, inside, hx, hy, reach)
-    keep = best < reach
-    flux, along = band_flow(vec[jj[keep], ii[keep]], normal[keep], size)
+    (:meth:`GridLayout.flux_band`)."""
+    from .auto import band_flow, is_closed
+    jj, ii, normal = layout.flux_band()
+    used = layout.used
+    uu, vv = u[used], v[used]
+    size = float(np.mean(uu * uu + vv * vv))
+    band = np.stack([u[jj, ii], v[jj, ii]], axis=-1)
+    flux, along = band_flow(band, normal, size)
     closed = is_closed(flux, along, boundary)
     return {"boundary_condition": "no-flux" if closed else "natural", "boundary_flux": flux,
             "boundary_along": along}
