@@ -22,8 +22,10 @@ def predict(n: ti.i32, kind: ti.types.ndarray(), v: ti.types.ndarray(),
             gy: float, w: ti.types.ndarray()):
     """w = v + dt (g + nu lap v) on the fluid rows (``lap``: lap v, read when
     ``viscous``), 0 on the others."""
-    g = ti.Vector([gx, gy])
     for i in range(n):
+        # g built here, not before the loop: a kernel-scope vector read by a
+        # loop faults on CUDA (Taichi 1.7; docs/arch.md)
+        g = ti.Vector([gx, gy])
         if kind[i] == FLUID:
             a = g
             if viscous:

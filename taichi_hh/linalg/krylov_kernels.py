@@ -29,8 +29,9 @@ PARALLEL_MIN_SIZE = 200_000
 
 
 def serial_below_threshold(size: int) -> bool:
-    """Whether loops over ``size`` entries run serially (:data:`PARALLEL_MIN_SIZE`)."""
-    return size < PARALLEL_MIN_SIZE
+    """Whether loops over ``size`` entries run serially (:data:`PARALLEL_MIN_SIZE`
+    on the CPU; never on a GPU, :func:`taichi_hh.runtime.on_gpu`)."""
+    return size < PARALLEL_MIN_SIZE and not runtime.on_gpu()
 
 
 def solver_kernels(size: int, cols: int = 1) -> SimpleNamespace:
@@ -54,6 +55,29 @@ def negligible(dot, aa, bb, btol):
 def indicator(cond):
     """1.0 where cond holds, else 0.0 (per column)."""
     return ti.select(cond, 1.0, 0.0)
+
+
+@ti.func
+def _half_alpha(rv, vv, rho, rhat2, active, btol):
+    """BiCGSTAB's alpha = rho / <r_hat, v> per column, 0 where the column is
+    frozen or the dot product is rounding noise."""
+    ok = active * (1.0 - indicator(negligible(rv, rhat2, vv, btol)))
+    return ti.select(ok > 0.0, rho / rv, 0.0)
+
+
+@ti.func
+def _omega(ts, tt, active):
+    """BiCGSTAB's omega = <t, s> / <t, t> per column, 0 where frozen or t = 0."""
+    return ti.select((tt > 0.0) & (active > 0.0), ts / tt, 0.0)
+
+
+@ti.func
+def _full_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol):
+    """BiCGSTAB's breakdown flags per column: omega's (<t, s> rounding noise)
+    and rho's (<r_hat, r> rounding noise).  Computed where they are used,
+    not kept across the kernel's loops (docs/arch.md: CUDA)."""
+    return (active * indicator(negligible(ts, tt, ss, btol)),
+            active * indicator(negligible(rho_new, rhat2, rr, btol)))
 
 
 @lru_cache(maxsize=None)
@@ -135,16 +159,19 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int) -> dict:
     real, scal, vec, rvec = _types(precision, cols)
 
     # Storage sharing (element-wise safe): s overwrites r, and z holds
-    # phat = M^-1 p until the half step turns it into shat = M^-1 s.
+    # phat = M^-1 p until the half step turns it into shat = M^-1 s.  The
+    # per-column scalars come first among the arguments: Taichi 1.7 on CUDA
+    # packs the arguments so that a vector of f64 after the arrays can land
+    # off its 16-byte alignment and fault (docs/arch.md).
     @ti.kernel
-    def bicg_restart(b: vec, ax: vec, r: vec, r_hat: vec, p: vec, z: vec, dinv: rvec,
-                     mask: scal, n: ti.i32) -> scal:
+    def bicg_restart(mask: scal, b: vec, ax: vec, r: vec, r_hat: vec, p: vec, z: vec,
+                     dinv: rvec, n: ti.i32) -> scal:
         """In the masked columns r = b - A x and r_hat = p = r; z = M^-1 p.
         Returns ||r||^2."""
         rr = zeros(cols)
-        restart = mask > 0.0
         ti.loop_config(serialize=serial)
         for i in range(n):
+            restart = mask > 0.0
             ri = ti.select(restart, b[i] - ax[i], r[i])
             pi = ti.select(restart, ri, p[i])
             r[i] = ri
@@ -155,54 +182,55 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int) -> dict:
         return rr
 
     @ti.kernel
-    def bicg_half(x: vec, r: vec, v: vec, z: vec, dinv: rvec, rv: scal, vv: scal,
-                  rho: scal, rhat2: scal, active: scal, btol: real,
-                  n: ti.i32) -> (scal, scal, scal):
+    def bicg_half(rv: scal, vv: scal, rho: scal, rhat2: scal, active: scal, x: vec, r: vec,
+                  v: vec, z: vec, dinv: rvec, btol: real, n: ti.i32) -> (scal, scal, scal):
         """Given v = A phat and its dots rv = <r_hat, v>, vv = <v, v> (from the
         apply): alpha = rho / rv; x += alpha phat; s = r - alpha v (into r);
         z = shat = M^-1 s.  Returns (||s||^2, alpha, breakdown flag); on
         breakdown alpha = 0 and x, r are unchanged."""
-        ok = active * (1.0 - indicator(negligible(rv, rhat2, vv, btol)))
-        alpha = ti.select(ok > 0.0, rho / rv, 0.0)
-        flag = active - ok
         ss = zeros(cols)
         ti.loop_config(serialize=serial)
         for i in range(n):
+            alpha = _half_alpha(rv, vv, rho, rhat2, active, btol)
             x[i] += alpha * z[i]
             si = r[i] - alpha * v[i]
             r[i] = si
             z[i] = dinv[i] * si
             ss += si * si
-        return ss, alpha, flag
+        ok = active * (1.0 - indicator(negligible(rv, rhat2, vv, btol)))
+        return ss, _half_alpha(rv, vv, rho, rhat2, active, btol), active - ok
 
     @ti.kernel
-    def bicg_full(x: vec, r: vec, r_hat: vec, p: vec, v: vec, t: vec, z: vec, dinv: rvec,
-                  ts: scal, tt: scal, ss: scal, alpha: scal, rho: scal, rhat2: scal,
-                  active: scal, btol: real, n: ti.i32) -> (scal, scal, scal, scal):
+    def bicg_full(ts: scal, tt: scal, ss: scal, alpha: scal, rho: scal, rhat2: scal,
+                  active: scal, x: vec, r: vec, r_hat: vec, p: vec, v: vec, t: vec, z: vec,
+                  dinv: rvec, btol: real, n: ti.i32, beta_slot: vec) -> (scal, scal, scal, scal):
         """Given t = A shat and its dots ts = <s, t>, tt = <t, t> (from the apply)
         and ss = ||s||^2: omega = ts / tt; x += omega shat; r = s - omega t;
         then the next direction p = r + beta (p - omega v), z = phat = M^-1 p.
-        Returns (||r||^2, rho_new, omega flag, rho flag)."""
-        omega = ti.select((tt > 0.0) & (active > 0.0), ts / tt, 0.0)
-        omega_flag = active * indicator(negligible(ts, tt, ss, btol))
+        Returns (||r||^2, rho_new, omega flag, rho flag).  ``beta_slot`` (one
+        entry) carries beta from the reductions to the second loop: a
+        kernel-scope vector read by a loop faults on CUDA (Taichi 1.7 puts it
+        misaligned in its temporaries; docs/arch.md)."""
         rr = zeros(cols)
         rho_new = zeros(cols)
         ti.loop_config(serialize=serial)
         for i in range(n):
+            omega = _omega(ts, tt, active)
             x[i] += omega * z[i]
             ri = r[i] - omega * t[i]
             r[i] = ri
             rr += ri * ri
             rho_new += r_hat[i] * ri
-        rho_flag = active * indicator(negligible(rho_new, rhat2, rr, btol))
+        omega_flag, rho_flag = _full_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol)
         go = active * (1.0 - omega_flag) * (1.0 - rho_flag)
-        beta = ti.select(go > 0.0, (rho_new / rho) * (alpha / omega), 0.0)
+        beta_slot[0] = ti.select(go > 0.0, (rho_new / rho) * (alpha / _omega(ts, tt, active)), 0.0)
         ti.loop_config(serialize=serial)
         for i in range(n):
-            pi = r[i] + beta * (p[i] - omega * v[i])
+            pi = r[i] + beta_slot[0] * (p[i] - _omega(ts, tt, active) * v[i])
             p[i] = pi
             z[i] = dinv[i] * pi
-        return rr, rho_new, omega_flag, rho_flag
+        omega_end, rho_end = _full_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol)
+        return rr, rho_new, omega_end, rho_end
 
     return dict(bicg_restart=bicg_restart, bicg_half=bicg_half, bicg_full=bicg_full)
 
