@@ -3,16 +3,36 @@ velocity stays on the Taichi side through the step (predict, correct, advect), a
 the diagnostics come back as kernel return values instead of host copies."""
 import taichi as ti
 
+from ..linalg import lanes
 from ..sph.particles import FLUID
 
 
-@ti.kernel
-def max_speed2(n: ti.i32, kind: ti.types.ndarray(), v: ti.types.ndarray()) -> float:
+def max_speed2(n: int, kind, v) -> float:
     """max |v_i|^2 over the fluid rows (0 without fluid)."""
+    return _max_speed2(n, kind, v, lanes.on(), lanes.partials(1))
+
+
+@ti.func
+def _speed2(i, kind: ti.template(), v: ti.template()):
+    return ti.select(kind[i] == FLUID, v[i].dot(v[i]), 0.0)
+
+
+@ti.kernel
+def _max_speed2(n: ti.i32, kind: ti.types.ndarray(), v: ti.types.ndarray(),
+                in_lanes: ti.template(), part: ti.types.ndarray()) -> float:
     m = 0.0
-    for i in range(n):
-        if kind[i] == FLUID:
-            ti.atomic_max(m, v[i].dot(v[i]))
+    if ti.static(in_lanes):              # a GPU: lanes.py
+        for t in range(lanes.LANES):
+            lane = 0.0
+            i = t
+            while i < n:
+                lane = ti.max(lane, _speed2(i, kind, v))
+                i += lanes.LANES
+            part[t] = lane
+        m = lanes.lane_total(part, lanes.MAX)
+    else:
+        for i in range(n):
+            ti.atomic_max(m, _speed2(i, kind, v))
     return m
 
 
@@ -35,18 +55,42 @@ def predict(n: ti.i32, kind: ti.types.ndarray(), v: ti.types.ndarray(),
             w[i] = ti.Vector.zero(float, 2)
 
 
-@ti.kernel
-def divergence_stats(n: ti.i32, kind: ti.types.ndarray(), d: ti.types.ndarray(),
-                     w: ti.types.ndarray()) -> (float, float, float):
+def divergence_stats(n: int, kind, d, w) -> tuple:
     """(max |d_i|, sum d_i^2, max |w_i|^2) over the fluid rows."""
+    return _divergence_stats(n, kind, d, w, lanes.on(), lanes.partials(3))
+
+
+@ti.func
+def _divergence_terms(i, kind: ti.template(), d: ti.template(), w: ti.template()):
+    fluid = kind[i] == FLUID
+    return ti.Vector([ti.select(fluid, ti.abs(d[i]), 0.0), ti.select(fluid, d[i] * d[i], 0.0),
+                      ti.select(fluid, w[i].dot(w[i]), 0.0)])
+
+
+@ti.kernel
+def _divergence_stats(n: ti.i32, kind: ti.types.ndarray(), d: ti.types.ndarray(),
+                      w: ti.types.ndarray(), in_lanes: ti.template(),
+                      part: ti.types.ndarray()) -> (float, float, float):
     dmax = 0.0
     dsq = 0.0
     wmax = 0.0
-    for i in range(n):
-        if kind[i] == FLUID:
-            ti.atomic_max(dmax, ti.abs(d[i]))
-            dsq += d[i] * d[i]
-            ti.atomic_max(wmax, w[i].dot(w[i]))
+    if ti.static(in_lanes):
+        ops = ti.static((lanes.MAX, lanes.ADD, lanes.MAX))
+        for t in range(lanes.LANES):
+            lane = ti.Vector([0.0, 0.0, 0.0])
+            i = t
+            while i < n:
+                lane = lanes.fold(lane, _divergence_terms(i, kind, d, w), ops)
+                i += lanes.LANES
+            part[t] = lane
+        total = lanes.lane_total(part, ops)
+        dmax, dsq, wmax = total[0], total[1], total[2]
+    else:
+        for i in range(n):
+            terms = _divergence_terms(i, kind, d, w)
+            ti.atomic_max(dmax, terms[0])
+            dsq += terms[1]
+            ti.atomic_max(wmax, terms[2])
     return dmax, dsq, wmax
 
 
@@ -67,34 +111,68 @@ def remove(n: ti.i32, kind: ti.types.ndarray(), c: ti.types.ndarray(), w: ti.typ
             w[i] -= c[i]
 
 
-@ti.kernel
-def advect(n: ti.i32, kind: ti.types.ndarray(), pos: ti.types.ndarray(),
-           w: ti.types.ndarray(), shifting: ti.i32, grad_c: ti.types.ndarray(),
-           diffusion: float, cap: float, dt: float, x0: float, y0: float, x1: float,
-           y1: float, new_pos: ti.types.ndarray()) -> (float, ti.i32):
+def advect(n: int, kind, pos, w, shifting: int, grad_c, diffusion: float, cap: float,
+           dt: float, x0: float, y0: float, x1: float, y1: float, new_pos) -> tuple:
     """new_pos = pos + dt w + dr on the fluid rows (pos elsewhere), with the
     shifting displacement dr = -diffusion grad C no longer than ``cap`` (when
     ``shifting``; :mod:`taichi_hh.flow.shifting`).  Returns (sum of |new_pos| + |w|
     over the fluid, non-finite when any value is, and the count of fluid
     particles outside the box).  Nothing is written to the particles: see
     :func:`commit`."""
+    total, out = _advect(n, kind, pos, w, shifting, grad_c, diffusion, cap, dt, x0, y0, x1, y1,
+                         new_pos, lanes.on(), lanes.partials(2))
+    return total, int(round(out))
+
+
+@ti.func
+def _advect_entry(i, kind: ti.template(), pos: ti.template(), w: ti.template(), shifting,
+                  grad_c: ti.template(), diffusion, cap, dt, x0, y0, x1, y1,
+                  new_pos: ti.template()):
+    """Particle i's new position (written); returns (its |x| + |w| when fluid,
+    1 when a fluid particle left the box)."""
+    x = pos[i]
+    terms = ti.Vector([0.0, 0.0])
+    if kind[i] == FLUID:
+        step = dt * w[i]
+        if shifting:
+            dr = -diffusion * grad_c[i]
+            norm = dr.norm()
+            if norm > cap:
+                dr *= cap / norm
+            step = dt * w[i] + dr
+        x = x + step
+        terms[0] = ti.abs(x[0]) + ti.abs(x[1]) + ti.abs(w[i][0]) + ti.abs(w[i][1])
+        if not (x[0] > x0 and x[0] < x1 and x[1] > y0 and x[1] < y1):
+            terms[1] = 1.0
+    new_pos[i] = x
+    return terms
+
+
+@ti.kernel
+def _advect(n: ti.i32, kind: ti.types.ndarray(), pos: ti.types.ndarray(),
+            w: ti.types.ndarray(), shifting: ti.i32, grad_c: ti.types.ndarray(),
+            diffusion: float, cap: float, dt: float, x0: float, y0: float, x1: float,
+            y1: float, new_pos: ti.types.ndarray(), in_lanes: ti.template(),
+            part: ti.types.ndarray()) -> (float, float):
     total = 0.0
-    out = 0
-    for i in range(n):
-        x = pos[i]
-        if kind[i] == FLUID:
-            step = dt * w[i]
-            if shifting:
-                dr = -diffusion * grad_c[i]
-                norm = dr.norm()
-                if norm > cap:
-                    dr *= cap / norm
-                step = dt * w[i] + dr
-            x = x + step
-            total += ti.abs(x[0]) + ti.abs(x[1]) + ti.abs(w[i][0]) + ti.abs(w[i][1])
-            if not (x[0] > x0 and x[0] < x1 and x[1] > y0 and x[1] < y1):
-                out += 1
-        new_pos[i] = x
+    out = 0.0            # a count, exact in a float
+    if ti.static(in_lanes):
+        for t in range(lanes.LANES):
+            lane = ti.Vector([0.0, 0.0])
+            i = t
+            while i < n:
+                lane += _advect_entry(i, kind, pos, w, shifting, grad_c, diffusion, cap, dt,
+                                      x0, y0, x1, y1, new_pos)
+                i += lanes.LANES
+            part[t] = lane
+        sums = lanes.lane_total(part, lanes.ADD)
+        total, out = sums[0], sums[1]
+    else:
+        for i in range(n):
+            terms = _advect_entry(i, kind, pos, w, shifting, grad_c, diffusion, cap, dt,
+                                  x0, y0, x1, y1, new_pos)
+            total += terms[0]
+            out += terms[1]
     return total, out
 
 
