@@ -20,20 +20,7 @@ def _speed2(i, kind: ti.template(), v: ti.template()):
 @ti.kernel
 def _max_speed2(n: ti.i32, kind: ti.types.ndarray(), v: ti.types.ndarray(),
                 in_lanes: ti.template(), part: ti.types.ndarray()) -> float:
-    m = 0.0
-    if ti.static(in_lanes):              # a GPU: lanes.py
-        for t in range(lanes.LANES):
-            lane = 0.0
-            i = t
-            while i < n:
-                lane = ti.max(lane, _speed2(i, kind, v))
-                i += lanes.LANES
-            part[t] = lane
-        m = lanes.lane_total(part, lanes.MAX)
-    else:
-        for i in range(n):
-            ti.atomic_max(m, _speed2(i, kind, v))
-    return m
+    return lanes.fold_entries(n, _speed2, (kind, v), 1, 1, lanes.MAX, in_lanes, False, part)
 
 
 @ti.kernel
@@ -71,27 +58,9 @@ def _divergence_terms(i, kind: ti.template(), d: ti.template(), w: ti.template()
 def _divergence_stats(n: ti.i32, kind: ti.types.ndarray(), d: ti.types.ndarray(),
                       w: ti.types.ndarray(), in_lanes: ti.template(),
                       part: ti.types.ndarray()) -> (float, float, float):
-    dmax = 0.0
-    dsq = 0.0
-    wmax = 0.0
-    if ti.static(in_lanes):
-        ops = ti.static((lanes.MAX, lanes.ADD, lanes.MAX))
-        for t in range(lanes.LANES):
-            lane = ti.Vector([0.0, 0.0, 0.0])
-            i = t
-            while i < n:
-                lane = lanes.fold(lane, _divergence_terms(i, kind, d, w), ops)
-                i += lanes.LANES
-            part[t] = lane
-        total = lanes.lane_total(part, ops)
-        dmax, dsq, wmax = total[0], total[1], total[2]
-    else:
-        for i in range(n):
-            terms = _divergence_terms(i, kind, d, w)
-            ti.atomic_max(dmax, terms[0])
-            dsq += terms[1]
-            ti.atomic_max(wmax, terms[2])
-    return dmax, dsq, wmax
+    total = lanes.fold_entries(n, _divergence_terms, (kind, d, w), 3, 1,
+                               (lanes.MAX, lanes.ADD, lanes.MAX), in_lanes, False, part)
+    return total[0], total[1], total[2]
 
 
 @ti.kernel
@@ -154,26 +123,10 @@ def _advect(n: ti.i32, kind: ti.types.ndarray(), pos: ti.types.ndarray(),
             diffusion: float, cap: float, dt: float, x0: float, y0: float, x1: float,
             y1: float, new_pos: ti.types.ndarray(), in_lanes: ti.template(),
             part: ti.types.ndarray()) -> (float, float):
-    total = 0.0
-    out = 0.0            # a count, exact in a float
-    if ti.static(in_lanes):
-        for t in range(lanes.LANES):
-            lane = ti.Vector([0.0, 0.0])
-            i = t
-            while i < n:
-                lane += _advect_entry(i, kind, pos, w, shifting, grad_c, diffusion, cap, dt,
-                                      x0, y0, x1, y1, new_pos)
-                i += lanes.LANES
-            part[t] = lane
-        sums = lanes.lane_total(part, lanes.ADD)
-        total, out = sums[0], sums[1]
-    else:
-        for i in range(n):
-            terms = _advect_entry(i, kind, pos, w, shifting, grad_c, diffusion, cap, dt,
-                                  x0, y0, x1, y1, new_pos)
-            total += terms[0]
-            out += terms[1]
-    return total, out
+    sums = lanes.fold_entries(n, _advect_entry, (kind, pos, w, shifting, grad_c, diffusion, cap,
+                                                 dt, x0, y0, x1, y1, new_pos), 2, 1, lanes.ADD,
+                              in_lanes, False, part)
+    return sums[0], sums[1]      # the count exact in a float
 
 
 @ti.kernel

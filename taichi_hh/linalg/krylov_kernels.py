@@ -127,46 +127,25 @@ def _vector_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -> 
         for i in range(n):
             dst[i] = src[i]
 
+    @ti.func
+    def square_entry(i, a: ti.template()):
+        return a[i] * a[i]
+
+    @ti.func
+    def dots_entry(i, a: ti.template(), y: ti.template()):
+        return lanes.pack2(cols, a[i] * y[i], y[i] * y[i])
+
     @ti.kernel
     def norm2(a: vec, n: ti.i32, part: ti.types.ndarray()) -> scal:
-        acc = zeros(cols)
-        if ti.static(in_lanes):
-            for t in range(lanes.LANES):
-                lane = zeros(cols)
-                i = t
-                while i < n:
-                    lane += a[i] * a[i]
-                    i += lanes.LANES
-                part[t] = lane
-            acc = lanes.lane_total(part, lanes.ADD)
-        else:
-            ti.loop_config(serialize=serial)
-            for i in range(n):
-                acc += a[i] * a[i]
-        return acc
+        return lanes.fold_entries(n, square_entry, (a,), 1, cols, lanes.ADD, in_lanes, serial,
+                                  part)
 
     @ti.kernel
     def dot2(a: vec, y: vec, n: ti.i32, part: ti.types.ndarray()) -> (scal, scal):
         """(<a, y>, <y, y>)."""
-        ay = zeros(cols)
-        yy = zeros(cols)
-        if ti.static(in_lanes):
-            for t in range(lanes.LANES):
-                lane = lanes.pack2(cols, zeros(cols), zeros(cols))
-                i = t
-                while i < n:
-                    lane += lanes.pack2(cols, a[i] * y[i], y[i] * y[i])
-                    i += lanes.LANES
-                part[t] = lane
-            total = lanes.lane_total(part, lanes.ADD)
-            ay = lanes.unpack(cols, total, 0)
-            yy = lanes.unpack(cols, total, 1)
-        else:
-            ti.loop_config(serialize=serial)
-            for i in range(n):
-                ay += a[i] * y[i]
-                yy += y[i] * y[i]
-        return ay, yy
+        total = lanes.fold_entries(n, dots_entry, (a, y), 2, cols, lanes.ADD, in_lanes, serial,
+                                   part)
+        return lanes.unpack(cols, total, 0), lanes.unpack(cols, total, 1)
 
     @ti.kernel
     def invert_diagonal(d: rvec, dinv: rvec, n: ti.i32) -> ti.i32:
@@ -195,7 +174,8 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -
     real, scal, vec, rvec = _types(precision, cols)
 
     @ti.func
-    def restart_entry(i, mask, b: ti.template(), ax: ti.template(), r: ti.template(), r_hat: ti.template(), p: ti.template(), z: ti.template(),
+    def restart_entry(i, mask, b: ti.template(), ax: ti.template(), r: ti.template(),
+                      r_hat: ti.template(), p: ti.template(), z: ti.template(),
                       dinv: ti.template()):
         restart = mask > 0.0
         ri = ti.select(restart, b[i] - ax[i], r[i])
@@ -207,7 +187,9 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -
         return ri * ri
 
     @ti.func
-    def half_entry(i, alpha, x: ti.template(), r: ti.template(), v: ti.template(), z: ti.template(), dinv: ti.template()):
+    def half_entry(i, rv, vv, rho, rhat2, active, btol, x: ti.template(), r: ti.template(),
+                   v: ti.template(), z: ti.template(), dinv: ti.template()):
+        alpha = _half_alpha(rv, vv, rho, rhat2, active, btol)
         x[i] += alpha * z[i]
         si = r[i] - alpha * v[i]
         r[i] = si
@@ -215,11 +197,13 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -
         return si * si
 
     @ti.func
-    def full_entry(i, omega, x: ti.template(), r: ti.template(), r_hat: ti.template(), t: ti.template(), z: ti.template()):
+    def full_entry(i, ts, tt, active, x: ti.template(), r: ti.template(),
+                   r_hat: ti.template(), t: ti.template(), z: ti.template()):
+        omega = _omega(ts, tt, active)
         x[i] += omega * z[i]
         ri = r[i] - omega * t[i]
         r[i] = ri
-        return ri * ri, r_hat[i] * ri
+        return lanes.pack2(cols, ri * ri, r_hat[i] * ri)
 
     # Storage sharing (element-wise safe): s overwrites r, and z holds
     # phat = M^-1 p until the half step turns it into shat = M^-1 s.  The
@@ -230,21 +214,8 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -
                      dinv: rvec, n: ti.i32, part: ti.types.ndarray()) -> scal:
         """In the masked columns r = b - A x and r_hat = p = r; z = M^-1 p.
         Returns ||r||^2."""
-        rr = zeros(cols)
-        if ti.static(in_lanes):
-            for t in range(lanes.LANES):
-                lane = zeros(cols)
-                i = t
-                while i < n:
-                    lane += restart_entry(i, mask, b, ax, r, r_hat, p, z, dinv)
-                    i += lanes.LANES
-                part[t] = lane
-            rr = lanes.lane_total(part, lanes.ADD)
-        else:
-            ti.loop_config(serialize=serial)
-            for i in range(n):
-                rr += restart_entry(i, mask, b, ax, r, r_hat, p, z, dinv)
-        return rr
+        return lanes.fold_entries(n, restart_entry, (mask, b, ax, r, r_hat, p, z, dinv), 1,
+                                  cols, lanes.ADD, in_lanes, serial, part)
 
     @ti.kernel
     def bicg_half(rv: scal, vv: scal, rho: scal, rhat2: scal, active: scal, x: vec, r: vec,
@@ -254,22 +225,8 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -
         apply): alpha = rho / rv; x += alpha phat; s = r - alpha v (into r);
         z = shat = M^-1 s.  Returns (||s||^2, alpha, breakdown flag); on
         breakdown alpha = 0 and x, r are unchanged."""
-        ss = zeros(cols)
-        if ti.static(in_lanes):
-            for t in range(lanes.LANES):
-                lane = zeros(cols)
-                i = t
-                while i < n:
-                    lane += half_entry(i, _half_alpha(rv, vv, rho, rhat2, active, btol),
-                                       x, r, v, z, dinv)
-                    i += lanes.LANES
-                part[t] = lane
-            ss = lanes.lane_total(part, lanes.ADD)
-        else:
-            ti.loop_config(serialize=serial)
-            for i in range(n):
-                ss += half_entry(i, _half_alpha(rv, vv, rho, rhat2, active, btol),
-                                 x, r, v, z, dinv)
+        ss = lanes.fold_entries(n, half_entry, (rv, vv, rho, rhat2, active, btol, x, r, v, z,
+                                                dinv), 1, cols, lanes.ADD, in_lanes, serial, part)
         ok = active * (1.0 - indicator(negligible(rv, rhat2, vv, btol)))
         return ss, _half_alpha(rv, vv, rho, rhat2, active, btol), active - ok
 
@@ -283,26 +240,10 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -
         then the next direction p = r + beta (p - omega v), z = phat = M^-1 p.
         Returns (||r||^2, rho_new, omega flag, rho flag).  ``beta_slot`` (one
         entry) carries beta from the sums to the second loop."""
-        rr = zeros(cols)
-        rho_new = zeros(cols)
-        if ti.static(in_lanes):
-            for lane_id in range(lanes.LANES):
-                lane = lanes.pack2(cols, zeros(cols), zeros(cols))
-                i = lane_id
-                while i < n:
-                    a_, b_ = full_entry(i, _omega(ts, tt, active), x, r, r_hat, t, z)
-                    lane += lanes.pack2(cols, a_, b_)
-                    i += lanes.LANES
-                part[lane_id] = lane
-            total = lanes.lane_total(part, lanes.ADD)
-            rr = lanes.unpack(cols, total, 0)
-            rho_new = lanes.unpack(cols, total, 1)
-        else:
-            ti.loop_config(serialize=serial)
-            for i in range(n):
-                a_, b_ = full_entry(i, _omega(ts, tt, active), x, r, r_hat, t, z)
-                rr += a_
-                rho_new += b_
+        total = lanes.fold_entries(n, full_entry, (ts, tt, active, x, r, r_hat, t, z), 2, cols,
+                                   lanes.ADD, in_lanes, serial, part)
+        rr = lanes.unpack(cols, total, 0)
+        rho_new = lanes.unpack(cols, total, 1)
         omega_flag, rho_flag = _full_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol)
         go = active * (1.0 - omega_flag) * (1.0 - rho_flag)
         beta_slot[0] = ti.select(go > 0.0, (rho_new / rho) * (alpha / _omega(ts, tt, active)), 0.0)

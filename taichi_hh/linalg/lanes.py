@@ -11,15 +11,18 @@ neighbouring entries), each writing its partial to ``part[t]``; then
 :func:`lane_total` folds the partials in ``GROUPS`` threads and finally in
 one, in a fixed order: no atomics, and the same result on every run.
 
-A kernel chooses the structure with ``ti.static(lanes)`` where ``lanes`` is
-:func:`on`, computing each entry's contribution in one ``ti.func`` shared by
-both structures.
+A kernel writes each entry's work once, as a ``ti.func`` ``entry(i, *args)``
+that returns the entry's contribution (a real, or several packed with
+:func:`pack2` / :func:`pack3`), and sums with :func:`fold_entries`, which
+loops over the entries the CPU's way or in lanes (``in_lanes``: :func:`on`,
+a compile-time setting of the kernel).
 """
 import taichi as ti
 
 from .. import runtime
 
-__all__ = ["LANES", "GROUPS", "on", "partials", "lane_total", "pack2", "pack3", "unpack", "ADD", "MAX"]
+__all__ = ["LANES", "GROUPS", "on", "partials", "fold_entries", "lane_total", "pack2", "pack3",
+           "unpack", "ADD", "MAX"]
 
 #: threads of a GPU reduction's first pass (the partials it leaves)
 LANES = 4096
@@ -133,3 +136,58 @@ def lane_total(part: ti.template(), ops: ti.template()):
             total = _fold(total, part[g], ops)
         part[0] = total
     return part[0]
+
+
+@ti.func
+def zero(values: ti.template(), cols: ti.template()):
+    """The zero partial of ``values`` sums per column over ``cols`` columns."""
+    if ti.static(values == 1 and cols == 1):
+        return 0.0
+    elif ti.static(values == 1 or cols == 1):
+        return ti.Vector.zero(float, max(values, cols))
+    else:
+        return ti.Matrix.zero(float, values, cols)
+
+
+@ti.func
+def _reduce_into(acc: ti.template(), value, ops: ti.template()):
+    """acc (a kernel-scope accumulator: Taichi's per-thread partials on the
+    CPU) takes ``value``, component by component as ``ops`` says."""
+    if ti.static(isinstance(ops, int)):
+        if ti.static(ops == MAX):
+            ti.atomic_max(acc, value)
+        else:
+            acc += value
+    else:
+        for q in ti.static(range(len(ops))):
+            if ti.static(ops[q] == MAX):
+                ti.atomic_max(acc[q], value[q])
+            else:
+                acc[q] += value[q]
+
+
+@ti.func
+def fold_entries(n, entry: ti.template(), args: ti.template(), values: ti.template(),
+                 cols: ti.template(), ops: ti.template(), in_lanes: ti.template(),
+                 serial: ti.template(), part: ti.template()):
+    """``entry(i, *args)`` for i < n (it may also write the entry's outputs),
+    its returns folded by ``ops`` (ADD, MAX, or a tuple of them per packed
+    value; the MAX values are >= 0, folded from 0): on the CPU one loop into a
+    kernel-scope accumulator (serially with ``serial``); on a GPU
+    (``in_lanes``) in lanes through ``part`` (:func:`partials` of ``values``
+    and ``cols``) and :func:`lane_total`."""
+    if ti.static(in_lanes):
+        for t in range(LANES):
+            lane = zero(values, cols)
+            i = t
+            while i < n:
+                lane = _fold(lane, entry(i, *args), ops)
+                i += LANES
+            part[t] = lane
+        return lane_total(part, ops)
+    else:
+        acc = zero(values, cols)
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            _reduce_into(acc, entry(i, *args), ops)
+        return acc

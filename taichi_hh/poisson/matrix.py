@@ -83,11 +83,11 @@ def _assemble(kernel_id: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
 
 
 @ti.func
-def _apply_row(cols: ti.template(), n, i, offsets: ti.template(), nbrs: ti.template(),
+def _apply_row(i, cols: ti.template(), n, offsets: ti.template(), nbrs: ti.template(),
                K: ti.template(), D: ti.template(), x: ti.template(), y: ti.template(),
                bordered, e: ti.template(), w: ti.template(), a: ti.template()):
     """Row i of y = A x (bordered: + e_i x[n]); returns its terms of <a, y>,
-    <y, y> and the border row's w . x."""
+    <y, y> and the border row's w . x, packed (:func:`~taichi_hh.linalg.lanes.pack3`)."""
     xi = x[i]
     acc = D[i] * xi
     for k in range(offsets[i], offsets[i + 1]):
@@ -97,7 +97,7 @@ def _apply_row(cols: ti.template(), n, i, offsets: ti.template(), nbrs: ti.templ
         acc += e[i] * x[n]
         wx = w[i] * xi
     y[i] = acc
-    return a[i] * acc, acc * acc, wx
+    return lanes_mod.pack3(cols, a[i] * acc, acc * acc, wx)
 
 
 @ti.func
@@ -109,28 +109,12 @@ def _apply_rows_body(cols: ti.template(), lanes: ti.template(), n, offsets: ti.t
     (<a, y>, <y, y>), reduced in the same loop (BiCGSTAB's dot products
     without another pass over y); per column when x holds several.  On a GPU
     (``lanes``) the sums go through ``part`` (:mod:`taichi_hh.linalg.lanes`)."""
-    ay = zeros(cols)
-    yy = zeros(cols)
-    border = zeros(cols)
-    if ti.static(lanes):
-        for t in range(lanes_mod.LANES):
-            acc = lanes_mod.pack3(cols, zeros(cols), zeros(cols), zeros(cols))
-            i = t
-            while i < n:
-                p, q, r = _apply_row(cols, n, i, offsets, nbrs, K, D, x, y, bordered, e, w, a)
-                acc += lanes_mod.pack3(cols, p, q, r)
-                i += lanes_mod.LANES
-            part[t] = acc
-        total = lanes_mod.lane_total(part, lanes_mod.ADD)
-        ay = lanes_mod.unpack(cols, total, 0)
-        yy = lanes_mod.unpack(cols, total, 1)
-        border = lanes_mod.unpack(cols, total, 2)
-    else:
-        for i in range(n):
-            p, q, r = _apply_row(cols, n, i, offsets, nbrs, K, D, x, y, bordered, e, w, a)
-            ay += p
-            yy += q
-            border += r      # thread-local reductions in Taichi
+    total = lanes_mod.fold_entries(n, _apply_row, (cols, n, offsets, nbrs, K, D, x, y, bordered,
+                                                   e, w, a), 3, cols, lanes_mod.ADD, lanes, False,
+                                   part)
+    ay = lanes_mod.unpack(cols, total, 0)
+    yy = lanes_mod.unpack(cols, total, 1)
+    border = lanes_mod.unpack(cols, total, 2)
     if bordered:
         yn = border + c * x[n]
         y[n] = yn
