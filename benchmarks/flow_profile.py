@@ -334,6 +334,8 @@ def main(argv=None) -> int:
     ap.add_argument("--warm-start", default=None,
                     help="FlowParams.warm_start (default: the flow's)")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: all)")
+    ap.add_argument("--arch", default=None,
+                    help="Taichi arch (default: $TAICHI_HH_ARCH, else cpu; docs/arch.md)")
     ap.add_argument("--top", type=int, default=25, help="kernels listed")
     ap.add_argument("--out-dir", default=str(REPO_ROOT / "outputs" / "benchmarks"))
     ap.add_argument("--ab", default=None, metavar="FIELD=VALUE",
@@ -341,7 +343,7 @@ def main(argv=None) -> int:
                          "FlowParams change in turn and compare their step times")
     args = ap.parse_args(argv)
     import taichi_hh
-    taichi_hh.init(arch="cpu", precision="f64", threads=args.threads, verbose=False)
+    taichi_hh.init(arch=args.arch, precision="f64", threads=args.threads, verbose=False)
     if args.ab:
         field, value = args.ab.split("=", 1)
         for n in parse_list(args.particles, int):

@@ -27,6 +27,9 @@ ARCHES = ("cpu", "cuda", "vulkan", "gpu", "auto")
 #: the environment variable that names the default arch (of :func:`init`, the
 #: lazy start, the command line and the scenes; CI's Vulkan run sets it)
 ARCH_VARIABLE = "TAICHI_HH_ARCH"
+#: set to 1: Taichi's kernel profiler on (each kernel's device time, CUDA and
+#: CPU; benchmarks print it), at the cost of a synchronisation per launch
+PROFILER_VARIABLE = "TAICHI_HH_KERNEL_PROFILER"
 #: the GPU backends ``"gpu"`` and ``"auto"`` try, in order (Metal first on macOS)
 GPU_BACKENDS = ("cuda", "vulkan")
 _PRECISIONS = {"f32": np.float32, "f64": np.float64}
@@ -189,6 +192,8 @@ def _start(ti, arch, precision, offline_cache_dir, threads, debug, pin_threads) 
     """:func:`init`'s work once the arguments are checked."""
     kwargs = dict(default_fp=ti.f64 if precision == "f64" else ti.f32, default_ip=ti.i32,
                   offline_cache=True, debug=debug, log_level=ti.WARN)
+    if os.environ.get(PROFILER_VARIABLE, "0") not in ("", "0"):
+        kwargs["kernel_profiler"] = True     # ti.profiler.print_kernel_profiler_info()
     cache = offline_cache_dir or os.environ.get("TAICHI_HH_CACHE")
     if cache:
         os.makedirs(cache, exist_ok=True)
@@ -417,6 +422,15 @@ def np_real():
 
 def generation() -> int:
     return _state.generation
+
+
+def on_gpu() -> bool:
+    """Whether the kernels run on a GPU backend (CUDA, Vulkan, Metal).  There a
+    loop run on one thread is one GPU thread, thousands of times slower than
+    the CPU's, so the loops that run serially on the CPU below a size (where
+    waking the thread pool costs more than the work) run in parallel."""
+    ensure_init()
+    return _state.arch != "cpu"
 
 
 def check_generation(made_in: int, what: str = "object") -> None:

@@ -3,17 +3,24 @@ velocity stays on the Taichi side through the step (predict, correct, advect), a
 the diagnostics come back as kernel return values instead of host copies."""
 import taichi as ti
 
+from ..linalg import lanes
 from ..sph.particles import FLUID
 
 
-@ti.kernel
-def max_speed2(n: ti.i32, kind: ti.types.ndarray(), v: ti.types.ndarray()) -> float:
+def max_speed2(n: int, kind, v) -> float:
     """max |v_i|^2 over the fluid rows (0 without fluid)."""
-    m = 0.0
-    for i in range(n):
-        if kind[i] == FLUID:
-            ti.atomic_max(m, v[i].dot(v[i]))
-    return m
+    return _max_speed2(n, kind, v, lanes.on(), lanes.partials(1))
+
+
+@ti.func
+def _speed2(i, kind: ti.template(), v: ti.template()):
+    return ti.select(kind[i] == FLUID, v[i].dot(v[i]), 0.0)
+
+
+@ti.kernel
+def _max_speed2(n: ti.i32, kind: ti.types.ndarray(), v: ti.types.ndarray(),
+                in_lanes: ti.template(), part: ti.types.ndarray()) -> float:
+    return lanes.fold_entries(n, _speed2, (kind, v), 1, 1, lanes.MAX, in_lanes, False, part)
 
 
 @ti.kernel
@@ -22,8 +29,10 @@ def predict(n: ti.i32, kind: ti.types.ndarray(), v: ti.types.ndarray(),
             gy: float, w: ti.types.ndarray()):
     """w = v + dt (g + nu lap v) on the fluid rows (``lap``: lap v, read when
     ``viscous``), 0 on the others."""
-    g = ti.Vector([gx, gy])
     for i in range(n):
+        # g built here, not before the loop: a kernel-scope vector read by a
+        # loop faults on CUDA (Taichi 1.7; docs/arch.md)
+        g = ti.Vector([gx, gy])
         if kind[i] == FLUID:
             a = g
             if viscous:
@@ -33,19 +42,25 @@ def predict(n: ti.i32, kind: ti.types.ndarray(), v: ti.types.ndarray(),
             w[i] = ti.Vector.zero(float, 2)
 
 
-@ti.kernel
-def divergence_stats(n: ti.i32, kind: ti.types.ndarray(), d: ti.types.ndarray(),
-                     w: ti.types.ndarray()) -> (float, float, float):
+def divergence_stats(n: int, kind, d, w) -> tuple:
     """(max |d_i|, sum d_i^2, max |w_i|^2) over the fluid rows."""
-    dmax = 0.0
-    dsq = 0.0
-    wmax = 0.0
-    for i in range(n):
-        if kind[i] == FLUID:
-            ti.atomic_max(dmax, ti.abs(d[i]))
-            dsq += d[i] * d[i]
-            ti.atomic_max(wmax, w[i].dot(w[i]))
-    return dmax, dsq, wmax
+    return _divergence_stats(n, kind, d, w, lanes.on(), lanes.partials(3))
+
+
+@ti.func
+def _divergence_terms(i, kind: ti.template(), d: ti.template(), w: ti.template()):
+    fluid = kind[i] == FLUID
+    return ti.Vector([ti.select(fluid, ti.abs(d[i]), 0.0), ti.select(fluid, d[i] * d[i], 0.0),
+                      ti.select(fluid, w[i].dot(w[i]), 0.0)])
+
+
+@ti.kernel
+def _divergence_stats(n: ti.i32, kind: ti.types.ndarray(), d: ti.types.ndarray(),
+                      w: ti.types.ndarray(), in_lanes: ti.template(),
+                      part: ti.types.ndarray()) -> (float, float, float):
+    total = lanes.fold_entries(n, _divergence_terms, (kind, d, w), 3, 1,
+                               (lanes.MAX, lanes.ADD, lanes.MAX), in_lanes, False, part)
+    return total[0], total[1], total[2]
 
 
 @ti.kernel
@@ -65,35 +80,53 @@ def remove(n: ti.i32, kind: ti.types.ndarray(), c: ti.types.ndarray(), w: ti.typ
             w[i] -= c[i]
 
 
-@ti.kernel
-def advect(n: ti.i32, kind: ti.types.ndarray(), pos: ti.types.ndarray(),
-           w: ti.types.ndarray(), shifting: ti.i32, grad_c: ti.types.ndarray(),
-           diffusion: float, cap: float, dt: float, x0: float, y0: float, x1: float,
-           y1: float, new_pos: ti.types.ndarray()) -> (float, ti.i32):
+def advect(n: int, kind, pos, w, shifting: int, grad_c, diffusion: float, cap: float,
+           dt: float, x0: float, y0: float, x1: float, y1: float, new_pos) -> tuple:
     """new_pos = pos + dt w + dr on the fluid rows (pos elsewhere), with the
     shifting displacement dr = -diffusion grad C no longer than ``cap`` (when
     ``shifting``; :mod:`taichi_hh.flow.shifting`).  Returns (sum of |new_pos| + |w|
     over the fluid, non-finite when any value is, and the count of fluid
     particles outside the box).  Nothing is written to the particles: see
     :func:`commit`."""
-    total = 0.0
-    out = 0
-    for i in range(n):
-        x = pos[i]
-        if kind[i] == FLUID:
-            step = dt * w[i]
-            if shifting:
-                dr = -diffusion * grad_c[i]
-                norm = dr.norm()
-                if norm > cap:
-                    dr *= cap / norm
-                step = dt * w[i] + dr
-            x = x + step
-            total += ti.abs(x[0]) + ti.abs(x[1]) + ti.abs(w[i][0]) + ti.abs(w[i][1])
-            if not (x[0] > x0 and x[0] < x1 and x[1] > y0 and x[1] < y1):
-                out += 1
-        new_pos[i] = x
-    return total, out
+    total, out = _advect(n, kind, pos, w, shifting, grad_c, diffusion, cap, dt, x0, y0, x1, y1,
+                         new_pos, lanes.on(), lanes.partials(2))
+    return total, int(round(out))
+
+
+@ti.func
+def _advect_entry(i, kind: ti.template(), pos: ti.template(), w: ti.template(), shifting,
+                  grad_c: ti.template(), diffusion, cap, dt, x0, y0, x1, y1,
+                  new_pos: ti.template()):
+    """Particle i's new position (written); returns (its |x| + |w| when fluid,
+    1 when a fluid particle left the box)."""
+    x = pos[i]
+    terms = ti.Vector([0.0, 0.0])
+    if kind[i] == FLUID:
+        step = dt * w[i]
+        if shifting:
+            dr = -diffusion * grad_c[i]
+            norm = dr.norm()
+            if norm > cap:
+                dr *= cap / norm
+            step = dt * w[i] + dr
+        x = x + step
+        terms[0] = ti.abs(x[0]) + ti.abs(x[1]) + ti.abs(w[i][0]) + ti.abs(w[i][1])
+        if not (x[0] > x0 and x[0] < x1 and x[1] > y0 and x[1] < y1):
+            terms[1] = 1.0
+    new_pos[i] = x
+    return terms
+
+
+@ti.kernel
+def _advect(n: ti.i32, kind: ti.types.ndarray(), pos: ti.types.ndarray(),
+            w: ti.types.ndarray(), shifting: ti.i32, grad_c: ti.types.ndarray(),
+            diffusion: float, cap: float, dt: float, x0: float, y0: float, x1: float,
+            y1: float, new_pos: ti.types.ndarray(), in_lanes: ti.template(),
+            part: ti.types.ndarray()) -> (float, float):
+    sums = lanes.fold_entries(n, _advect_entry, (kind, pos, w, shifting, grad_c, diffusion, cap,
+                                                 dt, x0, y0, x1, y1, new_pos), 2, 1, lanes.ADD,
+                              in_lanes, False, part)
+    return sums[0], sums[1]      # the count exact in a float
 
 
 @ti.kernel

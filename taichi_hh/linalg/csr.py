@@ -9,6 +9,7 @@ import taichi as ti
 
 from taichi_hh import runtime
 from taichi_hh.errors import InputError
+from taichi_hh.linalg import lanes
 from taichi_hh.linalg.krylov_kernels import serial_below_threshold
 
 __all__ = ["CSRMatrix"]
@@ -62,12 +63,14 @@ class CSRMatrix:
         """y[:m] = A @ x[:n]; returns (<a, y>, <y, y>) over the m rows."""
         runtime.check_generation(self._generation, "CSRMatrix")
         indptr, indices, data = self._rows
-        return self._row_kernels.csr_matvec_dot(indptr, indices, data, x, y, a, self.m)
+        return self._row_kernels.csr_matvec_dot(indptr, indices, data, x, y, a, self.m,
+                                                lanes.partials(2))
 
     def apply_transpose(self, x, y) -> None:
         """y[:n] = A.T @ x[:m]."""
         indptr, indices, data = self._transpose()
-        self._col_kernels.csr_matvec_dot(indptr, indices, data, x, y, y, self.n)
+        self._col_kernels.csr_matvec_dot(indptr, indices, data, x, y, y, self.n,
+                                         lanes.partials(2))
 
     def diagonal(self, d) -> None:
         """d[:min(m, n)] = diag(A)."""
@@ -131,31 +134,32 @@ def _kernels(rows: int) -> SimpleNamespace:
     """The CSR kernels for ``rows`` rows in the current precision, serial below the
     solvers' threshold (:data:`~taichi_hh.linalg.krylov_kernels.PARALLEL_MIN_SIZE`)."""
     runtime.ensure_init()
-    return _build(runtime.state().precision, serial_below_threshold(rows))
+    return _build(runtime.state().precision, serial_below_threshold(rows), lanes.on())
 
 
 @lru_cache(maxsize=None)
-def _build(precision: str, serial: bool) -> SimpleNamespace:
+def _build(precision: str, serial: bool, in_lanes: bool) -> SimpleNamespace:
     real = ti.f64 if precision == "f64" else ti.f32
     vec = ti.types.ndarray(dtype=real, ndim=1)
     ivec = ti.types.ndarray(dtype=ti.i32, ndim=1)
 
+    @ti.func
+    def row_entry(i, indptr: ti.template(), indices: ti.template(), data: ti.template(),
+                  x: ti.template(), y: ti.template(), a: ti.template()):
+        acc = 0.0
+        for k in range(indptr[i], indptr[i + 1]):
+            acc += data[k] * x[indices[k]]
+        y[i] = acc
+        return ti.Vector([a[i] * acc, acc * acc])
+
     @ti.kernel
     def csr_matvec_dot(indptr: ivec, indices: ivec, data: vec, x: vec, y: vec, a: vec,
-                       nrows: ti.i32) -> (real, real):
+                       nrows: ti.i32, part: ti.types.ndarray()) -> (real, real):
         """y = A x; returns (<a, y>, <y, y>) (plain applies pass a = y and ignore
-        them: two multiply-adds a row)."""
-        ay = 0.0
-        yy = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(nrows):
-            acc = 0.0
-            for k in range(indptr[i], indptr[i + 1]):
-                acc += data[k] * x[indices[k]]
-            y[i] = acc
-            ay += a[i] * acc
-            yy += acc * acc
-        return ay, yy
+        them: two multiply-adds a row); the sums in lanes on a GPU."""
+        dots = lanes.fold_entries(nrows, row_entry, (indptr, indices, data, x, y, a), 2, 1,
+                                  lanes.ADD, in_lanes, serial, part)
+        return dots[0], dots[1]
 
     @ti.kernel
     def csr_diagonal(indptr: ivec, indices: ivec, data: vec, d: vec, nrows: ti.i32):

@@ -335,6 +335,7 @@ class _BiCGSTAB(_Method):
         cols = self.cols
         self.r, self.r_hat, self.p = v("r", n, cols), v("r_hat", n, cols), v("p", n, cols)
         self.v, self.t, self.z = v("v", n, cols), v("t", n, cols), v("z", n, cols)
+        self.beta_slot = v("beta", 1, cols)
         self.rr, self.rho, self.rhat2 = np.zeros(cols), np.zeros(cols), np.zeros(cols)
         # A preconditioner object: the kernels' z = dinv * (.) (dinv = 1) is
         # overwritten by z = M^-1 (.) right after each of them.
@@ -343,8 +344,9 @@ class _BiCGSTAB(_Method):
 
     def restart(self, mask):
         self._apply(self.x, self.t)
-        rr = self._host(self.k.bicg_restart(self.b, self.t, self.r, self.r_hat, self.p, self.z,
-                                            self.dinv, self._arg(mask.astype(float)), self.n))
+        rr = self._host(self.k.bicg_restart(self._arg(mask.astype(float)), self.b, self.t,
+                                            self.r, self.r_hat, self.p, self.z, self.dinv,
+                                            self.n))
         self.rr = np.where(mask, rr, self.rr)
         self.rho = np.where(mask, rr, self.rho)
         self.rhat2 = np.where(mask, rr, self.rhat2)
@@ -361,8 +363,8 @@ class _BiCGSTAB(_Method):
             self._z_pending = False
         rv, vv = self._apply_dot(self.z, self.v, self.r_hat)
         ss, alpha, half_flag = (self._host(a) for a in self.k.bicg_half(
-            self.x, self.r, self.v, self.z, self.dinv, rv, vv, self._arg(self.rho),
-            self._arg(self.rhat2), self._arg(active.astype(float)), self.btol, self.n))
+            rv, vv, self._arg(self.rho), self._arg(self.rhat2), self._arg(active.astype(float)),
+            self.x, self.r, self.v, self.z, self.dinv, self.btol, self.n))
         failures = [None] * self.cols
         for c in np.flatnonzero(half_flag):     # x and r untouched
             failures[c] = "<r_hat, A M^-1 p> vanished"
@@ -372,9 +374,9 @@ class _BiCGSTAB(_Method):
                 self.M.apply(self.r, self.z)        # r holds s
             ts, tt = self._apply_dot(self.z, self.t, self.r)
             rr, rho, omega_flag, rho_flag = (self._host(a) for a in self.k.bicg_full(
-                self.x, self.r, self.r_hat, self.p, self.v, self.t, self.z, self.dinv,
                 ts, tt, self._arg(ss), self._arg(alpha), self._arg(self.rho),
-                self._arg(self.rhat2), self._arg(going), self.btol, self.n))
+                self._arg(self.rhat2), self._arg(going), self.x, self.r, self.r_hat, self.p,
+                self.v, self.t, self.z, self.dinv, self.btol, self.n, self.beta_slot))
             self.rr = np.where(going > 0.0, rr, self.rr)
             self.rho = np.where(going > 0.0, rho, self.rho)
             self._z_pending = self.M is not None     # z = M^-1 p: in the next step, if any
@@ -609,9 +611,13 @@ def bicgstab_columns(A, B, *, tol: float = 1e-6, max_iterations: Optional[int] =
                   raise_on_failure=raise_on_failure, stagnation_window=stagnation_window,
                   divergence_factor=divergence_factor, workspace=workspace)
     M = preconditioner if _is_preconditioner_object(preconditioner) else None
+    # Not on CUDA: Taichi 1.7.4's CUDA backend faults (misaligned address) in
+    # the several-column BiCGSTAB kernels, whose arguments and results are
+    # vectors of f64; one column at a time runs there (docs/arch.md)
     joint = (cols > 1 and getattr(A, "accepts_columns", False)
              and callable(getattr(A, "apply_dot", None))
-             and (M is None or getattr(M, "accepts_columns", False)))
+             and (M is None or getattr(M, "accepts_columns", False))
+             and runtime.state().arch != "cuda")
     if not joint:
         return [bicgstab(A, B[:, c], **kwargs) for c in range(cols)]
     return _solve_square(_BiCGSTAB, A, B, None, preconditioner, raise_on_failure, workspace,

@@ -19,6 +19,7 @@ from types import SimpleNamespace
 import taichi as ti
 
 from taichi_hh import runtime
+from taichi_hh.linalg import lanes
 from taichi_hh.linalg.columns import zeros
 
 __all__ = ["PARALLEL_MIN_SIZE", "serial_below_threshold", "solver_kernels"]
@@ -29,8 +30,9 @@ PARALLEL_MIN_SIZE = 200_000
 
 
 def serial_below_threshold(size: int) -> bool:
-    """Whether loops over ``size`` entries run serially (:data:`PARALLEL_MIN_SIZE`)."""
-    return size < PARALLEL_MIN_SIZE
+    """Whether loops over ``size`` entries run serially (:data:`PARALLEL_MIN_SIZE`
+    on the CPU; never on a GPU, :func:`taichi_hh.runtime.on_gpu`)."""
+    return size < PARALLEL_MIN_SIZE and not runtime.on_gpu()
 
 
 def solver_kernels(size: int, cols: int = 1) -> SimpleNamespace:
@@ -40,7 +42,7 @@ def solver_kernels(size: int, cols: int = 1) -> SimpleNamespace:
     ``bicg_half``, ``bicg_full``); the one-column set also CG's and CGNR's,
     which solve one right-hand side only."""
     runtime.ensure_init()
-    return _build(runtime.state().precision, serial_below_threshold(size), cols)
+    return _build(runtime.state().precision, serial_below_threshold(size), cols, lanes.on())
 
 
 @ti.func
@@ -56,13 +58,47 @@ def indicator(cond):
     return ti.select(cond, 1.0, 0.0)
 
 
+@ti.func
+def _half_alpha(rv, vv, rho, rhat2, active, btol):
+    """BiCGSTAB's alpha = rho / <r_hat, v> per column, 0 where the column is
+    frozen or the dot product is rounding noise."""
+    ok = active * (1.0 - indicator(negligible(rv, rhat2, vv, btol)))
+    return ti.select(ok > 0.0, rho / rv, 0.0)
+
+
+@ti.func
+def _omega(ts, tt, active):
+    """BiCGSTAB's omega = <t, s> / <t, t> per column, 0 where frozen or t = 0."""
+    return ti.select((tt > 0.0) & (active > 0.0), ts / tt, 0.0)
+
+
+@ti.func
+def _full_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol):
+    """BiCGSTAB's breakdown flags per column: omega's (<t, s> rounding noise)
+    and rho's (<r_hat, r> rounding noise).  Computed where they are used,
+    not kept across the kernel's loops (docs/arch.md: CUDA)."""
+    return (active * indicator(negligible(ts, tt, ss, btol)),
+            active * indicator(negligible(rho_new, rhat2, rr, btol)))
+
+
+def _with_partials(kernel, values: int, cols: int):
+    def call(*args):
+        return kernel(*args, lanes.partials(values, cols))
+    return call
+
+
 @lru_cache(maxsize=None)
-def _build(precision: str, serial: bool, cols: int) -> SimpleNamespace:
+def _build(precision: str, serial: bool, cols: int, in_lanes: bool = False) -> SimpleNamespace:
     """Compile-once kernel set.  Built lazily because the real type of the
-    arguments and return values depends on the runtime precision; ``serial``
-    and ``cols`` are compile-time settings, not data."""
-    kernels = _vector_kernels(precision, serial, cols)
-    kernels.update(_bicgstab_kernels(precision, serial, cols))
+    arguments and return values depends on the runtime precision; ``serial``,
+    ``cols`` and ``in_lanes`` (the GPU's reductions, :mod:`taichi_hh.linalg.
+    lanes`) are compile-time settings, not data."""
+    kernels = _vector_kernels(precision, serial, cols, in_lanes)
+    kernels.update(_bicgstab_kernels(precision, serial, cols, in_lanes))
+    # the reducing kernels take their partials last (used on a GPU only)
+    for name, values in (("norm2", 1), ("dot2", 2), ("bicg_restart", 1), ("bicg_half", 1),
+                         ("bicg_full", 2)):
+        kernels[name] = _with_partials(kernels[name], values, cols)
     if cols == 1:
         kernels.update(_cg_kernels(precision, serial))
         kernels.update(_cgnr_kernels(precision, serial))
@@ -76,7 +112,7 @@ def _types(precision: str, cols: int):
     return real, scal, ti.types.ndarray(dtype=scal, ndim=1), ti.types.ndarray(dtype=real, ndim=1)
 
 
-def _vector_kernels(precision: str, serial: bool, cols: int) -> dict:
+def _vector_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -> dict:
     real, scal, vec, rvec = _types(precision, cols)
 
     @ti.kernel
@@ -91,24 +127,25 @@ def _vector_kernels(precision: str, serial: bool, cols: int) -> dict:
         for i in range(n):
             dst[i] = src[i]
 
-    @ti.kernel
-    def norm2(a: vec, n: ti.i32) -> scal:
-        acc = zeros(cols)
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            acc += a[i] * a[i]
-        return acc
+    @ti.func
+    def square_entry(i, a: ti.template()):
+        return a[i] * a[i]
+
+    @ti.func
+    def dots_entry(i, a: ti.template(), y: ti.template()):
+        return lanes.pack2(cols, a[i] * y[i], y[i] * y[i])
 
     @ti.kernel
-    def dot2(a: vec, y: vec, n: ti.i32) -> (scal, scal):
+    def norm2(a: vec, n: ti.i32, part: ti.types.ndarray()) -> scal:
+        return lanes.fold_entries(n, square_entry, (a,), 1, cols, lanes.ADD, in_lanes, serial,
+                                  part)
+
+    @ti.kernel
+    def dot2(a: vec, y: vec, n: ti.i32, part: ti.types.ndarray()) -> (scal, scal):
         """(<a, y>, <y, y>)."""
-        ay = zeros(cols)
-        yy = zeros(cols)
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            ay += a[i] * y[i]
-            yy += y[i] * y[i]
-        return ay, yy
+        total = lanes.fold_entries(n, dots_entry, (a, y), 2, cols, lanes.ADD, in_lanes, serial,
+                                   part)
+        return lanes.unpack(cols, total, 0), lanes.unpack(cols, total, 1)
 
     @ti.kernel
     def invert_diagonal(d: rvec, dinv: rvec, n: ti.i32) -> ti.i32:
@@ -127,82 +164,96 @@ def _vector_kernels(precision: str, serial: bool, cols: int) -> dict:
     return dict(fill=fill, copy=copy, norm2=norm2, dot2=dot2, invert_diagonal=invert_diagonal)
 
 
-def _bicgstab_kernels(precision: str, serial: bool, cols: int) -> dict:
+def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -> dict:
     """BiCGSTAB (right-preconditioned, M^-1 = dinv) on ``cols`` columns, each its
     own iteration: the scalars (alpha, omega, rho, ...) are per column, and so
     are ``active`` (1: iterating, 0: frozen, e.g. converged: x and r stay) and
-    the restart's ``mask`` (1: restart this column)."""
+    the restart's ``mask`` (1: restart this column).  Each kernel's entry work
+    is one ``ti.func``, looped over the entries directly on the CPU and in
+    lanes on a GPU (``in_lanes``: :mod:`taichi_hh.linalg.lanes`)."""
     real, scal, vec, rvec = _types(precision, cols)
 
+    @ti.func
+    def restart_entry(i, mask, b: ti.template(), ax: ti.template(), r: ti.template(),
+                      r_hat: ti.template(), p: ti.template(), z: ti.template(),
+                      dinv: ti.template()):
+        restart = mask > 0.0
+        ri = ti.select(restart, b[i] - ax[i], r[i])
+        pi = ti.select(restart, ri, p[i])
+        r[i] = ri
+        r_hat[i] = ti.select(restart, ri, r_hat[i])
+        p[i] = pi
+        z[i] = dinv[i] * pi
+        return ri * ri
+
+    @ti.func
+    def half_entry(i, rv, vv, rho, rhat2, active, btol, x: ti.template(), r: ti.template(),
+                   v: ti.template(), z: ti.template(), dinv: ti.template()):
+        alpha = _half_alpha(rv, vv, rho, rhat2, active, btol)
+        x[i] += alpha * z[i]
+        si = r[i] - alpha * v[i]
+        r[i] = si
+        z[i] = dinv[i] * si
+        return si * si
+
+    @ti.func
+    def full_entry(i, ts, tt, active, x: ti.template(), r: ti.template(),
+                   r_hat: ti.template(), t: ti.template(), z: ti.template()):
+        omega = _omega(ts, tt, active)
+        x[i] += omega * z[i]
+        ri = r[i] - omega * t[i]
+        r[i] = ri
+        return lanes.pack2(cols, ri * ri, r_hat[i] * ri)
+
     # Storage sharing (element-wise safe): s overwrites r, and z holds
-    # phat = M^-1 p until the half step turns it into shat = M^-1 s.
+    # phat = M^-1 p until the half step turns it into shat = M^-1 s.  The
+    # per-column scalars come first among the arguments, and no kernel-scope
+    # vector is read by a loop (docs/arch.md: Taichi 1.7 on CUDA).
     @ti.kernel
-    def bicg_restart(b: vec, ax: vec, r: vec, r_hat: vec, p: vec, z: vec, dinv: rvec,
-                     mask: scal, n: ti.i32) -> scal:
+    def bicg_restart(mask: scal, b: vec, ax: vec, r: vec, r_hat: vec, p: vec, z: vec,
+                     dinv: rvec, n: ti.i32, part: ti.types.ndarray()) -> scal:
         """In the masked columns r = b - A x and r_hat = p = r; z = M^-1 p.
         Returns ||r||^2."""
-        rr = zeros(cols)
-        restart = mask > 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            ri = ti.select(restart, b[i] - ax[i], r[i])
-            pi = ti.select(restart, ri, p[i])
-            r[i] = ri
-            r_hat[i] = ti.select(restart, ri, r_hat[i])
-            p[i] = pi
-            z[i] = dinv[i] * pi
-            rr += ri * ri
-        return rr
+        return lanes.fold_entries(n, restart_entry, (mask, b, ax, r, r_hat, p, z, dinv), 1,
+                                  cols, lanes.ADD, in_lanes, serial, part)
 
     @ti.kernel
-    def bicg_half(x: vec, r: vec, v: vec, z: vec, dinv: rvec, rv: scal, vv: scal,
-                  rho: scal, rhat2: scal, active: scal, btol: real,
-                  n: ti.i32) -> (scal, scal, scal):
+    def bicg_half(rv: scal, vv: scal, rho: scal, rhat2: scal, active: scal, x: vec, r: vec,
+                  v: vec, z: vec, dinv: rvec, btol: real, n: ti.i32,
+                  part: ti.types.ndarray()) -> (scal, scal, scal):
         """Given v = A phat and its dots rv = <r_hat, v>, vv = <v, v> (from the
         apply): alpha = rho / rv; x += alpha phat; s = r - alpha v (into r);
         z = shat = M^-1 s.  Returns (||s||^2, alpha, breakdown flag); on
         breakdown alpha = 0 and x, r are unchanged."""
+        ss = lanes.fold_entries(n, half_entry, (rv, vv, rho, rhat2, active, btol, x, r, v, z,
+                                                dinv), 1, cols, lanes.ADD, in_lanes, serial, part)
         ok = active * (1.0 - indicator(negligible(rv, rhat2, vv, btol)))
-        alpha = ti.select(ok > 0.0, rho / rv, 0.0)
-        flag = active - ok
-        ss = zeros(cols)
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            x[i] += alpha * z[i]
-            si = r[i] - alpha * v[i]
-            r[i] = si
-            z[i] = dinv[i] * si
-            ss += si * si
-        return ss, alpha, flag
+        return ss, _half_alpha(rv, vv, rho, rhat2, active, btol), active - ok
 
     @ti.kernel
-    def bicg_full(x: vec, r: vec, r_hat: vec, p: vec, v: vec, t: vec, z: vec, dinv: rvec,
-                  ts: scal, tt: scal, ss: scal, alpha: scal, rho: scal, rhat2: scal,
-                  active: scal, btol: real, n: ti.i32) -> (scal, scal, scal, scal):
+    def bicg_full(ts: scal, tt: scal, ss: scal, alpha: scal, rho: scal, rhat2: scal,
+                  active: scal, x: vec, r: vec, r_hat: vec, p: vec, v: vec, t: vec, z: vec,
+                  dinv: rvec, btol: real, n: ti.i32, beta_slot: vec,
+                  part: ti.types.ndarray()) -> (scal, scal, scal, scal):
         """Given t = A shat and its dots ts = <s, t>, tt = <t, t> (from the apply)
         and ss = ||s||^2: omega = ts / tt; x += omega shat; r = s - omega t;
         then the next direction p = r + beta (p - omega v), z = phat = M^-1 p.
-        Returns (||r||^2, rho_new, omega flag, rho flag)."""
-        omega = ti.select((tt > 0.0) & (active > 0.0), ts / tt, 0.0)
-        omega_flag = active * indicator(negligible(ts, tt, ss, btol))
-        rr = zeros(cols)
-        rho_new = zeros(cols)
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            x[i] += omega * z[i]
-            ri = r[i] - omega * t[i]
-            r[i] = ri
-            rr += ri * ri
-            rho_new += r_hat[i] * ri
-        rho_flag = active * indicator(negligible(rho_new, rhat2, rr, btol))
+        Returns (||r||^2, rho_new, omega flag, rho flag).  ``beta_slot`` (one
+        entry) carries beta from the sums to the second loop."""
+        total = lanes.fold_entries(n, full_entry, (ts, tt, active, x, r, r_hat, t, z), 2, cols,
+                                   lanes.ADD, in_lanes, serial, part)
+        rr = lanes.unpack(cols, total, 0)
+        rho_new = lanes.unpack(cols, total, 1)
+        omega_flag, rho_flag = _full_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol)
         go = active * (1.0 - omega_flag) * (1.0 - rho_flag)
-        beta = ti.select(go > 0.0, (rho_new / rho) * (alpha / omega), 0.0)
+        beta_slot[0] = ti.select(go > 0.0, (rho_new / rho) * (alpha / _omega(ts, tt, active)), 0.0)
         ti.loop_config(serialize=serial)
         for i in range(n):
-            pi = r[i] + beta * (p[i] - omega * v[i])
+            pi = r[i] + beta_slot[0] * (p[i] - _omega(ts, tt, active) * v[i])
             p[i] = pi
             z[i] = dinv[i] * pi
-        return rr, rho_new, omega_flag, rho_flag
+        omega_end, rho_end = _full_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol)
+        return rr, rho_new, omega_end, rho_end
 
     return dict(bicg_restart=bicg_restart, bicg_half=bicg_half, bicg_full=bicg_full)
 

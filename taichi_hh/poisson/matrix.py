@@ -32,6 +32,7 @@ import taichi as ti
 from .. import runtime
 
 from ..linalg import krylov as solvers
+from ..linalg import lanes as lanes_mod
 from ..linalg.columns import columns_of, zeros
 from ..errors import InputError, NeighbourError, SolverError
 from ..sph.operators import GradientStencil, LaplacianStencil, shepard_sums, shepard_weight
@@ -82,31 +83,40 @@ def _assemble(kernel_id: ti.template(), n: ti.i32, offsets: ti.types.ndarray(),
 
 
 @ti.func
-def _apply_rows_body(cols: ti.template(), n, offsets: ti.template(), nbrs: ti.template(),
-                     K: ti.template(), D: ti.template(), x: ti.template(), y: ti.template(),
-                     bordered, e: ti.template(), w: ti.template(), c, a: ti.template()):
+def _apply_row(i, cols: ti.template(), n, offsets: ti.template(), nbrs: ti.template(),
+               K: ti.template(), D: ti.template(), x: ti.template(), y: ti.template(),
+               bordered, e: ti.template(), w: ti.template(), a: ti.template()):
+    """Row i of y = A x (bordered: + e_i x[n]); returns its terms of <a, y>,
+    <y, y> and the border row's w . x, packed (:func:`~taichi_hh.linalg.lanes.pack3`)."""
+    xi = x[i]
+    acc = D[i] * xi
+    for k in range(offsets[i], offsets[i + 1]):
+        acc += K[k] * x[nbrs[k]]
+    wx = zeros(cols)
+    if bordered:
+        acc += e[i] * x[n]
+        wx = w[i] * xi
+    y[i] = acc
+    return lanes_mod.pack3(cols, a[i] * acc, acc * acc, wx)
+
+
+@ti.func
+def _apply_rows_body(cols: ti.template(), lanes: ti.template(), n, offsets: ti.template(),
+                     nbrs: ti.template(), K: ti.template(), D: ti.template(),
+                     x: ti.template(), y: ti.template(), bordered, e: ti.template(),
+                     w: ti.template(), c, a: ti.template(), part: ti.template()):
     """y = A x; bordered: y[:n] += e x[n], y[n] = w . x[:n] + c x[n].  Returns
     (<a, y>, <y, y>), reduced in the same loop (BiCGSTAB's dot products
-    without another pass over y); per column when x holds several."""
-    lam = zeros(cols)
+    without another pass over y); per column when x holds several.  On a GPU
+    (``lanes``) the sums go through ``part`` (:mod:`taichi_hh.linalg.lanes`)."""
+    total = lanes_mod.fold_entries(n, _apply_row, (cols, n, offsets, nbrs, K, D, x, y, bordered,
+                                                   e, w, a), 3, cols, lanes_mod.ADD, lanes, False,
+                                   part)
+    ay = lanes_mod.unpack(cols, total, 0)
+    yy = lanes_mod.unpack(cols, total, 1)
+    border = lanes_mod.unpack(cols, total, 2)
     if bordered:
-        lam = x[n]
-    border = zeros(cols)
-    ay = zeros(cols)
-    yy = zeros(cols)
-    for i in range(n):
-        xi = x[i]
-        acc = D[i] * xi
-        for k in range(offsets[i], offsets[i + 1]):
-            acc += K[k] * x[nbrs[k]]
-        if bordered:
-            acc += e[i] * lam
-            border += w[i] * xi      # a thread-local reduction in Taichi
-        y[i] = acc
-        ay += a[i] * acc
-        yy += acc * acc
-    if bordered:
-        yn = border + c * lam
+        yn = border + c * x[n]
         y[n] = yn
         ay += a[n] * yn
         yy += yn * yn
@@ -114,7 +124,7 @@ def _apply_rows_body(cols: ti.template(), n, offsets: ti.template(), nbrs: ti.te
 
 
 @lru_cache(maxsize=None)
-def _apply_rows_kernel(precision: str, cols: int):
+def _apply_rows_kernel(precision: str, cols: int, lanes: bool):
     """:func:`_apply_rows_body` on ``cols`` columns, for the runtime's precision:
     a kernel's return type is fixed when it is defined (a vector type made
     before ``ti.init`` would be f32 whatever the precision), so one kernel per
@@ -126,8 +136,10 @@ def _apply_rows_kernel(precision: str, cols: int):
     def apply_rows(n: ti.i32, offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(),
                    K: ti.types.ndarray(), D: ti.types.ndarray(), x: ti.types.ndarray(),
                    y: ti.types.ndarray(), bordered: ti.i32, e: ti.types.ndarray(),
-                   w: ti.types.ndarray(), c: real, a: ti.types.ndarray()) -> (dots, dots):
-        return _apply_rows_body(cols, n, offsets, nbrs, K, D, x, y, bordered, e, w, c, a)
+                   w: ti.types.ndarray(), c: real, a: ti.types.ndarray(),
+                   part: ti.types.ndarray()) -> (dots, dots):
+        return _apply_rows_body(cols, lanes, n, offsets, nbrs, K, D, x, y, bordered, e, w, c,
+                                a, part)
 
     return apply_rows
 
@@ -376,9 +388,10 @@ class PoissonMatrix:
         per column (numpy arrays) when x holds several."""
         pr = self.ops.pairs
         cols = columns_of(x)
-        kernel = _apply_rows_kernel(runtime.state().precision, cols)
+        lanes = lanes_mod.on()
+        kernel = _apply_rows_kernel(runtime.state().precision, cols, lanes)
         out = kernel(self.n_particles, pr.offsets, pr.neighbours, self.K, self.D, x, y,
-                     *self._border(), a)
+                     *self._border(), a, lanes_mod.partials(3, cols) if lanes else a)
         return out if cols == 1 else tuple(np.asarray(v.to_numpy()) for v in out)
 
     def diagonal(self, d) -> None:

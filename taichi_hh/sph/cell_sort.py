@@ -10,17 +10,44 @@ import taichi as ti
 from .. import runtime
 
 
+@ti.func
+def order_run(order: ti.template(), lo, hi):
+    """Sort ``order[lo:hi]`` ascending in place (insertion sort: a cell's few
+    points).  After a parallel scatter, whose atomic cursors put a cell's
+    points in any order, this restores input order within each cell: the
+    stable sort's result, on every arch."""
+    for a in range(lo + 1, hi):
+        value = order[a]
+        b = a - 1
+        while b >= lo and order[b] > value:
+            order[b + 1] = order[b]
+            b -= 1
+        order[b + 1] = value
+
+
 @ti.kernel
 def _stable_scatter(cell: ti.types.ndarray(), cursor: ti.types.ndarray(),
                     order: ti.types.ndarray()):
     """Point p to the next free slot of its cell (``cursor``: the cells' starts,
-    advanced), in input order: one serial pass, stable."""
+    advanced), in input order: one serial pass, stable (the CPU's way)."""
     ti.loop_config(serialize=True)
     for p in range(cell.shape[0]):
         c = cell[p]
         k = cursor[c]
         cursor[c] = k + 1
         order[k] = p
+
+
+@ti.kernel
+def _parallel_scatter(cell: ti.types.ndarray(), cursor: ti.types.ndarray(),
+                      order: ti.types.ndarray(), start: ti.types.ndarray()):
+    """The same on a GPU, where one thread is slow: every point to a slot of
+    its cell at once (integer atomics), then each cell's slots put in input
+    order (:func:`order_run`)."""
+    for p in range(cell.shape[0]):
+        order[ti.atomic_add(cursor[cell[p]], 1)] = p
+    for c in range(start.shape[0] - 1):
+        order_run(order, start[c], start[c + 1])
 
 
 def counting_sort(cell: np.ndarray, ncells: int) -> tuple[np.ndarray, np.ndarray]:
@@ -35,5 +62,8 @@ def counting_sort(cell: np.ndarray, ncells: int) -> tuple[np.ndarray, np.ndarray
         runtime.ensure_init()
         start[1:] = np.bincount(cell, minlength=ncells)
         np.cumsum(start, out=start)
-        _stable_scatter(cell, start[:-1].copy(), order)
+        if runtime.on_gpu():
+            _parallel_scatter(cell, start[:-1].copy(), order, start)
+        else:
+            _stable_scatter(cell, start[:-1].copy(), order)
     return order, start

@@ -13,8 +13,11 @@ Two steps, kept apart:
    found by scanning the 3x3 cells around it.  Operators then loop over these
    rows and never search again.
 
-The scatter is serial and stable (particles keep their relative order inside
-a cell), so the ordering, and every sum over neighbours, is deterministic.
+The scatter is stable (particles keep their relative order inside a cell),
+so the ordering, and every sum over neighbours, is deterministic: serial on
+the CPU, on a GPU parallel with each cell's slots put back in input order
+afterwards (:func:`~taichi_hh.sph.cell_sort.order_run`); the prefix sums
+likewise serial on the CPU and blocked in parallel on a GPU.
 """
 
 import math
@@ -25,6 +28,7 @@ import taichi as ti
 
 from .. import runtime
 from ..errors import InputError
+from .cell_sort import order_run
 
 # Cells are a hair larger than the support so that a pair closer than the
 # support can never land two cells apart through rounding of (x - lo) / size.
@@ -52,14 +56,59 @@ def _count_cells(pos: ti.types.ndarray(), n: ti.i32, lo_x: float, lo_y: float, i
         ti.atomic_add(count[c], 1)
 
 
+#: entries per block of the GPU's prefix sum: a thread per block, then one
+#: serial pass over the blocks' totals
+SCAN_BLOCK = 256
+_block_totals = {}
+
+
+def exclusive_scan(count, start, m: int) -> int:
+    """start[k] = sum(count[:k]) for k <= m; returns the total (an int: an i64
+    sum, so that the caller can detect an overflow of i32)."""
+    if not runtime.on_gpu():
+        return int(_serial_scan(count, start, m))
+    blocks = max((m + SCAN_BLOCK - 1) // SCAN_BLOCK, 1)
+    totals = _block_totals.get("array")
+    if totals is None or totals.shape[0] < blocks or _block_totals.get("gen") != runtime.generation():
+        totals = runtime.array(ti.i64, max(blocks, 1024))
+        _block_totals.update(array=totals, gen=runtime.generation())
+    return int(_blocked_scan(count, start, m, totals))
+
+
 @ti.kernel
-def exclusive_scan(count: ti.types.ndarray(), start: ti.types.ndarray(), m: ti.i32) -> ti.i64:
-    """start[k] = sum(count[:k]) for k <= m; returns the total (as i64 to detect overflow)."""
+def _serial_scan(count: ti.types.ndarray(), start: ti.types.ndarray(), m: ti.i32) -> ti.i64:
     total = ti.i64(0)
     ti.loop_config(serialize=True)
     for k in range(m):
         start[k] = ti.cast(total, ti.i32)
         total += ti.cast(count[k], ti.i64)
+    start[m] = ti.cast(total, ti.i32)
+    return total
+
+
+@ti.kernel
+def _blocked_scan(count: ti.types.ndarray(), start: ti.types.ndarray(), m: ti.i32,
+                  totals: ti.types.ndarray()) -> ti.i64:
+    """The same in three passes: each block's own prefix sums and total in
+    parallel, the totals' prefix sums serially, each entry's offset added in
+    parallel."""
+    # no i32 kernel-scope local beside the i64 one: Taichi 1.7 on CUDA keeps
+    # them in one buffer, where a misaligned i64 faults
+    for b in range((m + SCAN_BLOCK - 1) // SCAN_BLOCK):
+        run = ti.i64(0)
+        for k in range(b * SCAN_BLOCK, ti.min((b + 1) * SCAN_BLOCK, m)):
+            c = count[k]
+            start[k] = ti.cast(run, ti.i32)
+            run += ti.cast(c, ti.i64)
+        totals[b] = run
+    total = ti.i64(0)
+    ti.loop_config(serialize=True)
+    for b in range((m + SCAN_BLOCK - 1) // SCAN_BLOCK):
+        t = totals[b]
+        totals[b] = total
+        total += t
+    for k in range(m):
+        start[k] = ti.cast(ti.cast(start[k], ti.i64) + totals[k // SCAN_BLOCK], ti.i32)
     start[m] = ti.cast(total, ti.i32)
     return total
 
@@ -80,17 +129,29 @@ def _sample_descents(cell_of: ti.types.ndarray(), n: ti.i32, samples: ti.i32) ->
 @ti.kernel
 def _stable_scatter(cell_of: ti.types.ndarray(), n: ti.i32, start: ti.types.ndarray(),
                     cursor: ti.types.ndarray(), order: ti.types.ndarray(), ncells: ti.i32,
-                    rank: ti.types.ndarray(), with_rank: ti.i32):
+                    rank: ti.types.ndarray(), with_rank: ti.i32, parallel: ti.template()):
+    """Each point to the next free slot of its cell, in input order: serially
+    on the CPU; on a GPU (``parallel``) all at once, then each cell's slots in
+    input order (:func:`~taichi_hh.sph.cell_sort.order_run`): the same result."""
     for c in range(ncells):
         cursor[c] = start[c]
-    ti.loop_config(serialize=True)
-    for i in range(n):
-        c = cell_of[i]
-        slot = cursor[c]
-        order[slot] = i
-        cursor[c] = slot + 1
-        if with_rank != 0:
-            rank[i] = slot
+    if ti.static(parallel):
+        for i in range(n):
+            order[ti.atomic_add(cursor[cell_of[i]], 1)] = i
+        for c in range(ncells):
+            order_run(order, start[c], start[c + 1])
+        for k in range(n):
+            if with_rank != 0:
+                rank[order[k]] = k
+    else:
+        ti.loop_config(serialize=True)
+        for i in range(n):
+            c = cell_of[i]
+            slot = cursor[c]
+            order[slot] = i
+            cursor[c] = slot + 1
+            if with_rank != 0:
+                rank[i] = slot
 
 
 @dataclass
@@ -184,7 +245,7 @@ class CellGrid:
             self._rank = self._rank_nd
         _stable_scatter(self.cell_of, n, self.cell_start, self._count, self.order, s.ncells,
                         self.order if self._rank is None else self._rank,
-                        int(self._rank is not None))
+                        int(self._rank is not None), runtime.on_gpu())
         return self.order
 
 

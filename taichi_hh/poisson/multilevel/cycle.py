@@ -16,6 +16,7 @@ from typing import NamedTuple
 
 import taichi as ti
 
+from ... import runtime
 from ...linalg.columns import zeros
 
 #: parallel loops of the cycle's unrolled schedule at most (a W-cycle's
@@ -29,6 +30,10 @@ MAX_SCHEDULE_OPS = 32
 #: worker threads bound to cores 50k beat 400k: 13k random points 0.41 against
 #: 0.44-0.51 s a call, 200k 5.7 against 6.8 s (docs/notes/scattered.md)
 PARALLEL_MIN_NNZ = 50_000
+
+#: the same on a GPU: every cell level but the two coarsest in parallel loops
+#: (as far as MAX_SCHEDULE_OPS allows), a GPU's one thread being slow
+GPU_PARALLEL_MIN_NNZ = 0
 
 
 class FineLevel(NamedTuple):
@@ -204,8 +209,9 @@ def plan_schedule(level_nnz: list, gamma: int, serial: bool) -> tuple:
     schedule is unrolled into the kernel, and a W-cycle doubles it per
     parallel level: at most MAX_SCHEDULE_OPS loops (compile time)."""
     k0 = 1
+    min_nnz = GPU_PARALLEL_MIN_NNZ if runtime.on_gpu() else PARALLEL_MIN_NNZ
     if not serial:
-        while (k0 < len(level_nnz) - 2 and level_nnz[k0] >= PARALLEL_MIN_NNZ
+        while (k0 < len(level_nnz) - 2 and level_nnz[k0] >= min_nnz
                and len(_schedule(k0 + 1, gamma, False)) <= MAX_SCHEDULE_OPS):
             k0 += 1
     return _schedule(k0, gamma, serial)
@@ -345,7 +351,9 @@ def _cycle(shape: ti.template(), n: ti.i32, L: ti.i32,
         for i in range(n):
             rsum += r[i]
             azsum += colsum[i] * z[i]
-        shift = (rsum - azsum) / const_c
+        # the shift through cr[0] (free now): a kernel-scope vector read by a
+        # loop faults on CUDA (Taichi 1.7; docs/arch.md)
+        cr[0] = (rsum - azsum) / const_c
         ti.loop_config(serialize=serial)
         for i in range(n):
-            z[i] += shift
+            z[i] += cr[0]

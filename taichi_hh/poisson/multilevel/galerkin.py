@@ -169,6 +169,11 @@ def dense_rows(lo: ti.i32, m: ti.i32, S_off: ti.types.ndarray(), S_col: ti.types
             out[i * m + S_col[e] - lo] += S_val[e]
 
 
+#: rows per block of :func:`diagonal_inverse`'s sum: blocks summed in
+#: parallel, their sums in order (deterministic on every arch)
+SUM_BLOCK = 256
+
+
 @ti.kernel
 def diagonal_inverse(rows0: ti.i32, total: ti.i32, S_off: ti.types.ndarray(),
                      S_col: ti.types.ndarray(), S_val: ti.types.ndarray(), eps: float,
@@ -177,10 +182,16 @@ def diagonal_inverse(rows0: ti.i32, total: ti.i32, S_off: ti.types.ndarray(),
     round-off of the first level's entries, ``1e3 eps sum |S_0|`` (returned):
     constants are (nearly) in the null space of every level of a Neumann
     problem, so the coarse entries are sums that cancel."""
+    for b in range((rows0 + SUM_BLOCK - 1) // SUM_BLOCK):    # each block's sum in its first slot
+        part = 0.0
+        for c in range(b * SUM_BLOCK, ti.min((b + 1) * SUM_BLOCK, rows0)):
+            for e in range(S_off[c], S_off[c + 1]):
+                part += abs(S_val[e])
+        cdinv[b * SUM_BLOCK] = part
     total_abs = 0.0
-    ti.loop_config(serialize=True)          # a deterministic sum
-    for q in range(S_off[rows0]):
-        total_abs += abs(S_val[q])
+    ti.loop_config(serialize=True)      # a deterministic sum
+    for b in range((rows0 + SUM_BLOCK - 1) // SUM_BLOCK):
+        total_abs += cdinv[b * SUM_BLOCK]
     noise = 1e3 * eps * total_abs
     for c in range(total):
         d = 0.0
@@ -191,10 +202,8 @@ def diagonal_inverse(rows0: ti.i32, total: ti.i32, S_off: ti.types.ndarray(),
     return noise
 
 
-
-
 @ti.kernel
-def grid_values(serial: ti.template(), L: ti.i32, cell_start: ti.types.ndarray(),
+def grid_values(serial: ti.template(), serial_levels: ti.template(), L: ti.i32, cell_start: ti.types.ndarray(),
                 offsets: ti.types.ndarray(), nbrs: ti.types.ndarray(), K: ti.types.ndarray(),
                 D: ti.types.ndarray(), dims: ti.types.ndarray(), lvl: ti.types.ndarray(),
                 cell_of: ti.types.ndarray(), dinv: ti.types.ndarray(),
@@ -205,8 +214,9 @@ def grid_values(serial: ti.template(), L: ti.i32, cell_start: ti.types.ndarray()
     joins 2 x 2 cells of level k, every cell's row nine slots (its 3 x 3 block,
     slot ``(dy + 1) 3 + dx + 1``; a slot outside the grid stays 0).  Writes the
     particles' cells and ``D^-1`` and the Galerkin operators ``P^T D^-1 A P``
-    of every level; returns the number of pairs reaching beyond the 3 x 3
-    block (must be 0)."""
+    of every level (the cell levels only with ``serial_levels``: else
+    :func:`coarsen_level` for each); returns the number of pairs reaching
+    beyond the 3 x 3 block (must be 0)."""
     ncell = lvl[0, 1]
     nx = dims[0, 0]
     beyond_total = 0
@@ -237,31 +247,48 @@ def grid_values(serial: ti.template(), L: ti.i32, cell_start: ti.types.ndarray()
                     beyond += 1
         if beyond > 0:
             beyond_total += beyond      # rare: an error
-    # the cell levels: few cells, one thread
-    ti.loop_config(serialize=True)
-    for _ in range(1):
-        for k in range(1, L):
-            f0 = lvl[k - 1, 0]
-            nxf = dims[k - 1, 0]
-            nyf = dims[k - 1, 1]
-            c0 = lvl[k, 0]
-            nxc = dims[k, 0]
-            for C in range(lvl[k, 1] - c0):
-                X = C % nxc
-                Y = C // nxc
-                row = 9 * (c0 + C)
-                for s in ti.static(range(9)):
-                    S_val[row + s] = 0.0
-                for b in range(2):
-                    for a in range(2):
-                        fx = 2 * X + a
-                        fy = 2 * Y + b
-                        if fx < nxf and fy < nyf:
-                            fine = 9 * (f0 + fy * nxf + fx)
-                            for s in range(9):
-                                gx = fx + s % 3 - 1
-                                gy = fy + s // 3 - 1
-                                if 0 <= gx < nxf and 0 <= gy < nyf:
-                                    S_val[row + (gy // 2 - Y + 1) * 3 + gx // 2 - X + 1] += \
-                                        S_val[fine + s]
+    # the cell levels: on the CPU few cells, one thread; on a GPU a launch
+    # per level (:func:`coarsen_level`), a GPU's one thread being slow
+    if ti.static(serial_levels):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            for k in range(1, L):
+                for C in range(lvl[k, 1] - lvl[k, 0]):
+                    _coarsen_cell(k, C, dims, lvl, S_val)
     return beyond_total
+
+
+@ti.func
+def _coarsen_cell(k, C, dims: ti.template(), lvl: ti.template(), S_val: ti.template()):
+    """Row C of cell level k (of :func:`grid_values`' grids): the sum of its
+    2 x 2 children's rows of level k - 1, each slot to the coarse slot of its
+    column's parent."""
+    f0 = lvl[k - 1, 0]
+    nxf = dims[k - 1, 0]
+    nyf = dims[k - 1, 1]
+    nxc = dims[k, 0]
+    X = C % nxc
+    Y = C // nxc
+    row = 9 * (lvl[k, 0] + C)
+    for s in ti.static(range(9)):
+        S_val[row + s] = 0.0
+    for b in range(2):
+        for a in range(2):
+            fx = 2 * X + a
+            fy = 2 * Y + b
+            if fx < nxf and fy < nyf:
+                fine = 9 * (f0 + fy * nxf + fx)
+                for s in range(9):
+                    gx = fx + s % 3 - 1
+                    gy = fy + s // 3 - 1
+                    if 0 <= gx < nxf and 0 <= gy < nyf:
+                        S_val[row + (gy // 2 - Y + 1) * 3 + gx // 2 - X + 1] += S_val[fine + s]
+
+
+@ti.kernel
+def coarsen_level(k: ti.i32, dims: ti.types.ndarray(), lvl: ti.types.ndarray(),
+                  S_val: ti.types.ndarray()):
+    """Cell level k of :func:`grid_values`' grids from level k - 1, a row per
+    thread."""
+    for C in range(lvl[k, 1] - lvl[k, 0]):
+        _coarsen_cell(k, C, dims, lvl, S_val)

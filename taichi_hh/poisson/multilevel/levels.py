@@ -311,9 +311,13 @@ def grid_levels(rows, pool: ArrayPool, serial: bool) -> Galerkin:
     dinv = pool.vector("dinv", None, size=n)
     S_val = pool.vector("S_val", None, size=9 * total)
     a = pool.arrays
-    beyond = galerkin.grid_values(serial, len(dims), grid.cell_start, rows.offsets,
+    on_gpu = runtime.on_gpu()
+    beyond = galerkin.grid_values(serial, not on_gpu, len(dims), grid.cell_start, rows.offsets,
                                   rows.neighbours, rows.values, rows.diagonal, a["dims"],
                                   a["lvl"], cell_of, dinv, S_val)
+    if on_gpu:
+        for k in range(1, len(dims)):
+            galerkin.coarsen_level(k, a["dims"], a["lvl"], S_val)
     if beyond > 0:
         raise InputError(f"multilevel: {int(beyond)} pairs reach beyond a cell's 3 x 3 "
                          "block of the neighbour grid")

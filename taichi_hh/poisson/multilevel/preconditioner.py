@@ -108,7 +108,8 @@ class MultilevelPreconditioner:
         rows = A.pair_rows()
         self.n = n = rows.n
         # below SERIAL_MAX_N particles the cycle's loops run on one thread
-        self.serial = n < SERIAL_MAX_N
+        # (on the CPU: a GPU's one thread is far slower)
+        self.serial = n < SERIAL_MAX_N and not runtime.on_gpu()
         self._bordered = bool(getattr(A, "bordered", False))
         self._border_c = float(getattr(A, "border_c", 1.0)) if self._bordered else 1.0
         self.pool = ArrayPool(reuse.pool if reuse is not None else None)

@@ -1,0 +1,103 @@
+"""The GPU's reductions (taichi_hh.linalg.lanes) run on the CPU too when
+forced ($TAICHI_HH_LANES=1): the same sums as the CPU's loops, to round-off,
+on every kernel that uses them, and exact where the values are integers."""
+import numpy as np
+import pytest
+import taichi as ti
+
+from taichi_hh import runtime
+from taichi_hh.linalg import lanes
+
+
+@pytest.fixture
+def forced(monkeypatch):
+    def use(flag: bool):
+        monkeypatch.setenv(lanes.LANES_VARIABLE, "1" if flag else "0")
+    return use
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, lanes.LANES - 1, lanes.LANES + 3, 3 * lanes.LANES + 17])
+def test_lane_sums_are_exact_on_integers(n, forced):
+    """Sums of integers below 2^53 are exact in any order: lanes and loop agree
+    bit for bit, and with numpy, at sizes below, at and above one lane each."""
+    from taichi_hh.linalg.krylov_kernels import solver_kernels
+    runtime.ensure_init()
+    values = np.arange(n, dtype=np.float64) % 1000 - 300.0
+    want = float((values * values).sum())
+    for flag in (False, True):
+        forced(flag)
+        k = solver_kernels(max(n, 1))
+        a = runtime.array(None, max(n, 1))
+        a.from_numpy(np.r_[values, np.zeros(max(n, 1) - n)])
+        assert k.norm2(a, n) == want
+
+
+def test_lane_maxima_and_mixed_folds(forced):
+    """The flow's statistics fold maxima and sums together (divergence_stats):
+    lanes and loop agree, on fluid rows only."""
+    from taichi_hh.flow import update
+    from taichi_hh.sph.particles import FLUID
+    runtime.ensure_init()
+    rng = np.random.default_rng(3)
+    n = 3 * lanes.LANES + 5
+    kind = runtime.array(ti.i32, n)
+    kind.from_numpy(np.where(rng.random(n) < 0.8, FLUID, FLUID + 1).astype(np.int32))
+    d = runtime.array(None, n)
+    d.from_numpy(rng.standard_normal(n))
+    w = runtime.array(None, n, 2)
+    w.from_numpy(rng.standard_normal((n, 2)))
+    got = {}
+    for flag in (False, True):
+        forced(flag)
+        got[flag] = (update.divergence_stats(n, kind, d, w), update.max_speed2(n, kind, w))
+    (dmax0, dsq0, wmax0), speed0 = got[False]
+    (dmax1, dsq1, wmax1), speed1 = got[True]
+    assert dmax1 == dmax0 and wmax1 == wmax0 and speed1 == speed0 == wmax0
+    assert dsq1 == pytest.approx(dsq0, rel=1e-13)
+    fluid = kind.to_numpy() == FLUID
+    assert dmax0 == np.abs(d.to_numpy()[fluid]).max()
+
+
+def test_flow_steps_agree_with_and_without_lanes(forced):
+    """Three droplet steps (the Poisson apply's fused dots, BiCGSTAB's sums,
+    the flow's statistics, all in lanes) give the loops' flow to round-off."""
+    from taichi_hh.flow.twophase import FlowParams, TwoPhaseFlow
+    runtime.ensure_init()
+    dx = 1.0 / 24
+    side_x, side_y = (np.arange(24) + 0.5) * dx, (np.arange(48) + 0.5) * dx
+    pts = np.stack(np.meshgrid(side_x, side_y), -1).reshape(-1, 2)
+    phases = np.where(np.linalg.norm(pts - [0.5, 0.5], axis=1) < 0.25, 0, 1)
+    state = {}
+    for flag in (False, True):
+        forced(flag)
+        flow = TwoPhaseFlow(pts, phases, dx, FlowParams(box=(0, 0, 1, 2), densities=(1.0, 2.0),
+                                                        nu=5e-3, solver_tol=1e-10))
+        for _ in range(3):
+            flow.step()
+        pos, vel, _, _ = flow.fluid_state()
+        state[flag] = pos, vel
+    (p0, v0), (p1, v1) = state[False], state[True]
+    assert np.abs(v0).max() > 0
+    assert np.abs(p1 - p0).max() <= 1e-9
+    assert np.abs(v1 - v0).max() <= 1e-8 * np.abs(v0).max()
+
+
+def test_bicgstab_agrees_with_and_without_lanes(forced):
+    """A BiCGSTAB solve of a general sparse system (the iteration's sums in
+    lanes) gives the loops' answer to round-off."""
+    import scipy.sparse as sp
+    from taichi_hh.linalg.csr import CSRMatrix
+    from taichi_hh.linalg.krylov import bicgstab
+    runtime.ensure_init()
+    rng = np.random.default_rng(0)
+    n = 2 * lanes.LANES + 11
+    M = sp.random(n, n, density=8.0 / n, random_state=1, format="csr")
+    M = (M + M.T + sp.diags(np.full(n, 20.0))).tocsr()
+    b = rng.standard_normal(n)
+    x = {}
+    for flag in (False, True):
+        forced(flag)
+        res = bicgstab(CSRMatrix(M.indptr, M.indices, M.data, (n, n)), b, tol=1e-12)
+        assert res.converged
+        x[flag] = res.x
+    assert np.abs(x[True] - x[False]).max() <= 1e-10 * np.abs(x[False]).max()
