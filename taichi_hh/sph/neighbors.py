@@ -282,6 +282,27 @@ def _row_ranges(p, lo_x, lo_y, inv_cell, nx, ny):
 
 
 @ti.func
+def _reach_block(p, hi, reach: ti.template(), lo_x, lo_y, inv_cell, nx, ny):
+    """The block of cells a query at p with support hi scans when supports vary
+    (:mod:`taichi_hh.sph.support`): as far as its own support or the largest
+    one reaching its cell (``reach``) goes."""
+    cx, cy = cell_coords(p, lo_x, lo_y, inv_cell, nx, ny)
+    r = ti.max(hi, reach[cy * nx + cx])
+    k = ti.cast(ti.ceil(r * CELL_PAD * inv_cell), ti.i32)
+    return ti.max(cx - k, 0), ti.min(cx + k, nx - 1), ti.max(cy - k, 0), ti.min(cy + k, ny - 1)
+
+
+@ti.func
+def _scan_block(by_reach: ti.template(), p, i, hq: ti.template(), reach: ti.template(), lo_x,
+                lo_y, inv_cell, nx, ny):
+    """The cells query i scans: its 3 x 3 block, or (``by_reach``) :func:`_reach_block`."""
+    if ti.static(by_reach):
+        return _reach_block(p, hq[i], reach, lo_x, lo_y, inv_cell, nx, ny)
+    else:
+        return _row_ranges(p, lo_x, lo_y, inv_cell, nx, ny)
+
+
+@ti.func
 def _pair_support2(adaptive: ti.template(), hq: ti.template(), hs: ti.template(), i, j,
                    support2):
     # squared pair support: fixed, or max(H_i, H_j) (taichi_hh.sph.support)
@@ -320,18 +341,31 @@ MAX_CANDIDATES = 16 * 2 ** 31
 
 
 @ti.kernel
-def _count_pairs(qpos: ti.types.ndarray(), nq: ti.i32, spos: ti.types.ndarray(),
-                 cell_start: ti.types.ndarray(), lo_x: float, lo_y: float, inv_cell: float,
-                 nx: ti.i32, ny: ti.i32, support2: float, exclude_self: ti.i32,
-                 adaptive: ti.template(), hq: ti.types.ndarray(), hs: ti.types.ndarray(),
-                 count: ti.types.ndarray(), dup_tol2: float, dup: ti.types.ndarray()):
+def _pair_pass(fill: ti.template(), qpos: ti.types.ndarray(), nq: ti.i32,
+               spos: ti.types.ndarray(), cell_start: ti.types.ndarray(), lo_x: float,
+               lo_y: float, inv_cell: float, nx: ti.i32, ny: ti.i32, support2: float,
+               exclude_self: ti.i32, adaptive: ti.template(), hq: ti.types.ndarray(),
+               hs: ti.types.ndarray(), reach: ti.types.ndarray(), by_reach: ti.template(),
+               count: ti.types.ndarray(), dup_tol2: float, dup: ti.types.ndarray(),
+               offsets: ti.types.ndarray(), neighbours: ti.types.ndarray()):
+    """One pass over every query's candidates: counting its pairs into
+    ``count`` (and the highest query with a pair within the duplicate
+    tolerance into ``dup``), or, with ``fill``, writing them from
+    ``offsets``.  Branch-free fill: every candidate is written at the next
+    free position of the row, which advances only past the accepted ones;
+    rows come out sorted by source slot (cell rows in increasing order, each
+    a run of slots)."""
     for i in range(nq):
         p = qpos[i]
-        x0, x1, y0, y1 = _row_ranges(p, lo_x, lo_y, inv_cell, nx, ny)
+        x0, x1, y0, y1 = _scan_block(by_reach, p, i, hq, reach, lo_x, lo_y, inv_cell, nx, ny)
         skip = -1
         if exclude_self != 0:
             skip = i
         k = 0
+        end = 0
+        if ti.static(fill):
+            k = offsets[i]
+            end = offsets[i + 1]
         ndup = 0
         for gy in range(y0, y1 + 1):
             row = gy * nx
@@ -339,36 +373,16 @@ def _count_pairs(qpos: ti.types.ndarray(), nq: ti.i32, spos: ti.types.ndarray(),
                 d = spos[j] - p
                 r2 = d.dot(d)
                 ok = (r2 < _pair_support2(adaptive, hq, hs, i, j, support2)) & (j != skip)
+                if ti.static(fill):
+                    if k < end:      # never past the row: the next row is another thread's
+                        neighbours[k] = j
+                else:
+                    ndup += ti.select(ok & (r2 <= dup_tol2), 1, 0)
                 k += ti.select(ok, 1, 0)
-                ndup += ti.select(ok & (r2 <= dup_tol2), 1, 0)
-        if ndup > 0:
-            ti.atomic_max(dup[0], i)
-        count[i] = k
-
-
-@ti.kernel
-def _fill_pairs(qpos: ti.types.ndarray(), nq: ti.i32, spos: ti.types.ndarray(),
-                cell_start: ti.types.ndarray(), lo_x: float, lo_y: float, inv_cell: float,
-                nx: ti.i32, ny: ti.i32, support2: float, exclude_self: ti.i32,
-                adaptive: ti.template(), hq: ti.types.ndarray(), hs: ti.types.ndarray(),
-                offsets: ti.types.ndarray(), neighbours: ti.types.ndarray()):
-    for i in range(nq):
-        p = qpos[i]
-        x0, x1, y0, y1 = _row_ranges(p, lo_x, lo_y, inv_cell, nx, ny)
-        skip = -1
-        if exclude_self != 0:
-            skip = i
-        k = offsets[i]
-        end = offsets[i + 1]
-        for gy in range(y0, y1 + 1):
-            row = gy * nx
-            for j in range(cell_start[row + x0], cell_start[row + x1 + 1]):
-                d = spos[j] - p
-                r2 = d.dot(d)
-                if k < end:          # never past the row: the next row is another thread's
-                    neighbours[k] = j
-                k += ti.select((r2 < _pair_support2(adaptive, hq, hs, i, j, support2))
-                               & (j != skip), 1, 0)
+        if ti.static(not fill):
+            if ndup > 0:
+                ti.atomic_max(dup[0], i)
+            count[i] = k
 
 
 @ti.kernel
@@ -420,13 +434,16 @@ class PairList:
 
     def build(self, qpos, nq: int, spos, grid: CellGrid, support: float, *,
               exclude_self: bool = True, duplicate_tolerance: float = 0.0,
-              supports=None) -> "PairList":
+              supports=None, reach=None) -> "PairList":
         """Find all source points within ``support`` of each query point.
 
         supports: optional per-point supports ``(query, source)`` (Taichi
         arrays): pair (i, j) is then kept within ``max(H_i, H_j)``
         (:mod:`taichi_hh.sph.support`), and ``support`` (the grid's cell
-        size) must be at least the largest of them.
+        size) must be at least the largest of them, unless ``reach`` (per
+        cell, the largest support reaching it: cells smaller than the
+        supports, :func:`~taichi_hh.sph.support.adaptive_pairs`) widens each
+        query's block of cells to its support.
         duplicate_tolerance: pairs closer than this raise :class:`InputError`
         (coincident points make every SPH operator singular).
         """
@@ -440,9 +457,11 @@ class PairList:
             adaptive = 0
         else:
             (hq, hs), adaptive = supports, 1
+        by_reach = reach is not None
         args = (s.lo_x, s.lo_y, s.inv_cell, s.nx, s.ny, support * support, int(exclude_self),
-                adaptive, hq, hs)
-        candidates = _candidate_pairs(qpos, nq, grid.cell_start, *s.args())
+                adaptive, hq, hs, reach if by_reach else self._no_supports, by_reach)
+        # (the 3 x 3 blocks' candidates; per-point supports bound their own)
+        candidates = 0 if by_reach else _candidate_pairs(qpos, nq, grid.cell_start, *s.args())
         if candidates > MAX_CANDIDATES:
             raise InputError(
                 f"the kernel support ({support:.3g}) is too large for these points: it holds "
@@ -452,7 +471,8 @@ class PairList:
                 "support (support_ratio)")
         self._dup.fill(-1)
         tol2 = duplicate_tolerance ** 2 if duplicate_tolerance > 0 else -1.0
-        _count_pairs(qpos, nq, spos, grid.cell_start, *args, self._count, tol2, self._dup)
+        _pair_pass(False, qpos, nq, spos, grid.cell_start, *args, self._count, tol2, self._dup,
+                   self._count, self._count)
         total = exclusive_scan(self._count, self.offsets, nq)
         if total > 2**31 - 1:
             raise InputError(f"{total} neighbour pairs exceed the 2^31 limit of one pair list: "
@@ -465,11 +485,13 @@ class PairList:
         if total > self._cap_p or self.neighbours is None:
             self._cap_p = max(int(total), int(self._cap_p * 1.25), 1)
             self.neighbours = runtime.array(ti.i32, self._cap_p)
-        _fill_pairs(qpos, nq, spos, grid.cell_start, *args, self.offsets, self.neighbours)
+        _pair_pass(True, qpos, nq, spos, grid.cell_start, *args, self._count, tol2, self._dup,
+                   self.offsets, self.neighbours)
         self.n_queries = nq
         self.n_pairs = int(total)
         self._reverse = None
-        self.grid = grid if qpos is spos and nq == grid.n_points else None
+        # the grid's cells as the multilevel's level 0 need every pair in a 3 x 3 block
+        self.grid = grid if qpos is spos and nq == grid.n_points and not by_reach else None
         return self
 
     def reverse_index(self):

@@ -28,7 +28,7 @@ import taichi as ti
 
 from .. import runtime
 from ..errors import InputError
-from .neighbors import cell_coords
+from .neighbors import CELL_PAD  # supports rounded up as the cells are
 
 #: default number of nearest neighbours of the local spacing estimate
 #: (docs/notes/scattered.md)
@@ -104,9 +104,6 @@ CELLS_PER_SUPPORT = 2.0
 #: particle (points in a tiny cluster and a few far away)
 MAX_CELLS_PER_LARGEST = 8.0
 MAX_CELLS_PER_PARTICLE = 4.0
-#: supports are rounded up by this much before they become cell counts:
-#: a pair closer than its support never lands a cell farther through rounding
-_PAD = 1.0 + 1e-9
 
 
 @ti.kernel
@@ -127,69 +124,10 @@ def _cell_reach(cell_start: ti.types.ndarray(), hs: ti.types.ndarray(), nx: ti.i
         for gy in range(ti.max(cy - k_max, 0), ti.min(cy + k_max, ny - 1) + 1):
             for gx in range(ti.max(cx - k_max, 0), ti.min(cx + k_max, nx - 1) + 1):
                 h = cmax[gy * nx + gx]
-                kc = ti.cast(ti.ceil(h * _PAD * inv_cell), ti.i32)
+                kc = ti.cast(ti.ceil(h * CELL_PAD * inv_cell), ti.i32)
                 if ti.abs(gx - cx) <= kc and ti.abs(gy - cy) <= kc:
                     r = ti.max(r, h)
         reach[c] = r
-
-
-@ti.func
-def _block(p, hi, reach: ti.template(), lo_x, lo_y, inv_cell, nx, ny):
-    """The block of cells a query at p with support hi scans: (x0, x1, y0, y1)."""
-    cx, cy = cell_coords(p, lo_x, lo_y, inv_cell, nx, ny)
-    r = ti.max(hi, reach[cy * nx + cx])
-    k = ti.cast(ti.ceil(r * _PAD * inv_cell), ti.i32)
-    return ti.max(cx - k, 0), ti.min(cx + k, nx - 1), ti.max(cy - k, 0), ti.min(cy + k, ny - 1)
-
-
-@ti.kernel
-def _count_adaptive(pos: ti.types.ndarray(), n: ti.i32, hs: ti.types.ndarray(),
-                    cell_start: ti.types.ndarray(), reach: ti.types.ndarray(), lo_x: float,
-                    lo_y: float, inv_cell: float, nx: ti.i32, ny: ti.i32,
-                    count: ti.types.ndarray(), dup_tol2: float, dup: ti.types.ndarray()):
-    for i in range(n):
-        p = pos[i]
-        hi = hs[i]
-        x0, x1, y0, y1 = _block(p, hi, reach, lo_x, lo_y, inv_cell, nx, ny)
-        k = 0
-        ndup = 0
-        for gy in range(y0, y1 + 1):
-            row = gy * nx
-            for j in range(cell_start[row + x0], cell_start[row + x1 + 1]):
-                d = pos[j] - p
-                r2 = d.dot(d)
-                h = ti.max(hi, hs[j])
-                ok = (r2 < h * h) & (j != i)
-                k += ti.select(ok, 1, 0)
-                ndup += ti.select(ok & (r2 <= dup_tol2), 1, 0)
-        if ndup > 0:
-            ti.atomic_max(dup[0], i)
-        count[i] = k
-
-
-@ti.kernel
-def _fill_adaptive(pos: ti.types.ndarray(), n: ti.i32, hs: ti.types.ndarray(),
-                   cell_start: ti.types.ndarray(), reach: ti.types.ndarray(), lo_x: float,
-                   lo_y: float, inv_cell: float, nx: ti.i32, ny: ti.i32,
-                   offsets: ti.types.ndarray(), nbrs: ti.types.ndarray()):
-    # rows come out sorted by slot: cell rows in increasing order, each one
-    # contiguous run of slots (the particles are sorted by cell).  Branch-free
-    # as neighbors._fill_pairs: every candidate is written at the next free
-    # position of the row, which advances only past the accepted ones
-    for i in range(n):
-        p = pos[i]
-        hi = hs[i]
-        x0, x1, y0, y1 = _block(p, hi, reach, lo_x, lo_y, inv_cell, nx, ny)
-        k = offsets[i]
-        end = offsets[i + 1]
-        for gy in range(y0, y1 + 1):
-            row = gy * nx
-            for j in range(cell_start[row + x0], cell_start[row + x1 + 1]):
-                d = pos[j] - p
-                h = ti.max(hi, hs[j])
-                if k < end:          # never past the row: the next row is another thread's
-                    nbrs[k] = j
-                k += ti.select((d.dot(d) < h * h) & (j != i), 1, 0)
 
 
 def adaptive_grid_spec(points: np.ndarray, supports: np.ndarray):
@@ -212,31 +150,12 @@ def adaptive_pairs(pairs, particles, grid, hs, duplicate_tolerance: float = 0.0)
     H_j), rows sorted by slot: the rows ``PairList.build`` gives for the same
     slots.  Pairs closer than ``duplicate_tolerance`` raise :class:`InputError`
     (``pairs.duplicate_query`` then names the query, as ``build`` does)."""
-    from .neighbors import exclusive_scan
     s = grid.spec
     n = particles.n
     h_max = float(hs.to_numpy()[:n].max()) if n else 0.0
-    k_max = int(math.ceil(h_max * _PAD / s.cell_size))
+    k_max = int(math.ceil(h_max * CELL_PAD / s.cell_size))
     cmax = runtime.array(runtime.real_dtype(), s.ncells)
     reach = runtime.array(runtime.real_dtype(), s.ncells)
     _cell_reach(grid.cell_start, hs, s.nx, s.ny, s.inv_cell, k_max, cmax, reach)
-    count = runtime.array(ti.i32, n + 1)
-    offsets = runtime.array(ti.i32, n + 1)
-    dup = runtime.array(ti.i32, 1)
-    dup.fill(-1)
-    tol2 = duplicate_tolerance ** 2 if duplicate_tolerance > 0 else -1.0
-    args = (s.lo_x, s.lo_y, s.inv_cell, s.nx, s.ny)
-    _count_adaptive(particles.position, n, hs, grid.cell_start, reach, *args, count, tol2, dup)
-    total = exclusive_scan(count, offsets, n)
-    if total > 2**31 - 1:
-        raise InputError(f"{total} neighbour pairs exceed the 2^31 limit of one pair list: "
-                         "reduce the kernel support or split the points")
-    d = int(dup.to_numpy()[0])
-    if d >= 0:
-        pairs.duplicate_query = d
-        raise InputError(f"duplicate points: query point {d} has a neighbour closer than "
-                         f"{duplicate_tolerance:g}")
-    nbrs = runtime.array(ti.i32, max(int(total), 1), zeroed=False)
-    _fill_adaptive(particles.position, n, hs, grid.cell_start, reach, *args, offsets, nbrs)
-    pairs.offsets, pairs.neighbours = offsets, nbrs
-    pairs.n_queries, pairs.n_pairs = n, int(total)
+    pairs.build(particles.position, n, particles.position, grid, s.cell_size, exclude_self=True,
+                duplicate_tolerance=duplicate_tolerance, supports=(hs, hs), reach=reach)
