@@ -502,11 +502,11 @@ def test_figures_scales_are_robust_and_say_so(tmp_path):
     v = f.evaluate(pts).v
     res = thh.decompose(pts, v, f.domain)
     res.stats["flags"] = ["h is not harmonic: test"]
-    assert "NOT harmonic" in figures._titles(res)["h"]
+    assert "NOT harmonic" in figures.component_titles(res)["h"]
     box = thh.Box((0, 0), (1, 1))
-    fig = figures._figure(3, 3)
+    fig = figures.new_figure(3, 3)
     ax = fig.subplots()
-    figures._setup_axes(ax, box, "t", "mm")
+    figures.setup_axes(ax, box, "t", "mm")
     assert ax.get_xlabel() == "x [mm]" and ax.get_ylabel() == "y [mm]"
     paths = figures.decomposition_figures(res, f.domain, tmp_path, units="mm")
     assert all(open(p, "rb").read(8) == PNG_MAGIC for p in paths)

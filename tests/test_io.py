@@ -22,8 +22,8 @@ def test_fast_and_checked_csv_readers_agree_bit_for_bit(tmp_path, header):
     else:
         rows = [",".join(repr(float(x)) for x in r) for r in a]
     path = _write(tmp_path / "f.csv", "# comment\n\n" + header + "\n".join(rows) + "\n")
-    fast = io._read_field_csv_fast(path)
-    checked = io._read_field_csv_checked(path)
+    fast = io.read_field_csv_fast(path)
+    checked = io.read_field_csv_checked(path)
     assert fast is not None
     for f, c in zip(fast, checked):
         assert np.array_equal(f, c)
@@ -40,7 +40,7 @@ def test_fast_and_checked_csv_readers_agree_bit_for_bit(tmp_path, header):
 ])
 def test_files_the_fast_reader_refuses_get_the_line_numbered_message(tmp_path, text, match):
     path = _write(tmp_path / "bad.csv", text)
-    assert io._read_field_csv_fast(path) is None
+    assert io.read_field_csv_fast(path) is None
     with pytest.raises(InputError, match=match):
         io.read_field(path)
 
@@ -58,8 +58,8 @@ def test_missing_vectors_read_as_nan_rows(tmp_path):
     assert vec[0].tolist() == [1, 2] and vec[4].tolist() == [7, 8]
     numeric = _write(tmp_path / "gaps01.csv", "x,y,u,v,valid\n0,0,1,2,1\n1,0,nan,2,1\n"
                                               "1,1,5,6,0\n")
-    fast = io._read_field_csv_fast(numeric)
-    checked = io._read_field_csv_checked(numeric)
+    fast = io.read_field_csv_fast(numeric)
+    checked = io.read_field_csv_checked(numeric)
     assert fast is not None
     for f, c in zip(fast, checked):
         np.testing.assert_array_equal(f, c)

@@ -67,7 +67,7 @@ def robust_top(values) -> float:
     return float(np.percentile(v, SCALE_PERCENTILE)) if v.size else 0.0
 
 
-def _titles(result) -> dict:
+def component_titles(result) -> dict:
     """The panel titles, h's saying so when the decomposition flagged it."""
     titles = dict(COMPONENT_TITLES)
     flags = (getattr(result, "stats", None) or {}).get("flags", [])
@@ -76,7 +76,9 @@ def _titles(result) -> dict:
     return titles
 
 
-def _figure(width, height):
+def new_figure(width, height):
+    """A matplotlib Figure of ``width`` x ``height`` inches on the Agg canvas
+    (no display, no pyplot state)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     fig = Figure(figsize=(width, height), dpi=DPI)
@@ -91,7 +93,7 @@ def _panels_figure(domain, width: float = 11.0):
     (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=np.float64)
     aspect = min(max((y1 - y0) / max(x1 - x0, 1e-300), 0.25), 4.0)
     panel = (width - 1.2) / 2 * aspect                  # each panel's drawing height
-    return _figure(width, 2 * panel + 2.8)
+    return new_figure(width, 2 * panel + 2.8)
 
 
 def _save(fig, path):
@@ -139,7 +141,10 @@ def _draw_domain(ax, domain):
         ax.plot(closed[:, 0], closed[:, 1], color="0.25", lw=0.8, zorder=3)
 
 
-def _setup_axes(ax, domain, title, units=None):
+def setup_axes(ax, domain, title, units=None):
+    """``ax`` framed on ``domain``'s bounds with a small margin, equal aspect,
+    ``title``, the axes labelled with ``units`` where given, the domain's
+    outline drawn."""
     (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=np.float64)
     pad = 0.02 * max(x1 - x0, y1 - y0)
     ax.set_xlim(x0 - pad, x1 + pad)
@@ -209,9 +214,9 @@ def arrows_figure(result, domain, path, critical=(), target: int = 600, units=No
     scale = _arrow_scale([c[idx] for c in comps.values()], domain, len(idx))
     fig = _panels_figure(domain)
     axes = fig.subplots(2, 2).ravel()
-    titles = _titles(result)
+    titles = component_titles(result)
     for ax, (name, vec) in zip(axes, comps.items()):
-        _setup_axes(ax, domain, titles[name], units)
+        setup_axes(ax, domain, titles[name], units)
         _quiver(ax, pts[idx], vec[idx], scale)
         if name == "d":
             _mark_critical(ax, critical, ("source", "sink"))
@@ -273,9 +278,9 @@ def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
     fig = _panels_figure(domain)
     axes = fig.subplots(2, 2).ravel()
     image = None
-    titles = _titles(result)
+    titles = component_titles(result)
     for ax, (name, vec) in zip(axes, comps.items()):
-        _setup_axes(ax, domain, f"|{name}|, {titles[name]}", units)
+        setup_axes(ax, domain, f"|{name}|, {titles[name]}", units)
         image = ax.tripcolor(tri, mags[name], shading="gouraud", cmap="viridis", vmin=0.0,
                              vmax=vmax, zorder=1)
         # streamlines need directions only: in units of vmax, nothing squares
@@ -325,12 +330,12 @@ def projection_figures(result, domain, out_dir, target: int = 600) -> list[str]:
     idx = even_subsample(pts, domain, target)
     before, after = result.initial[idx], result.vectors[idx]
     scale = _arrow_scale([before, after], domain, len(idx))
-    fig = _figure(11, 5.8)
+    fig = new_figure(11, 5.8)
     axes = fig.subplots(1, 2)
     passes = len(result.max_divergence) - 1
     for ax, vec, title in ((axes[0], before, "before"),
                            (axes[1], after, f"after {passes} projection pass{'' if passes == 1 else 'es'}")):
-        _setup_axes(ax, domain, title)
+        setup_axes(ax, domain, title)
         _quiver(ax, pts[idx], vec, scale)
     fig.suptitle(f"Null-divergence projection: {len(idx)} of {len(pts)} points shown, "
                  f"common arrow scale", fontsize=11)
@@ -338,7 +343,7 @@ def projection_figures(result, domain, out_dir, target: int = 600) -> list[str]:
     p_arrows = os.path.join(out_dir, "projection_arrows.png")
     _save(fig, p_arrows)
 
-    fig = _figure(6.5, 4.5)
+    fig = new_figure(6.5, 4.5)
     ax = fig.subplots()
     k = np.arange(passes + 1)
     for values, label, style in ((result.max_divergence, "max |div|", "o-"),

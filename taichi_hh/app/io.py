@@ -263,16 +263,16 @@ def npz_problem(path) -> str | None:
 
 
 def _read_field_csv(path):
-    fast = _read_field_csv_fast(path)
+    fast = read_field_csv_fast(path)
     if fast is not None:
         return fast
-    return _read_field_csv_checked(path)
+    return read_field_csv_checked(path)
 
 
-def _read_field_csv_fast(path):
+def read_field_csv_fast(path):
     """The common case in one vectorised parse (numpy's C reader): a file whose
     rows all parse as numbers with the columns found.  ``None`` for anything
-    else, which :func:`_read_field_csv_checked` reads line by line and reports
+    else, which :func:`read_field_csv_checked` reads line by line and reports
     with the line's number."""
     import numpy as np
     try:
@@ -315,7 +315,10 @@ def _read_field_csv_fast(path):
     return np.ascontiguousarray(data[:, :2]), vectors
 
 
-def _read_field_csv_checked(path):
+def read_field_csv_checked(path):
+    """The field CSV read line by line: what :func:`read_field_csv_fast` does
+    not take, each bad line reported with its number
+    (:class:`~taichi_hh.errors.InputError`)."""
     import math
     import numpy as np
     from ..errors import InputError
