@@ -344,10 +344,10 @@ def test_workspace_is_reused_between_solves_of_the_same_size():
     b = rhs(A.n)
     solvers.bicgstab(A, b)
     ws = solvers.get_workspace(A.n)
-    vectors = dict(ws._vectors)
+    vectors = ws.vectors
     first = solvers.bicgstab(A, b)
     second = solvers.bicgstab(A, 2 * b)
-    assert solvers.get_workspace(A.n) is ws and ws._vectors == vectors
+    assert solvers.get_workspace(A.n) is ws and ws.vectors == vectors
     # The solution arrays belong to the results, not to the workspace.
     np.testing.assert_allclose(first.x_ndarray.to_numpy() * 2, second.x, rtol=1e-5)
 

@@ -134,6 +134,11 @@ class Workspace:
         self.generation = runtime.generation()
         self._vectors: dict[tuple[str, int, int], object] = {}
 
+    @property
+    def vectors(self) -> dict:
+        """The work vectors made so far, by ``(name, size, cols)`` (a copy)."""
+        return dict(self._vectors)
+
     def vector(self, name: str, size: int, cols: int = 1):
         """The work vector ``name`` of length ``size``, of ``cols`` columns
         (:mod:`taichi_hh.linalg.columns`)."""
