@@ -7,7 +7,11 @@ Two measurements, each in fresh processes (the CLI as users run it):
 * **wall**: ``python -m taichi_hh decompose FILE -o DIR -q`` timed from the
   outside (process start to exit), the median of ``--repeats`` runs after one
   warm-up run that fills the offline cache; the same for the 100-file series
-  (``--series``, fewer repeats).  Targets: <= 1.5 s and <= 15 s.
+  (``--series``, fewer repeats).  Targets: <= 1.5 s and <= 15 s.  With its
+  CPU seconds (all threads: the load of a shared machine stretches the wall
+  time, not these).  Also one **cold** run per field, in a fresh empty
+  offline cache (every kernel compiled), and with ``--without-figures`` the
+  call with ``--no-figures`` (what the two PNG figures cost).
 * **breakdown**: the same command in a probe process (this file run with
   ``--probe``) that timestamps the CLI's own stages, times every Taichi
   kernel's Python-to-IR transform (``Kernel.materialize``, paid in every
@@ -273,6 +277,8 @@ def main() -> int:
                     help="a checkout of the reference version (e.g. a git worktree of main): "
                          "its CLI timed in the same run, runs interleaved with this one's")
     ap.add_argument("--no-breakdown", action="store_true", help="wall times only")
+    ap.add_argument("--without-figures", action="store_true",
+                    help="also time the call with --no-figures (what the figures cost)")
     ap.add_argument("--out", default=str(REPO_ROOT / "outputs" / "benchmarks"))
     args = ap.parse_args()
     out = Path(args.out)
@@ -286,18 +292,32 @@ def main() -> int:
         env = versions["this"]
         for field in [f.strip() for f in args.fields.split(",") if f.strip()]:
             one = write_fields(tmp, field, 1)
-            cmds = {v: cli_command(one, tmp / f"out_{field}_{v}") for v in versions}
-            runs = {v: [] for v in versions}
-            for v in versions:
-                timed_run(cmds[v], versions[v])                  # fills the offline cache
-            for _ in range(args.repeats):
-                for v in versions:                               # interleaved
-                    runs[v].append(timed_run(cmds[v], versions[v]))
-            for v in versions:
-                walls.append(wall_row(f"{field}: 1 file", 1, v, runs[v], 1.5))
-                w = walls[-1]
-                print(f"{field}: 1 file ({v}), median {w['median_s']:.2f} s wall, "
-                      f"{w['cpu_median_s']:.2f} s CPU", flush=True)
+            cases = {"1 file": ()}
+            if args.without_figures:
+                cases["1 file, --no-figures"] = ("--no-figures",)
+            for case, extra in cases.items():
+                cmds = {v: cli_command(one, tmp / f"out_{field}_{v}", extra) for v in versions}
+                runs = {v: [] for v in versions}
+                cold = {}
+                for v in versions:
+                    if not extra:
+                        # the cold start: a fresh, empty offline cache of its own
+                        fresh = dict(versions[v], TAICHI_HH_CACHE=str(tmp / f"cold_{field}_{v}"))
+                        cold[v] = timed_run(cmds[v], fresh)
+                    timed_run(cmds[v], versions[v])              # fills the offline cache
+                for _ in range(args.repeats):
+                    for v in versions:                           # interleaved
+                        runs[v].append(timed_run(cmds[v], versions[v]))
+                for v in versions:
+                    if not extra:
+                        walls.append(wall_row(f"{field}: {case}, cold cache", 1, v, [cold[v]],
+                                              float("nan")))
+                    walls.append(wall_row(f"{field}: {case}", 1, v, runs[v], 1.5))
+                    w = walls[-1]
+                    said = f"cold cache {cold[v][0]:.2f} s wall {cold[v][1]:.2f} s CPU; " \
+                        if v in cold else ""
+                    print(f"{field}: {case} ({v}), {said}warm median {w['median_s']:.2f} s "
+                          f"wall, {w['cpu_median_s']:.2f} s CPU", flush=True)
             if not args.no_breakdown:
                 got = breakdown(one, tmp / f"probe_{field}", env)
                 stages += stage_rows(field, got)

@@ -141,6 +141,13 @@ def default_arch() -> str:
     return arch
 
 
+#: the offline cache's size past which Taichi drops the least recently used
+#: quarter of its kernels (Taichi's default, 100 MB, is about one version of
+#: this package's kernels: a cache shared by a few versions or processes,
+#: full, then dropped kernels that the next call compiled again, seconds each)
+OFFLINE_CACHE_BYTES = 1 << 30
+
+
 def init(arch: str | None = None, precision: str = "f64", *, offline_cache_dir: str | None = None,
          threads: int | None = None, debug: bool = False, verbose: bool = True,
          pin_threads: bool | None = None) -> RuntimeState:
@@ -191,7 +198,8 @@ def init(arch: str | None = None, precision: str = "f64", *, offline_cache_dir: 
 def _start(ti, arch, precision, offline_cache_dir, threads, debug, pin_threads) -> None:
     """:func:`init`'s work once the arguments are checked."""
     kwargs = dict(default_fp=ti.f64 if precision == "f64" else ti.f32, default_ip=ti.i32,
-                  offline_cache=True, debug=debug, log_level=ti.WARN)
+                  offline_cache=True, offline_cache_max_size_of_files=OFFLINE_CACHE_BYTES,
+                  debug=debug, log_level=ti.WARN)
     if os.environ.get(PROFILER_VARIABLE, "0") not in ("", "0"):
         kwargs["kernel_profiler"] = True     # ti.profiler.print_kernel_profiler_info()
     cache = offline_cache_dir or os.environ.get("TAICHI_HH_CACHE")

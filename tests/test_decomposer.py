@@ -246,3 +246,67 @@ def test_timeseries_benchmark_runs(tmp_path):
     assert [r["condition"] for r in rows] == ["auto", "neumann"]
     for r in rows:
         assert float(r["max_rel_diff"]) <= 1e-6 and float(r["per_snapshot_s"]) > 0
+
+
+@pytest.mark.parametrize("reuse_fits", [True, False])
+def test_natural_snapshots_split_together_as_one_by_one(reuse_fits):
+    """NaturalSetup.split_many (a batch's snapshots through each stage as
+    columns: one gather of the fits, one FFT pass, one spline prefilter)
+    gives each snapshot what its own split gives, to rounding; on a disk
+    (cut cells, their near-field correction, the one-sided fits)."""
+    import math
+
+    from taichi_hh.hhd import natural
+    disk = thh.Polygon.circle((0.5, 0.5), 0.5, n=200)
+    pts = disk.sample_interior(2000, kind="random", seed=5)
+    sp = math.sqrt(disk.area / len(pts))
+    setup = natural.NaturalSetup(pts, disk, sp, reuse_fits=reuse_fits)
+    assert (setup.fits is not None) == reuse_fits
+    V = [_window(pts, t) for t in (0.0, 0.3, 0.6, 1.0)] + \
+        [np.c_[np.sin(3 * pts[:, 0]), pts[:, 0] * pts[:, 1]]]
+    together = setup.split_many(V)
+    assert len(together) == len(V)
+    for v, a in zip(V, together):
+        b = setup.split(v)
+        for name in ("phi", "psi", "d", "grad_psi", "divergence", "curl"):
+            x, y = getattr(a, name), getattr(b, name)
+            assert np.abs(x - y).max() <= 1e-12 * np.abs(y).max(), name
+        assert a.mean_fit_points == b.mean_fit_points
+        h = v - a.d - a.grad_psi @ np.array([[0.0, 1.0], [-1.0, 0.0]])
+        assert np.allclose(a.harmonic_ratios(h), b.harmonic_ratios(h), rtol=1e-12, atol=0)
+
+
+def test_one_sided_fits_kept_as_weights_equal_the_fits():
+    """grid_sampling.one_sided_weights (the near-boundary fits of a series'
+    set-up, one gather per batch) against one_sided_gradient (a fit per
+    point and call), on a disk's cut grid with points outside it too: no fit
+    (NaN there) at the same points; both give a quadratic's exact gradient
+    (the fit reproduces quadratics) to 1e-8 of its scale, a constant of 25
+    in the field included (both fit the values less a node's); other fields
+    the same to 1e-8."""
+    import math
+
+    from taichi_hh.hhd import grid_sampling, natural
+    disk = thh.Polygon.circle((0.5, 0.5), 0.5, n=200)
+    pts = disk.sample_interior(1500, kind="random", seed=7)
+    setup = natural.NaturalSetup(pts, disk, math.sqrt(disk.area / len(pts)))
+    grid, inside = setup.cells.grid, setup.cells.inside
+    probes = np.vstack([setup.binned.points[setup.near], [[-0.3, 0.5], [1.4, 1.4]]])
+    weights, ok = grid_sampling.one_sided_weights(grid, inside, probes)
+    c = grid.centres().reshape(grid.nx, grid.ny, 2)
+    X, Y = c[..., 0], c[..., 1]
+    P = probes
+    quadratic = np.stack([3 + 2 * X - Y + 0.7 * X * X - 0.4 * X * Y + 1.1 * Y * Y, 25 + X * Y])
+    exact = np.stack([np.c_[2 + 1.4 * P[:, 0] - 0.4 * P[:, 1], -1 - 0.4 * P[:, 0] + 2.2 * P[:, 1]],
+                      np.c_[P[:, 1], P[:, 0]]], axis=1)
+    smooth = np.stack([np.sin(7 * X) * np.cos(5 * Y), np.exp(-3 * X * X) + Y ** 3])
+    for u in (quadratic, smooth):
+        want = grid_sampling.one_sided_gradient(grid, np.moveaxis(u, 0, -1), inside, probes)
+        assert np.array_equal(ok, np.isfinite(want).all(axis=(1, 2)))
+        got = weights.gradients(u.reshape(2, -1).T)
+        scale = np.abs(want[ok]).max()
+        assert np.abs(got[ok] - want[ok]).max() <= 1e-8 * scale
+        if u is quadratic:
+            for g in (got, want):
+                assert np.abs(g[ok] - exact[ok]).max() <= 1e-8 * np.abs(exact).max()
+    assert ok.sum() > 0.9 * len(setup.near) and not ok[-2:].any()

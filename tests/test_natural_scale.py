@@ -56,7 +56,8 @@ def test_batched_fft_convolution_is_each_single_one():
 
 
 def _one_sided_numpy(grid, u, inside, pts):
-    """The boundary fit as first written (numpy, LU solve)."""
+    """The boundary fit as first written (numpy, LU solve), the values less
+    the nearest node's (as the kernel fits them)."""
     R = grid_sampling.ONE_SIDED_REACH
     offs = np.arange(-R, R + 1)
     oi, oj = np.meshgrid(offs, offs, indexing="ij")
@@ -74,7 +75,9 @@ def _one_sided_numpy(grid, u, inside, pts):
     BW = B * w[..., None]
     M = np.einsum("mki,mkj->mij", BW, B)
     M += 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(6)
-    coef = np.linalg.solve(M, np.einsum("mki,mk->mi", BW, u[ii, jj])[..., None])[..., 0]
+    near = u[np.clip(c[:, 0], 0, grid.nx - 1), np.clip(c[:, 1], 0, grid.ny - 1)]
+    rhs = np.einsum("mki,mk->mi", BW, u[ii, jj] - near[:, None])
+    coef = np.linalg.solve(M, rhs[..., None])[..., 0]
     out = coef[:, 1:3] / h
     out[(w > 0).sum(axis=1) < grid_sampling.ONE_SIDED_MIN_NODES] = np.nan
     return out

@@ -483,8 +483,8 @@ def _cmd_decompose(args) -> int:
     say = _Progress("decompose", args.quiet)
     overrides = _numeric_overrides(args)
     options_for(args.method, **overrides)           # bad combinations fail before any work
-    from .xarray_lonlat import decompose_lonlat_file, is_lonlat_file
-    if len(files) == 1 and (args.lonlat or is_lonlat_file(files[0])):
+    if len(files) == 1 and (args.lonlat or _netcdf_on_lonlat(files[0])):
+        from .xarray_lonlat import decompose_lonlat_file
         out = _out_dir(args)
         _prepare_out(out)
         _init(args, say)
@@ -551,6 +551,19 @@ def _cmd_decompose(args) -> int:
         f"Critical points: {len(critical)}{' (' + found + ')' if found else ''}. "
         f"Wrote {', '.join(written)}."))
     return 0
+
+
+#: the file names :func:`~taichi_hh.app.xarray_lonlat.is_lonlat_file` reads
+NETCDF_SUFFIXES = (".nc", ".nc4", ".netcdf")
+
+
+def _netcdf_on_lonlat(path) -> bool:
+    """``is_lonlat_file``, its module (and xarray, pandas: a second of
+    start-up) imported only for a netCDF name."""
+    if not str(path).lower().endswith(NETCDF_SUFFIXES):
+        return False
+    from .xarray_lonlat import is_lonlat_file
+    return is_lonlat_file(path)
 
 
 def _decompose_series(args, files, say, overrides) -> int:

@@ -280,9 +280,10 @@ def decompose_unit(data: Data, opts: HHDOptions, chosen: dict, progress, *,
     return unit
 
 
-def in_caller_units(unit: HHDResult, data: Data) -> HHDResult:
+def in_caller_units(unit: HHDResult, data: Data, domain=None) -> HHDResult:
     """The unit-frame decomposition of the valid rows mapped back to every row
-    of the caller's input, in the caller's units."""
+    of the caller's input, in the caller's units; ``domain``: the result's
+    domain in those units, made already (a series on the same points)."""
     f = data.frame
     stats = dict(unit.stats)
     stats["spacing"] = unit.stats["spacing"] * f.length
@@ -303,7 +304,7 @@ def in_caller_units(unit: HHDResult, data: Data) -> HHDResult:
                      curl=data.rows(unit.curl, f.derivative), stats=stats, options=unit.options,
                      pointset=unit.pointset, valid=data.valid, frame=f, unit=unit,
                      domain=data.domain if data.domain is not None
-                     else f.domain_from_unit(unit.domain))
+                     else domain if domain is not None else f.domain_from_unit(unit.domain))
 
 
 def _decompose_unit(data: Data, opts: HHDOptions, progress, split=None,

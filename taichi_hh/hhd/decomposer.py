@@ -70,6 +70,11 @@ SERIES_FIELDS = ("vectors", "curl_free", "div_free", "harmonic", "phi", "psi", "
 #: snapshots in one joint solve at most (the columns also bounded in memory:
 #: :data:`~taichi_hh.hhd.operator_split.COLUMN_BYTES`)
 MAX_BATCH = 16
+#: natural snapshots split together at most
+#: (:meth:`~taichi_hh.hhd.natural.NaturalSetup.split_many`): on the CPU more
+#: ran no faster a snapshot (the same CPU seconds; the wall time grew as the
+#: stages' arrays outgrew the caches: docs/notes/series.md)
+NATURAL_BATCH = 4
 
 
 @dataclass
@@ -171,6 +176,7 @@ class Decomposer:
         self._near = None              # auto's band of points next to the boundary
         self._reach_checked = False    # the natural condition's reach of the boundary
         self._natural = None           # the natural decomposition's set-up (NaturalSetup)
+        self._caller_domain = None     # (unit domain, the same in the caller's units)
 
     def __repr__(self) -> str:
         return (f"Decomposer({len(self.points)} points, method={self.method!r}, "
@@ -234,9 +240,13 @@ class Decomposer:
             yield from self._batch(pending)
 
     def _batch(self, snapshots: list) -> list:
-        """The results of a batch of snapshots, in order (module doc)."""
+        """The results of a batch of snapshots, in order (module doc): the
+        natural ones at the nodes split together
+        (:meth:`~taichi_hh.hhd.natural.NaturalSetup.split_many`), each
+        condition with Poisson rows solved jointly."""
         t0 = time.perf_counter()
         out = [None] * len(snapshots)
+        natural = []                       # [(index, data, opts, chosen)]
         groups = {}                        # condition -> [(index, data, chosen)]
         for k, vec in enumerate(snapshots):
             data = field_on(self.data, vec, stacklevel=6)
@@ -251,19 +261,32 @@ class Decomposer:
             opts, chosen = resolved_options(self.opts, data, near=self._near)
             if natural_at_nodes(opts) or "boundary_flux" in chosen \
                     and opts.boundary_condition == "natural":
-                t = time.perf_counter()
-                if natural_at_nodes(opts) and not self._reach_checked:
-                    check_natural_reach(data.unit_points, data.unit_domain, unit_spacing(data),
-                                        opts, data)
-                    self._reach_checked = True
-                unit = decompose_unit(data, opts, chosen, self.progress, split=self._one,
-                                      reach_checked=self._reach_checked,
-                                      natural=self.natural_setup(data, opts)
-                                      if natural_at_nodes(opts) else None)
-                unit.stats["seconds"]["total"] = time.perf_counter() - t
-                out[k] = self._finish(unit, data)
+                natural.append((k, data, opts, chosen))
             else:
                 groups.setdefault(opts.boundary_condition, []).append((k, data, chosen))
+        at_nodes = [m for m in natural if natural_at_nodes(m[2])]
+        if at_nodes and not self._reach_checked:
+            _, data, opts, _ = at_nodes[0]
+            check_natural_reach(data.unit_points, data.unit_domain, unit_spacing(data), opts,
+                                data)
+            self._reach_checked = True
+        t = time.perf_counter()
+        splits = {}
+        if at_nodes:
+            setup = self.natural_setup(at_nodes[0][1], at_nodes[0][2])
+            for a in range(0, len(at_nodes), NATURAL_BATCH):
+                part = at_nodes[a:a + NATURAL_BATCH]
+                made = setup.split_many([data.unit_vectors for _, data, _, _ in part])
+                splits.update({k: split for (k, _, _, _), split in zip(part, made)})
+        share = (time.perf_counter() - t) / max(len(at_nodes), 1)
+        for k, data, opts, chosen in natural:
+            t = time.perf_counter()
+            unit = decompose_unit(data, opts, chosen, self.progress, split=self._one,
+                                  reach_checked=self._reach_checked,
+                                  natural=_Made(splits[k]) if k in splits else None)
+            unit.stats["seconds"]["total"] = time.perf_counter() - t + (share if k in splits
+                                                                        else 0.0)
+            out[k] = self._finish(unit, data)
         for condition, members in groups.items():
             t = time.perf_counter()
             units = self.split_for(condition).split([d for _, d, _ in members], self.progress)
@@ -275,11 +298,27 @@ class Decomposer:
         self.seconds["last_batch"] = time.perf_counter() - t0
         return out
 
-    @staticmethod
-    def _finish(unit, data) -> HHDResult:
-        res = in_caller_units(unit, data)
+    def _finish(self, unit, data) -> HHDResult:
+        # the domain in the caller's units: the same for every snapshot on
+        # the kept unit frame (made once: a Box or Polygon rescaled)
+        kept = self._caller_domain
+        res = in_caller_units(unit, data, kept[1] if kept and kept[0] is unit.domain else None)
+        if not kept or kept[0] is not unit.domain:
+            self._caller_domain = (unit.domain, res.domain)
         res.stats["shared_setup"] = True
         return res
+
+
+class _Made:
+    """The natural set-up's stand-in for one snapshot of a batch: its split
+    made already, with the batch's
+    (:meth:`~taichi_hh.hhd.natural.NaturalSetup.split_many`)."""
+
+    def __init__(self, split):
+        self._split = split
+
+    def split(self, vectors):
+        return self._split
 
 
 #: the layouts (missing-node patterns) a GridDecomposer keeps, with their systems

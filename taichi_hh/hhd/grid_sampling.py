@@ -13,7 +13,7 @@ import taichi as ti
 
 from .. import runtime
 from .free_space import Grid
-from .node_fits import cholesky_solve
+from .node_fits import FitWeights, cholesky_solve
 
 #: the cubic B-spline's interpolation pole (Unser et al. 1991): the
 #: prefilter that makes the spline pass through the grid values
@@ -144,6 +144,11 @@ def _spline_at(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64, y0
             out[row_out, col] = acc[col]
 
 
+#: columns of the spline's evaluation kernel at most (a potential and its
+#: gradient for two fields)
+SPLINE_COLUMNS = 6
+
+
 def at_points(grid: Grid, u: np.ndarray, points, *, dest=None) -> np.ndarray:
     """Grid values ``u`` (nx, ny[, m]) interpolated at ``points`` by the cubic
     B-spline through them (:func:`spline_coefficients`; the tensor product
@@ -153,12 +158,21 @@ def at_points(grid: Grid, u: np.ndarray, points, *, dest=None) -> np.ndarray:
     c = spline_coefficients(u)
     c3 = c if c.ndim == 3 else c[..., None]
     pts = np.ascontiguousarray(points, dtype=np.float64)
-    out = np.zeros((len(pts), c3.shape[2]))
+    m = c3.shape[2]
+    out = np.zeros((len(pts), m))
     if len(pts):
         scatter = dest is not None
         rows = np.ascontiguousarray(dest, dtype=np.int64) if scatter else np.zeros(1, np.int64)
-        _spline_at(c3, pts, float(grid.origin[0]), float(grid.origin[1]), grid.hx, grid.hy,
-                   c3.shape[2], scatter, rows, out)
+        # at most SPLINE_COLUMNS columns a launch (the kernel's width compiles
+        # once per width; a series' many columns go through in slices)
+        for a in range(0, m, SPLINE_COLUMNS):
+            b = min(a + SPLINE_COLUMNS, m)
+            part = out if (a, b) == (0, m) else np.zeros((len(pts), b - a))
+            _spline_at(c3 if (a, b) == (0, m) else np.ascontiguousarray(c3[..., a:b]), pts,
+                       float(grid.origin[0]), float(grid.origin[1]), grid.hx, grid.hy, b - a,
+                       scatter, rows, part)
+            if part is not out:
+                out[:, a:b] = part
     return out if c.ndim == 3 else out[:, 0]
 
 
@@ -188,6 +202,11 @@ def _one_sided(u: ti.types.ndarray(), inside: ti.types.ndarray(), pts: ti.types.
         cj = ti.cast(ti.math.clamp(ti.floor((P[1] - y0) / hy + 0.5), -1e9, 1e9), ti.i32)
         M = ti.Matrix.zero(ti.f64, 6, 6)
         rhs = ti.Matrix.zero(ti.f64, 6, 2)
+        # the values less the nearest node's (the constant term takes it):
+        # sums of the differences do not carry the potential's level
+        ri = ti.math.clamp(ci, 0, nx - 1)
+        rj = ti.math.clamp(cj, 0, ny - 1)
+        ref = ti.Vector([u[ri, rj, col], u[ri, rj, col + 1]], dt=ti.f64)
         count = 0
         for a in range(-R, R + 1):
             ii = ti.math.clamp(ci + a, 0, nx - 1)
@@ -201,7 +220,7 @@ def _one_sided(u: ti.types.ndarray(), inside: ti.types.ndarray(), pts: ti.types.
                     if w > 0.0:
                         count += 1
                     B = ti.Vector([1.0, dx, dy, dx * dx, dx * dy, dy * dy], dt=ti.f64)
-                    v = ti.Vector([u[ii, jj, col], u[ii, jj, col + 1]], dt=ti.f64)
+                    v = ti.Vector([u[ii, jj, col], u[ii, jj, col + 1]], dt=ti.f64) - ref
                     M += w * B.outer_product(B)
                     rhs += w * B.outer_product(v)
         for c in ti.static(range(4)):
@@ -252,6 +271,61 @@ def one_sided_gradient(grid: Grid, u: np.ndarray, inside: np.ndarray, points) ->
             if c + 1 < m:
                 out[:, c + 1] = pair[:, 2:]
     return out[:, 0] if one else out
+
+
+def one_sided_weights(grid: Grid, inside: np.ndarray, points) -> tuple:
+    """:func:`one_sided_gradient` at fixed ``points`` as weights, for grids
+    that carry many potentials (a series): ``(weights, ok)``, ``weights`` a
+    :class:`~.node_fits.FitWeights` over the grid's nodes (flat index
+    i * ny + j) whose :meth:`~.node_fits.FitWeights.gradients` of
+    ``u.reshape(m, -1).T`` gives the fits' gradients of the m potentials,
+    equal to :func:`one_sided_gradient` to rounding; ``ok`` (len(points),)
+    where the fit exists (elsewhere that function's NaN).  The same weighted
+    quadratic fit as :func:`_one_sided`, its matrix inverted once per point
+    (numpy, in blocks of points)."""
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
+    R = ONE_SIDED_REACH
+    nx, ny = grid.shape
+    x0, y0 = float(grid.origin[0]), float(grid.origin[1])
+    off = np.arange(-R, R + 1)
+    starts, index, weights, ok = [np.zeros(1, dtype=np.int64)], [], [], []
+    for a in range(0, len(pts), 4096):
+        P = pts[a:a + 4096]
+        ci = np.clip(np.floor((P[:, 0] - x0) / grid.hx + 0.5), -1e9, 1e9).astype(np.int64)
+        cj = np.clip(np.floor((P[:, 1] - y0) / grid.hy + 0.5), -1e9, 1e9).astype(np.int64)
+        ii = np.clip(ci[:, None, None] + off[None, :, None], 0, nx - 1)
+        jj = np.clip(cj[:, None, None] + off[None, None, :], 0, ny - 1)
+        ii, jj = np.broadcast_arrays(ii, jj)
+        ii, jj = ii.reshape(len(P), -1), jj.reshape(len(P), -1)
+        dx = (x0 + ii * grid.hx - P[:, :1]) / grid.hx                   # in cells
+        dy = (y0 + jj * grid.hy - P[:, 1:]) / grid.hy
+        q = np.sqrt(dx * dx + dy * dy) / (R - 0.5)
+        use = (np.asarray(inside)[ii, jj] != 0) & (q < 1.0)
+        w = np.where(use, (1.0 - q) ** 4 * (1.0 + 4.0 * q), 0.0)
+        fit = (use & (w > 0.0)).sum(axis=1) >= ONE_SIDED_MIN_NODES
+        B = np.stack([np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy], axis=2)
+        M = np.einsum("pn,pni,pnj->pij", w, B, B)
+        # the kernel's Cholesky raises the diagonal by 1e-12 of the trace
+        M += 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(6)
+        M[~fit] = np.eye(6)
+        unit = np.zeros((6, 2))
+        unit[1, 0] = unit[2, 1] = 1.0
+        X = np.linalg.solve(M, np.broadcast_to(unit, (len(P), 6, 2)))      # (P, 6, 2)
+        g = np.einsum("pni,pic->pnc", B, X) * w[..., None] / np.array([grid.hx, grid.hy])
+        keep = use & fit[:, None]
+        starts.append(keep.sum(axis=1))
+        index.append((ii * ny + jj)[keep])
+        weights.append(g[keep])
+        ok.append(fit)
+    start = np.cumsum(np.concatenate(starts)).astype(np.int32)
+    index = np.concatenate(index).astype(np.int32) if index else np.zeros(0, np.int32)
+    weights = np.concatenate(weights) if weights else np.zeros((0, 2))
+    # the reference each gather subtracts (the weights sum to zero): the
+    # first node of the point's fit
+    reference = np.where(np.diff(start) > 0, index[np.minimum(start[:-1], max(len(index) - 1, 0))]
+                         if len(index) else 0, 0).astype(np.int32)
+    ok = np.concatenate(ok) if ok else np.zeros(0, dtype=bool)
+    return FitWeights.of_slots(start, index, weights, reference), ok
 
 
 @ti.kernel

@@ -39,7 +39,8 @@ import numpy as np
 from .cut_cells import cut_cells, near_field_correction
 from .free_space import (Grid, axis_rectangle, convolve_direct, convolve_fft, dipole_density,
                          grid_gradient)
-from .grid_sampling import ONE_SIDED_CELLS, at_points, lagrange_at, one_sided_gradient
+from .grid_sampling import (ONE_SIDED_CELLS, at_points, lagrange_at, one_sided_gradient,
+                            one_sided_weights)
 from .node_fits import FitWeights, PointBins, fit_gradients, reconstruct_on_grid
 from .options import NATURAL_EVALUATIONS
 
@@ -125,12 +126,14 @@ def _near_points(cells: _Cells, binned: "PointBins", domain) -> np.ndarray:
     return _near_boundary(domain, binned.points, ONE_SIDED_CELLS * cell)
 
 
-def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap) -> np.ndarray:
+def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap,
+               one_sided=None) -> np.ndarray:
     """(N, m, 3) each potential of ``u`` (m, nx, ny) and its gradient at the
     points (input order): the cubic spline of the potentials and their
     fourth-order grid gradients, the gradient at the points ``near`` the
     boundary (:func:`_near_points`) from the one-sided fit
-    (:func:`one_sided_gradient`)."""
+    (:func:`one_sided_gradient`; ``one_sided``: those fits kept as weights,
+    :func:`~.grid_sampling.one_sided_weights`)."""
     grid = cells.grid
     m = len(u)
     # every potential and its grid gradient, one spline through them all
@@ -142,8 +145,12 @@ def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap) -> 
     at = at_points(grid, cols, sp, dest=binned.order)           # in the input order
     lap("interpolate")
     # the gradient within ONE_SIDED_CELLS of the boundary from the fit
-    fitted = one_sided_gradient(grid, np.moveaxis(u, 0, -1), cells.inside, sp[near])
-    ok = np.isfinite(fitted).all(axis=(1, 2))
+    if one_sided is None:
+        fitted = one_sided_gradient(grid, np.moveaxis(u, 0, -1), cells.inside, sp[near])
+        ok = np.isfinite(fitted).all(axis=(1, 2))
+    else:
+        weights, ok = one_sided
+        fitted = weights.gradients(u.reshape(m, -1).T)
     rows = binned.order[near[ok]]
     at = at.reshape(len(sp), m, 3)
     at[rows, :, 1:] = fitted[ok]
@@ -259,12 +266,13 @@ class NaturalSetup:
         self.check = check
         self.volume = _volumes(cells, binned)
         lap("setup")
-        self.fits = None
+        self.fits = self.one_sided = None
         if reuse_fits and 24 * 45 * (len(live) + len(self.near)) <= FIT_WEIGHTS_BYTES:
             self.fits = {}
             for name in ("nodes", "near", "check"):
                 targets, scale, edge = self._targets(name)
                 self.fits[name] = FitWeights(grid, binned, targets, scale=scale, edge=edge)
+            self.one_sided = one_sided_weights(grid, cells.inside, binned.points[self.near])
             lap("fit_weights")
         self.seconds = lap.seconds
 
@@ -280,51 +288,80 @@ class NaturalSetup:
             self.edge[live][self.check]
 
     def gradients(self, which: str, values, counts: bool = False):
-        """(T, m, 2) the gradients of the columns of ``values`` (in the bins'
-        order) at the targets ``which`` (:meth:`_targets`); with ``counts``
-        also the points in each fit."""
+        """(T, m, 2) the gradients of the columns of ``values`` (N, m, in the
+        bins' order) at the targets ``which`` (:meth:`_targets`); with
+        ``counts`` also the points in each fit."""
         if self.fits is not None:
             w = self.fits[which]
             g = w.gradients(values)
             return (g, w.counts) if counts else g
         targets, scale, edge = self._targets(which)
-        return fit_gradients(self.cells.grid, self.binned, values, targets, counts=counts,
-                             scale=scale, edge=edge)
+        values = np.asarray(values, dtype=np.float64).reshape(len(values), -1)
+        # the fit kernel takes two columns at a time
+        parts = [fit_gradients(self.cells.grid, self.binned, values[:, c:c + 2], targets,
+                               counts=True, scale=scale, edge=edge)
+                 for c in range(0, values.shape[1], 2)]
+        g = parts[0][0] if len(parts) == 1 else np.concatenate([q[0] for q in parts], axis=1)
+        return (g, parts[0][1]) if counts else g
 
     def split(self, vectors) -> "NaturalSplit":
         """The natural HHD of ``vectors`` (N, 2) at these points
-        (:func:`natural_decomposition`)."""
+        (:func:`natural_decomposition`): :meth:`split_many` of one."""
+        return self.split_many([vectors])[0]
+
+    def split_many(self, snapshots) -> list:
+        """The natural HHDs of the fields ``snapshots`` (a sequence of (N, 2)
+        arrays) at these points, one :class:`NaturalSplit` each: every stage
+        takes the snapshots' columns together (one gather of the node fits
+        for all, one FFT pass, one spline prefilter, one one-sided fit
+        pass), so a batch pays each kernel launch once."""
         lap = _Stopwatch()
         cells, binned = self.cells, self.binned
         grid, live = cells.grid, cells.live
-        vs = np.ascontiguousarray(np.asarray(vectors, dtype=np.float64)[binned.order])
+        k = len(snapshots)
+        # the snapshots' components side by side: columns 2 s, 2 s + 1
+        vs = np.empty((len(binned.order), 2 * k))
+        for s, vec in enumerate(snapshots):
+            vs[:, 2 * s:2 * s + 2] = np.asarray(vec, dtype=np.float64)[binned.order]
         g, count = self.gradients("nodes", vs, counts=True)
-        div = g[:, 0, 0] + g[:, 1, 1]
-        curl = g[:, 1, 0] - g[:, 0, 1]
+        g = g.reshape(len(live), k, 2, 2)
+        div = g[:, :, 0, 0] + g[:, :, 1, 1]                       # (live, k)
+        curl = g[:, :, 1, 0] - g[:, :, 0, 1]
         lap("fit")
-        u = _grid_potentials(cells, np.c_[div, -curl], self.evaluation, lap)
-        at = _at_points(cells, u, binned, self.near, lap)
+        dens = np.empty((len(live), 2 * k))
+        dens[:, 0::2], dens[:, 1::2] = div, -curl
+        u = _grid_potentials(cells, dens, self.evaluation, lap)
+        at = _at_points(cells, u, binned, self.near, lap, self.one_sided)  # (N, 2k, 3)
         # div v and curl v at the points: the nodes' values inside, the fit at
         # the point near the boundary (the nodes around it partly outside)
         dc_grid = np.zeros((grid.nx * grid.ny, 2))
-        dc_grid[live, 0], dc_grid[live, 1] = div, curl
-        dc = lagrange_at(grid, dc_grid.reshape(grid.shape + (2,)), binned.points, binned.order)
+        dcs = []
+        for s in range(k):
+            dc_grid[live, 0], dc_grid[live, 1] = div[:, s], curl[:, s]
+            dcs.append(lagrange_at(grid, dc_grid.reshape(grid.shape + (2,)), binned.points,
+                                   binned.order))
         if self.near.size:
-            gn = self.gradients("near", vs)
-            dc[binned.order[self.near]] = np.c_[gn[:, 0, 0] + gn[:, 1, 1],
-                                                gn[:, 1, 0] - gn[:, 0, 1]]
+            gn = self.gradients("near", vs).reshape(len(self.near), k, 2, 2)
+            rows = binned.order[self.near]
+            for s in range(k):
+                dcs[s][rows] = np.c_[gn[:, s, 0, 0] + gn[:, s, 1, 1],
+                                     gn[:, s, 1, 0] - gn[:, s, 0, 1]]
         lap("divergence")
         check = self.check
-        split = NaturalSplit(phi=at[:, 0, 0].copy(), d=at[:, 0, 1:].copy(),
-                             psi=at[:, 1, 0].copy(), grad_psi=at[:, 1, 1:].copy(),
-                             divergence=dc[:, 0].copy(), curl=dc[:, 1].copy(),
-                             volume=self.volume, grid=grid,
-                             mean_fit_points=float(count.mean()) if count.size else 0.0,
-                             setup=self,
-                             _check_scale=float(np.hypot(div[check], curl[check]).mean()))
+        splits = [NaturalSplit(phi=at[:, 2 * s, 0].copy(), d=at[:, 2 * s, 1:].copy(),
+                               psi=at[:, 2 * s + 1, 0].copy(),
+                               grad_psi=at[:, 2 * s + 1, 1:].copy(),
+                               divergence=dcs[s][:, 0].copy(), curl=dcs[s][:, 1].copy(),
+                               volume=self.volume, grid=grid,
+                               mean_fit_points=float(count.mean()) if count.size else 0.0,
+                               setup=self,
+                               _check_scale=float(np.hypot(div[check, s],
+                                                           curl[check, s]).mean()))
+                  for s in range(k)]
         lap("gather")
-        split.seconds = lap.seconds
-        return split
+        for split in splits:
+            split.seconds = {name: t / k for name, t in lap.seconds.items()}
+        return splits
 
 
 def natural_decomposition(points, vectors, domain, spacing: float, *,

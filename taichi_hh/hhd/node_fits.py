@@ -518,6 +518,25 @@ class FitWeights:
                            out, True, self.start, self.index, self.weights, self.reference)
         self.n_targets = len(tg)
 
+    @classmethod
+    def of_slots(cls, start, index, weights, reference) -> "FitWeights":
+        """Gradient weights made elsewhere, in the same slots: ``start``
+        (T + 1,) int32, ``index`` (S,) int32 and ``weights`` (S, 2) per slot,
+        ``reference`` (T,) the value each target's gather subtracts (e.g.
+        :func:`~.grid_sampling.one_sided_weights`)."""
+        self = cls.__new__(cls)
+        self.start = np.ascontiguousarray(start, dtype=np.int32)
+        self.n_targets = len(self.start) - 1
+        self.counts = np.diff(self.start).astype(np.float64)
+        n = max(int(self.start[-1]), 1)
+        self.index = np.zeros(n, dtype=np.int32)
+        self.index[:len(index)] = index
+        self.weights = np.zeros((n, 2))
+        self.weights[:len(weights)] = weights
+        self.reference = np.zeros(max(self.n_targets, 1), dtype=np.int32)
+        self.reference[:self.n_targets] = reference
+        return self
+
     @property
     def nbytes(self) -> int:
         return self.start.nbytes + self.index.nbytes + self.weights.nbytes + self.reference.nbytes
