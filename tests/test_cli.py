@@ -159,13 +159,13 @@ def test_options_only_override_what_is_given():
     from taichi_hh.hhd.decompose import METHODS, options_for
     args = cli.build_parser().parse_args(["decompose", "f.npz", "--method", "petronetto2010",
                                           "--tol", "1e-5", "--no-bordered"])
-    over = cli._numeric_overrides(args)
+    over = cli.option_overrides(args)
     assert over == {"tol": 1e-5, "bordered": False}
     opts = options_for(args.method, **over)
     assert opts == dataclasses.replace(METHODS["petronetto2010"], tol=1e-5, bordered=False)
     args = cli.build_parser().parse_args(["decompose", "dir/my.field.csv"])
-    assert cli._numeric_overrides(args) == {}
-    assert cli._out_dir(args) == os.path.join("outputs", "my.field_decompose")
+    assert cli.option_overrides(args) == {}
+    assert cli.output_dir(args) == os.path.join("outputs", "my.field_decompose")
 
 
 # --------------------------------------------------------------------------- project

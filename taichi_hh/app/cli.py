@@ -310,13 +310,16 @@ class _Progress:
         return time.perf_counter() - self.t0
 
 
-def _numeric_overrides(args) -> dict:
+def option_overrides(args) -> dict:
+    """The decomposition options the command line gave (the others stay the
+    method's), by :class:`~taichi_hh.hhd.decompose.HHDOptions` field name."""
     from ..hhd.decompose import HHDOptions
     return {f.name: getattr(args, f.name) for f in dataclasses.fields(HHDOptions)
             if getattr(args, f.name, None) is not None}
 
 
-def _out_dir(args) -> str:
+def output_dir(args) -> str:
+    """``--out``, else ``outputs/<first field's stem>_<command>``."""
     if args.out:
         return args.out
     field = args.field[0] if isinstance(args.field, list) else args.field   # a series: the first
@@ -481,11 +484,11 @@ def _cmd_decompose(args) -> int:
     files = list(args.field)
     args.field = files[0]
     say = _Progress("decompose", args.quiet)
-    overrides = _numeric_overrides(args)
+    overrides = option_overrides(args)
     options_for(args.method, **overrides)           # bad combinations fail before any work
     if len(files) == 1 and (args.lonlat or _netcdf_on_lonlat(files[0])):
         from .xarray_lonlat import decompose_lonlat_file
-        out = _out_dir(args)
+        out = output_dir(args)
         _prepare_out(out)
         _init(args, say)
         print(_paragraph(decompose_lonlat_file(files[0], out, figures=not args.no_figures,
@@ -493,7 +496,7 @@ def _cmd_decompose(args) -> int:
         return 0
     if len(files) > 1:
         return _decompose_series(args, files, say, overrides)
-    out = _out_dir(args)
+    out = output_dir(args)
     _prepare_out(out)
     points, vectors, domain = _read_inputs(args, say, domain_kind_as_name=True)
     st = _init(args, say)
@@ -570,7 +573,7 @@ def _decompose_series(args, files, say, overrides) -> int:
     """``decompose`` of several files: :mod:`taichi_hh.app.series`."""
     from .series import FieldSeries, decompose_series, figure_indices
     figure_indices(args.figures, len(files))          # a bad --figures fails before any work
-    out = _out_dir(args)
+    out = output_dir(args)
     _prepare_out(out)
     st = _init(args, say)
     quiet = _Progress("decompose", True)
@@ -627,9 +630,9 @@ def _cmd_project(args) -> int:
     from ..hhd.decompose import options_for
     from ..hhd.project import project
     say = _Progress("project", args.quiet)
-    overrides = _numeric_overrides(args)
+    overrides = option_overrides(args)
     options_for(args.method, **overrides)
-    out = _out_dir(args)
+    out = output_dir(args)
     _prepare_out(out)
     points, vectors, domain = _read_inputs(args, say)
     st = _init(args, say)
