@@ -11,7 +11,6 @@ from ..errors import InputError
 from ..checks import check_spread
 from ..sph.knn import KNearest
 from ..sph.pointset import check_distinct
-from .corners import reentrant_corners
 
 #: the data's local spacing at a boundary sample is measured from its this
 #: many nearest data points (k = 8 left the spacing noisy on uniformly random
@@ -24,29 +23,16 @@ NEAREST_AVERAGED = 4
 #: 2 area / perimeter below 1/32 of it), and sampling it once took hours
 #: (a square's boundary takes 4 sqrt(N) samples, a 1000:1 strip's 63 sqrt(N))
 MAX_SAMPLES_PER_POINT = 64
-#: Neumann rows: no boundary sample within this many spacings of a
-#: re-entrant corner (:func:`collocation_particles`); 1 and 1.25 measured
-#: alike, 0 (the vertex's own sample only) keeps half the extra iterations
-CORNER_CLEARANCE = 1.0
 
 
-def collocation_particles(domain, points, spacing: float, local: bool = False,
-                          clear_corners: bool = False):
+def collocation_particles(domain, points, spacing: float, local: bool = False):
     """Boundary samples and their outward normals, without those within a
     quarter spacing of a data point (data points on the boundary take over).
 
-    ``clear_corners`` (for Neumann rows): no sample within
-    :data:`CORNER_CLEARANCE` spacings of a re-entrant corner
-    (:func:`~taichi_hh.hhd.corners.reentrant_corners`).  There the rows of
-    the samples on the two walls and of the vertex (its normal the bisector)
-    constrain the normal derivative in two directions over the same few
-    neighbours: nearly dependent rows, which cost the multilevel-preconditioned
-    solve 2-5 times a box's iterations (12-14k random points, 8/8 on a box:
-    an L-notch 16/15, a box with a square island 30/28, a coast with two
-    islands and 15 sharp corners 44/45; without those rows 13/11, 13/13,
-    14/14; errors of d and r within -55%..+13% of the corner rows' ones:
-    docs/notes/hhd.md).  The data points' own
-    rows and the walls' samples farther out carry the condition there.
+    Next to a re-entrant corner a sample's neighbours reach around the
+    corner, beyond its wall's tangent line: its Neumann row's fit leaves
+    them out (:func:`~taichi_hh.sph.fits.beyond_wall`), so that every sample
+    is kept.
 
     The samples are ``spacing`` apart, or with ``local`` as far apart as the
     data next to the boundary: where the data are denser or sparser than on
@@ -63,8 +49,6 @@ def collocation_particles(domain, points, spacing: float, local: bool = False,
     if not local:
         bpts, bnrm, _ = domain.sample_boundary(spacing)
         keep = far_from(bpts, points, 0.25 * spacing, domain)
-        if clear_corners:
-            keep &= _clear_of_corners(domain, bpts, spacing)
         return _kept(bpts, bnrm, keep, len(points))
     pts = np.asarray(points, dtype=np.float64)
     k = min(SPACING_NEIGHBOURS, len(pts) - 1)
@@ -91,23 +75,7 @@ def collocation_particles(domain, points, spacing: float, local: bool = False,
     nearest = search.query(bpts, 1)[0][:, 0]
     local_spacing = data_spacing(bpts)
     keep = nearest >= 0.25 * local_spacing
-    if clear_corners:
-        keep &= _clear_of_corners(domain, bpts, local_spacing)
     return _kept(bpts, bnrm, keep, len(points))
-
-
-def _clear_of_corners(domain, samples, spacing) -> np.ndarray:
-    """Mask of ``samples`` farther than :data:`CORNER_CLEARANCE` x ``spacing``
-    (a number or one per sample) from every re-entrant corner of ``domain``."""
-    corners = reentrant_corners(domain)
-    keep = np.ones(len(samples), dtype=bool)
-    if len(corners) == 0 or len(samples) == 0:
-        return keep
-    reach = CORNER_CLEARANCE * np.broadcast_to(np.asarray(spacing, dtype=np.float64),
-                                               (len(samples),))
-    for corner in corners:
-        keep &= np.hypot(*(samples - corner).T) > reach
-    return keep
 
 
 def check_not_too_narrow(domain, n: int, spacing: float) -> None:

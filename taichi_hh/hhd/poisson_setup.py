@@ -72,8 +72,7 @@ def _extra_particles(domain, pts, opts: HHDOptions, spacing: float, support: flo
     if opts.boundary == "none":
         return None, None
     if opts.boundary == "collocation":
-        return collocation_particles(domain, pts, spacing, local=opts.adaptive_support,
-                                     clear_corners=opts.boundary_condition == "neumann"), None
+        return collocation_particles(domain, pts, spacing, local=opts.adaptive_support), None
     band = domain.sample_ghosts(spacing, support, seed=opts.seed, avoid=pts)
     if opts.boundary == "colin":
         _, _, nrm, _ = domain.closest_boundary(band)

@@ -22,7 +22,14 @@ stencils are kept bit-identical.
 import taichi as ti
 
 from .kernels import kernel_terms
+from .particles import BOUNDARY
 from .support import pair_support
+
+#: a neighbour lies beyond a boundary row's wall line when its offset's
+#: component along the row's outward normal exceeds this fraction of its
+#: length (:func:`beyond_wall`; below it: on the line, as rounding leaves the
+#: other samples of a straight wall)
+WALL_SIDE_TOL = 1e-6
 
 # A correction matrix whose smallest/largest eigenvalue ratio falls below this
 # is treated as singular: the neighbourhood is too small or degenerate
@@ -48,6 +55,25 @@ def pair_terms(kernel_id: ti.template(), pos: ti.template(), mass: ti.template()
     r = x.norm()
     W, F, Lw = kernel_terms(kernel_id, r, pair_support(adaptive, hs, i, j, H))
     return x, r, W, F, Lw, m, m / rho[j]
+
+
+@ti.func
+def beyond_wall(kind: ti.template(), normal: ti.template(), i, x):
+    """Whether the neighbour at offset ``x = x_j - x_i`` lies beyond the
+    tangent line of boundary row i's wall (``normal_i . x > 0``): such a
+    neighbour is left out of the row's fitted and corrected gradients, its
+    Neumann row, which then reads the solution on its own side of the wall
+    only.  Near a re-entrant corner (and along a wall curving away from the
+    fluid) the line runs on through the fluid, and a fit over both sides of
+    it reaches around the corner, where the solution is singular: such rows
+    lose their one-sided sign, and the matrix gets eigenvalues of the wrong
+    sign at the corners, which the multilevel cycle amplifies (a coast with
+    two islands took 14/13 iterations against a box's 8/8; one-sided: 8/8;
+    docs/notes/hhd.md).  False for every other row."""
+    out = False
+    if kind[i] == BOUNDARY:
+        out = normal[i].dot(x) > WALL_SIDE_TOL * x.norm()
+    return out
 
 
 # ---------------------------------------------------------------------------
@@ -77,14 +103,17 @@ def add_correction(M, V, F, x):
 @ti.func
 def correction_matrix(kernel_id: ti.template(), i, pos: ti.template(), mass: ti.template(),
                       rho: ti.template(), offsets: ti.template(), nbrs: ti.template(), H,
-                      adaptive: ti.template(), hs: ti.template(), kind: ti.template(), src_kinds):
-    """M_i over the neighbours of the given kinds, in a pass of its own (the fits'
-    fallback); symmetric positive for these kernels."""
+                      adaptive: ti.template(), hs: ti.template(), kind: ti.template(), src_kinds,
+                      normal: ti.template()):
+    """M_i over the neighbours of the given kinds (not beyond a boundary row's
+    wall: :func:`beyond_wall`), in a pass of its own (the fits' fallback);
+    symmetric positive for these kernels."""
     M = ti.Matrix.zero(float, 2, 2)
     for k in range(offsets[i], offsets[i + 1]):
         x, _r, _W, F, _Lw, _m, V = pair_terms(kernel_id, pos, mass, rho, kind, src_kinds,
                                               adaptive, hs, H, i, nbrs[k])
-        M = add_correction(M, V, F, x)
+        if not beyond_wall(kind, normal, i, x):
+            M = add_correction(M, V, F, x)
     return M
 
 
@@ -153,16 +182,17 @@ def add_fit_moments(order: ti.template(), S, c, u):
 def fit_moments(order: ti.template(), kernel_id: ti.template(), i, pos: ti.template(),
                 mass: ti.template(), rho: ti.template(), offsets: ti.template(),
                 nbrs: ti.template(), H, adaptive: ti.template(), hs: ti.template(),
-                kind: ti.template(), src_kinds):
-    """The moments of a fit of ``order`` of row i over the sources ``src_kinds``,
-    in a pass of its own."""
+                kind: ti.template(), src_kinds, normal: ti.template()):
+    """The moments of a fit of ``order`` of row i over the sources ``src_kinds``
+    (not beyond a boundary row's wall: :func:`beyond_wall`), in a pass of its own."""
     S = fit_moments_zero(order)
     Hi = pair_support(adaptive, hs, i, i, H)      # the monomials' length scale
     for k in range(offsets[i], offsets[i + 1]):
         x, _r, W, _F, _Lw, _m, V = pair_terms(kernel_id, pos, mass, rho, kind, src_kinds,
                                               adaptive, hs, H, i, nbrs[k])
-        u = x / Hi
-        S = add_fit_moments(order, S, V * W, u)
+        if not beyond_wall(kind, normal, i, x):
+            u = x / Hi
+            S = add_fit_moments(order, S, V * W, u)
     return S
 
 
@@ -247,7 +277,7 @@ def gradient_rows(order: ti.template(), Lf):
 def gradient_fit(order: ti.template(), S, Hi, kernel_id: ti.template(), i, pos: ti.template(),
                  mass: ti.template(), rho: ti.template(), offsets: ti.template(),
                  nbrs: ti.template(), H, adaptive: ti.template(), hs: ti.template(),
-                 kind: ti.template(), src_kinds):
+                 kind: ti.template(), src_kinds, normal: ti.template()):
     """The fitted gradient of row i from its moments S: ``(R, L, linear, ok)``.
 
     R: the weights per monomial of ``order`` (rows 0-1 of M^-1, scaled by
@@ -273,7 +303,7 @@ def gradient_fit(order: ti.template(), S, Hi, kernel_id: ti.template(), i, pos: 
         Mq = ti.Matrix.zero(float, 5, 5)
         if ti.static(order == 3):
             Mq = moment_matrix(2, fit_moments(2, kernel_id, i, pos, mass, rho, offsets, nbrs, H,
-                                              adaptive, hs, kind, src_kinds))
+                                              adaptive, hs, kind, src_kinds, normal))
         else:
             Mq = moment_matrix(2, S)
         ok2 = True
@@ -283,7 +313,8 @@ def gradient_fit(order: ti.template(), S, Hi, kernel_id: ti.template(), i, pos: 
             # linearly corrected gradient, and only if that is singular too is
             # the set refused
             L, ok = linear_correction(correction_matrix(kernel_id, i, pos, mass, rho, offsets,
-                                                        nbrs, H, adaptive, hs, kind, src_kinds))
+                                                        nbrs, H, adaptive, hs, kind, src_kinds,
+                                                        normal))
             # (linear only where L exists: the kernels bit for bit as before
             # the pieces were shared; the compiler's code differs otherwise)
             linear = ti.select(ok, 1, 0)

@@ -287,7 +287,7 @@ class Operators:
                                  f"particle rows for {self.pairs.n_pairs} pairs, {p.n} particles")
         bad = fit_gradient_stencil(self.kernel_id, vid, p.position, p.mass, p.density, p.n,
                                *self._pair_args(), *self.support_args(), G, s, p.kind,
-                               kind_bits(row_kinds), kind_bits(source_kinds))
+                               kind_bits(row_kinds), kind_bits(source_kinds), p.normal)
         self._check_bad(f"{variant} gradient", bad)
         if density_weighted:
             if variant in ("basic", "symmetric"):
@@ -370,7 +370,7 @@ class Operators:
         sC = runtime.array(real, size, zeroed=False)
         bad = fit_decomposition_stencils(self.kernel_id, p.position, p.mass, p.density, p.n,
                                     *self._pair_args(), *self.support_args(), p.kind,
-                                    G3, s3, G2, s2, C, sC)
+                                    G3, s3, G2, s2, C, sC, p.normal)
         for what, b in zip(("cubic gradient", "quadratic gradient", "corrected Laplacian"), bad):
             self._check_bad(what, b)
         return (GradientStencil(G3, s3, "cubic", (FLUID,), (FLUID,)),

@@ -54,7 +54,7 @@ from enum import IntEnum
 
 import taichi as ti
 
-from .fits import (add_correction, add_fit_moments, add_laplacian_moments,
+from .fits import (add_correction, beyond_wall, add_fit_moments, add_laplacian_moments,
                    corrected_gradient_coefficient, corrected_laplacian_coefficient,
                    correction_matrix, fit_moments, fit_moments_zero, fitted_gradient_coefficient,
                    gradient_fit, laplacian_correction, laplacian_moments_zero, linear_correction,
@@ -112,9 +112,11 @@ def fit_gradient_stencil(kernel_id: ti.template(), variant: ti.template(),
                          nbrs: ti.types.ndarray(), H: float, adaptive: ti.template(),
                          hs: ti.types.ndarray(), G: ti.types.ndarray(), s: ti.types.ndarray(),
                          kind: ti.types.ndarray(), row_kinds: ti.i32,
-                         src_kinds: ti.i32) -> ti.i32:
+                         src_kinds: ti.i32, normal: ti.types.ndarray()) -> ti.i32:
     """G_ij, s_i of gradient ``variant`` (a :class:`GradientVariant`) for the rows of
-    the kinds ``row_kinds`` (others get zeros) over the sources ``src_kinds``.
+    the kinds ``row_kinds`` (others get zeros) over the sources ``src_kinds``; the
+    fitted and corrected variants of a boundary row over its wall's side
+    (:func:`~taichi_hh.sph.fits.beyond_wall`: the Neumann rows).
     Returns the largest row whose correction matrix is singular, or -1."""
     bad = -1
     fitted = ti.static(variant == GradientVariant.QUADRATIC or variant == GradientVariant.CUBIC)
@@ -131,16 +133,17 @@ def fit_gradient_stencil(kernel_id: ti.template(), variant: ti.template(),
         linear = 0
         if ti.static(fitted):
             S = fit_moments(order, kernel_id, i, pos, mass, rho, offsets, nbrs, H, adaptive, hs,
-                            kind, src_kinds)
+                            kind, src_kinds, normal)
             ok = True
             R, L, linear, ok = gradient_fit(order, S, Hi, kernel_id, i, pos, mass, rho, offsets,
-                                            nbrs, H, adaptive, hs, kind, src_kinds)
+                                            nbrs, H, adaptive, hs, kind, src_kinds, normal)
             if not ok:
                 ti.atomic_max(bad, i)
         if ti.static(variant == GradientVariant.CORRECTED):
             ok = True
             L, ok = linear_correction(correction_matrix(kernel_id, i, pos, mass, rho, offsets,
-                                                        nbrs, H, adaptive, hs, kind, src_kinds))
+                                                        nbrs, H, adaptive, hs, kind, src_kinds,
+                                                        normal))
             if not ok:
                 ti.atomic_max(bad, i)
         gsum = ti.Vector.zero(float, 2)
@@ -162,9 +165,12 @@ def fit_gradient_stencil(kernel_id: ti.template(), variant: ti.template(),
                 # f_i terms: rho_i m_j f_i / rho_i^2, plus sum_j G f_i from the difference form
                 gsum += (mj / rho[i]) * gw + coef
             elif ti.static(variant == GradientVariant.CORRECTED):
-                coef = corrected_gradient_coefficient(L, V, F, xij)
+                if not beyond_wall(kind, normal, i, -xij):
+                    coef = corrected_gradient_coefficient(L, V, F, xij)
             else:
-                coef = fitted_gradient_coefficient(order, R, L, linear, mj, rho[j], W, F, xij, Hi)
+                if not beyond_wall(kind, normal, i, -xij):
+                    coef = fitted_gradient_coefficient(order, R, L, linear, mj, rho[j], W, F, xij,
+                                                       Hi)
             G[k] = coef
             if ti.static(variant == GradientVariant.BASIC):
                 gsum += coef   # sum_j G f_j = sum_j G (f_j - f_i) + (sum_j G) f_i
@@ -282,7 +288,8 @@ def fit_decomposition_stencils(kernel_id: ti.template(), pos: ti.types.ndarray()
                                kind: ti.types.ndarray(), G3: ti.types.ndarray(),
                                s3: ti.types.ndarray(), G2: ti.types.ndarray(),
                                s2: ti.types.ndarray(), C: ti.types.ndarray(),
-                               sC: ti.types.ndarray()) -> (ti.i32, ti.i32, ti.i32):
+                               sC: ti.types.ndarray(),
+                               normal: ti.types.ndarray()) -> (ti.i32, ti.i32, ti.i32):
     """The default decomposition's three stencils from two passes over each row's
     pairs (one for every sum, one for every coefficient), the values of
     :func:`fit_gradient_stencil` and :func:`fit_laplacian_stencil` up to
@@ -290,7 +297,8 @@ def fit_decomposition_stencils(kernel_id: ti.template(), pos: ti.types.ndarray()
 
     ``G3`` the cubic gradient of the FLUID rows over FLUID sources (div v, curl v),
     ``G2`` the quadratic gradient of the FLUID and BOUNDARY rows over every
-    particle (Neumann rows, d and r), ``C`` the corrected Laplacian of the FLUID
+    particle (Neumann rows over their wall's side:
+    :func:`~taichi_hh.sph.fits.beyond_wall`; d and r), ``C`` the corrected Laplacian of the FLUID
     rows over every particle; the fallbacks are theirs (cubic -> quadratic ->
     corrected; quadratic -> corrected).  The quadratic moments are the cubic
     ones' (over FLUID sources) plus the other sources' share.  Returns the
@@ -320,7 +328,9 @@ def fit_decomposition_stencils(kernel_id: ti.template(), pos: ti.types.ndarray()
             j = nbrs[k]
             x, r, W, F, _Lw, _m, V = pair_terms(kernel_id, pos, mass, rho, kind, all_sources,
                                                 adaptive, hs, H, i, j)
-            if kind[j] == FLUID:
+            if beyond_wall(kind, normal, i, x):
+                pass
+            elif kind[j] == FLUID:
                 S3 = add_fit_moments(3, S3, V * W, x / Hi)
             else:
                 Sb = add_fit_moments(2, Sb, V * W, x / Hi)
@@ -333,7 +343,7 @@ def fit_decomposition_stencils(kernel_id: ti.template(), pos: ti.types.ndarray()
         if fluid_row:
             ok3 = True
             R3, L3, linear3, ok3 = gradient_fit(3, S3, Hi, kernel_id, i, pos, mass, rho, offsets,
-                                                nbrs, H, adaptive, hs, kind, fluid_sources)
+                                                nbrs, H, adaptive, hs, kind, fluid_sources, normal)
             if not ok3:
                 ti.atomic_max(bad3, i)
         # the Neumann rows' quadratic fit over every particle
@@ -341,7 +351,7 @@ def fit_decomposition_stencils(kernel_id: ti.template(), pos: ti.types.ndarray()
             for b in ti.static(range(5 - a)):
                 Sb[a, b] += S3[a, b]
         R2, L2, linear2, ok2 = gradient_fit(2, Sb, Hi, kernel_id, i, pos, mass, rho, offsets,
-                                            nbrs, H, adaptive, hs, kind, all_sources)
+                                            nbrs, H, adaptive, hs, kind, all_sources, normal)
         if not ok2:
             ti.atomic_max(bad2, i)
         # the Laplacian
@@ -360,7 +370,10 @@ def fit_decomposition_stencils(kernel_id: ti.template(), pos: ti.types.ndarray()
             if fluid_row and kind[j] == FLUID:
                 g3 = fitted_gradient_coefficient(3, R3, L3, linear3, m, rho[j], W, F, -x, Hi)
             G3[k] = g3
-            G2[k] = fitted_gradient_coefficient(2, R2, L2, linear2, m, rho[j], W, F, -x, Hi)
+            g2 = ti.Vector.zero(float, 2)
+            if not beyond_wall(kind, normal, i, x):
+                g2 = fitted_gradient_coefficient(2, R2, L2, linear2, m, rho[j], W, F, -x, Hi)
+            G2[k] = g2
             cl = 0.0
             if fluid_row:
                 cl = corrected_laplacian_coefficient(beta, B, x, r, V, F)
