@@ -74,7 +74,9 @@ def _one_sided_numpy(grid, u, inside, pts):
     BW = B * w[..., None]
     M = np.einsum("mki,mkj->mij", BW, B)
     M += 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(6)
-    coef = np.linalg.solve(M, np.einsum("mki,mk->mi", BW, u[ii, jj])[..., None])[..., 0]
+    # the values less the nearest node's (the ridge's bias on the constant)
+    u0 = u[np.clip(c[:, 0], 0, grid.nx - 1), np.clip(c[:, 1], 0, grid.ny - 1)]
+    coef = np.linalg.solve(M, np.einsum("mki,mk->mi", BW, u[ii, jj] - u0[:, None])[..., None])[..., 0]
     out = coef[:, 1:3] / h
     out[(w > 0).sum(axis=1) < grid_sampling.ONE_SIDED_MIN_NODES] = np.nan
     return out
