@@ -353,9 +353,12 @@ def near_field_correction(grid, cut: CutCells, patches, density) -> np.ndarray:
     a = cut.starts - centre[owner]
     b = cut.ends - centre[owner]
     d = np.arange(-R, R + 1)
-    target = np.stack(np.meshgrid(d * grid.hx, d * grid.hy, indexing="ij"), -1).reshape(-1, 2)
-    ints = log_integral(target[:, None, :], a, b)                        # (n_off^2, E)
-    exact = np.stack([np.bincount(owner, weights=w, minlength=K) for w in ints], axis=1)
+    exact = np.empty((K, n_off * n_off))
+    for row, di in enumerate(d):                 # a row of targets at a time: in cache
+        target = np.c_[np.full(n_off, di * grid.hx), d * grid.hy]
+        ints = log_integral(target[:, None, :], a, b)                    # (n_off, E)
+        for col, w in enumerate(ints):
+            exact[:, row * n_off + col] = np.bincount(owner, weights=w, minlength=K)
     diff = exact / (2.0 * math.pi) - grid_rep                            # (K, n_off^2)
     di = np.repeat(d, n_off)
     dj = np.tile(d, n_off)
