@@ -96,3 +96,78 @@ def test_the_exact_kernel_near_a_node():
     far = math.log((E + 1) ** 2 * grid.hx ** 2) / (4 * math.pi) * grid.hx * grid.hy
     assert K[E + 1, 0] == pytest.approx(far, rel=1e-14)
     assert grid.kernel_at(-1, 2) == pytest.approx(K[-1, 2], rel=1e-14)
+
+
+def test_cut_part_moments_against_subsamples():
+    """part_moments' Q_n (Green's theorem along each part's boundary) against
+    the mean of w^n over 256 x 256 subsamples of the cell."""
+    disk = thh.Polygon.circle((0.5, 0.5), 0.5, n=4096)
+    grid = free_space.Grid(disk, 0.05, cell_average=True)
+    cut = cut_cells.cut_cells(grid, disk)
+    Q = cut_cells.part_moments(grid, cut, cut_cells.MULTIPOLE_ORDER)
+    s = (np.arange(256) + 0.5) / 256 - 0.5
+    X, Y = (a.ravel() for a in np.meshgrid(s, s, indexing="ij"))
+    ci, cj = np.divmod(cut.cells, grid.ny)
+    worst = 0.0
+    for k in range(0, len(cut.cells), 7):
+        centre = grid.origin + np.array([ci[k] * grid.hx, cj[k] * grid.hy])
+        inside = disk.contains(centre + np.c_[X * grid.hx, Y * grid.hy])
+        w = (X + 1j * Y * grid.hy / grid.hx)[inside]
+        for n in range(Q.shape[1]):
+            worst = max(worst, abs((w ** n).sum() / len(X) - Q[k, n]))
+    # the subsamples' own error: about a row of them, 1 / 256 of a cell
+    assert worst < 2e-3, worst
+
+
+@pytest.mark.parametrize("ratio", [1.0, 0.9])
+def test_patches_carry_the_parts_moments(ratio):
+    """A cut part's charge on the grid (its cell's charge spread over the
+    cell, the 5 x 5 patch as cells' charges) has the part's moments Q_0 ..
+    Q_MULTIPOLE_ORDER, on square and on oblong cells."""
+    dom = thh.Polygon.circle((0.5, 0.5 * ratio), 0.5, n=4096)
+    dom = thh.Polygon(dom.outer * [1.0, ratio])
+    grid = free_space.Grid(dom, 0.05, cell_average=True)
+    cut = cut_cells.cut_cells(grid, dom)
+    order = cut_cells.MULTIPOLE_ORDER
+    Q = cut_cells.part_moments(grid, cut, order)
+    patches = cut_cells.multipole_patches(grid, Q)
+    k = np.arange(-2, 3)
+    z = (k[:, None] + 1j * (grid.hy / grid.hx) * k[None, :]).ravel()
+    M = cut_cells.cell_moments(grid.hx, grid.hy, order)
+    for n in range(order + 1):
+        of_cells = sum(math.comb(n, j) * z ** (n - j) * M[j] for j in range(n + 1))
+        got = patches.reshape(len(Q), 25) @ of_cells + Q[:, 0] * M[n]
+        assert np.abs(got - Q[:, n]).max() < 1e-13, n
+    assert abs(patches.sum(axis=(1, 2))).max() < 1e-15
+
+
+def test_the_cell_average_kernel_beyond_exact_cells():
+    """With ``cell_average`` the kernel beyond EXACT_CELLS is the integral of G
+    over the cell (the closed form, cell_integral) to rounding, where G times
+    the area errs by 1e-6 - 1e-5 (oblong cells: the second moment)."""
+    dom = thh.Polygon.circle((0.5, 0.4), 0.4, n=256)
+    grid = free_space.Grid(dom, 0.03, cell_average=True)
+    K = grid.kernel()
+    E = free_space.EXACT_CELLS
+    for i, j in [(E + 1, 0), (E + 1, 3), (7, -7), (-12, 5), (30, 1)]:
+        exact = float(free_space.cell_integral(i * grid.hx, j * grid.hy, grid.hx, grid.hy))
+        assert K[i, j] == pytest.approx(exact, rel=2e-13, abs=0)
+        assert grid.kernel_at(i, j) == pytest.approx(exact, rel=2e-13, abs=0)
+        midpoint = math.log((i * grid.hx) ** 2 + (j * grid.hy) ** 2) / (4 * math.pi) \
+            * grid.hx * grid.hy
+        assert abs(midpoint - exact) > 1e-9 * abs(exact)
+
+
+def test_a_vertex_on_a_grid_corner_is_no_crossing():
+    """The 16384-gon's leftmost vertex on a grid corner (cells of 1/78): the
+    boundary touches the corner cell there, rounded to either side of its
+    lines; counted as an exit and an entry it left 0.25 of that cell where
+    0.997 is inside."""
+    disk = thh.Polygon.circle((0.5, 0.5), 0.5, n=16384)
+    grid = free_space.Grid(disk, 1.0 / 78.0)
+    cut = cut_cells.cut_cells(grid, disk)
+    sub = grid.coverage(disk, 64).ravel()[cut.cells]
+    # the subsamples err by a fraction of a row of them (1 / 64 of a cell)
+    assert np.abs(cut.area / (grid.hx * grid.hy) - sub).max() < 1e-2
+    _, _, total = _areas(disk, 1.0 / 78.0)
+    assert abs(total - disk.area) < 1e-12 * disk.area

@@ -75,6 +75,7 @@ def _one_sided_numpy(grid, u, inside, pts):
     BW = B * w[..., None]
     M = np.einsum("mki,mkj->mij", BW, B)
     M += 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(6)
+    # the values less the nearest node's, as the kernel fits them
     near = u[np.clip(c[:, 0], 0, grid.nx - 1), np.clip(c[:, 1], 0, grid.ny - 1)]
     rhs = np.einsum("mki,mk->mi", BW, u[ii, jj] - near[:, None])
     coef = np.linalg.solve(M, rhs[..., None])[..., 0]

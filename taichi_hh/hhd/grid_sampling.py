@@ -203,7 +203,10 @@ def _one_sided(u: ti.types.ndarray(), inside: ti.types.ndarray(), pts: ti.types.
         M = ti.Matrix.zero(ti.f64, 6, 6)
         rhs = ti.Matrix.zero(ti.f64, 6, 2)
         # the values less the nearest node's (the constant term takes it):
-        # sums of the differences do not carry the potential's level
+        # sums of the differences do not carry the potential's level, and the
+        # fit's constant is as small as its gradient term (the solver's ridge,
+        # 1e-12 of the trace, biased the gradient by 1e-12 cond(M) |u| /
+        # (h |grad u|): 1e-8 at 64k points)
         ri = ti.math.clamp(ci, 0, nx - 1)
         rj = ti.math.clamp(cj, 0, ny - 1)
         ref = ti.Vector([u[ri, rj, col], u[ri, rj, col + 1]], dt=ti.f64)

@@ -36,15 +36,15 @@ import time
 
 import numpy as np
 
-from .cut_cells import cut_cells, near_field_correction
-from .free_space import (Grid, axis_rectangle, convolve_direct, convolve_fft, dipole_density,
-                         grid_gradient)
+from .cut_cells import (MULTIPOLE_ORDER, cut_cells, multipole_density, multipole_patches,
+                        near_field_correction, part_moments)
+from .free_space import Grid, axis_rectangle, convolve_direct, convolve_fft, grid_gradient
 from .grid_sampling import (ONE_SIDED_CELLS, at_points, lagrange_at, one_sided_gradient,
                             one_sided_weights)
 from .node_fits import FitWeights, PointBins, fit_gradients, reconstruct_on_grid
 from .options import NATURAL_EVALUATIONS
 
-#: subsamples per side of a cut cell for its inside fraction and centroid
+#: subsamples per side of a cell the boundary may cross, for its inside fraction
 CUT_SUBSAMPLES = 16
 
 
@@ -69,22 +69,28 @@ def _check_evaluation(evaluation: str) -> None:
 
 class _Cells:
     """The grid of a natural decomposition and its cells' coverage of the
-    domain: ``frac`` (nx * ny,) inside fractions, ``offset`` the inside
-    parts' centroids, ``inside`` (nx, ny) the centres inside, ``live`` the
-    cells with a part inside (flat indices); ``cut`` the cells a polygon's
-    boundary cuts (:func:`~.cut_cells.cut_cells`; None for a rectangle, whose
-    sides are grid lines): their fractions and centroids exact."""
+    domain: ``frac`` (nx * ny,) inside fractions, ``inside`` (nx, ny) the
+    centres inside, ``live`` the cells with a part inside (flat indices);
+    ``cut`` the cells a polygon's boundary cuts
+    (:func:`~.cut_cells.cut_cells`; None for a rectangle, whose sides are
+    grid lines): their fractions exact, ``patches`` their parts' moments up
+    to MULTIPOLE_ORDER as charges on the nodes around them
+    (:func:`~.cut_cells.multipole_patches`)."""
 
     def __init__(self, domain, cell: float):
         self.grid = grid = Grid(domain, cell)
-        frac, self.offset, self.inside = grid.coverage(domain, CUT_SUBSAMPLES, centroids=True,
-                                                       inside=True)
+        frac, self.inside = grid.coverage(domain, CUT_SUBSAMPLES, inside=True)
         self.frac = frac.ravel()
         self.cut = None if axis_rectangle(domain) is not None else cut_cells(grid, domain)
+        self.patches = None
         if self.cut is not None:
-            k = self.cut.cells
-            self.frac[k] = self.cut.area / (grid.hx * grid.hy)
-            self.offset.reshape(-1, 2)[k] = self.cut.centroid - grid.centres()[k]
+            # the cut parts' moments are matched against cells' uniform
+            # charges; without cut cells (the sides on grid lines) the kernel
+            # stays G at the centre beyond EXACT_CELLS, as it always was there
+            grid.cell_average = True
+            self.frac[self.cut.cells] = self.cut.area / (grid.hx * grid.hy)
+            self.patches = multipole_patches(grid, part_moments(grid, self.cut,
+                                                                MULTIPOLE_ORDER))
         self.live = np.flatnonzero(self.frac > 0)
 
 
@@ -92,29 +98,28 @@ def _grid_potentials(cells: _Cells, at_cells: np.ndarray, evaluation: str,
                      lap) -> np.ndarray:
     """(m, nx, ny) the free-space potentials of the densities ``at_cells``
     (len(live), m) at the live cells' centres: each cell's charge its value
-    times its inside area, placed at its inside part's centroid (a dipole
-    about the centre), summed against G by ``evaluation``; next to the cut
-    cells, their charges' exact potentials (:func:`~.cut_cells.near_field_correction`)."""
+    times its inside area at its centre, a cut cell's part's moments up to
+    MULTIPOLE_ORDER as charges on the nodes around it
+    (:func:`~.cut_cells.multipole_density`), summed against G by
+    ``evaluation``; next to the cut cells, their charges' exact potentials
+    (:func:`~.cut_cells.near_field_correction`)."""
     grid, live = cells.grid, cells.live
     m = at_cells.shape[1]
     dens = np.zeros((m, grid.nx * grid.ny))
     dens[:, live] = (at_cells * cells.frac[live, None]).T
+    values = None
+    if cells.cut is not None:
+        values = np.zeros((m, grid.nx * grid.ny))
+        values[:, live] = at_cells.T
+        dens += multipole_density(grid, cells.cut, cells.patches, values)
     dens = dens.reshape((m,) + grid.shape)
-    # a cut cell's charge sits at its inside part's centroid, not at its
-    # centre: the difference is a dipole p = q (centroid - centre), whose
-    # potential is that of the density -div P (central differences)
-    for k in range(m):
-        dens[k] += dipole_density(grid, dens[k], cells.offset)
     lap("density")
     if evaluation == "fft":
         u = convolve_fft(grid, dens)
     else:
         u = np.stack([convolve_direct(grid, d) for d in dens])
     if cells.cut is not None:
-        values = np.zeros((m, grid.nx * grid.ny))
-        values[:, live] = at_cells.T
-        u += near_field_correction(grid, cells.cut, cells.frac, cells.offset.reshape(-1, 2),
-                                   values).reshape(u.shape)
+        u += near_field_correction(grid, cells.cut, cells.patches, values).reshape(u.shape)
     lap("convolve")
     return u
 
