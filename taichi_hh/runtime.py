@@ -30,6 +30,8 @@ ARCH_VARIABLE = "TAICHI_HH_ARCH"
 #: set to 1: Taichi's kernel profiler on (each kernel's device time, CUDA and
 #: CPU; benchmarks print it), at the cost of a synchronisation per launch
 PROFILER_VARIABLE = "TAICHI_HH_KERNEL_PROFILER"
+#: set to 1 or 0: the GPU's loop schedule on or off whatever the device (:func:`on_gpu`)
+GPU_SCHEDULE_VARIABLE = "TAICHI_HH_GPU_SCHEDULE"
 #: the GPU backends ``"gpu"`` and ``"auto"`` try, in order (Metal first on macOS)
 GPU_BACKENDS = ("cuda", "vulkan")
 _PRECISIONS = {"f32": np.float32, "f64": np.float64}
@@ -44,6 +46,7 @@ class RuntimeState:
     generation: int = 0      # bumped on every (re)initialisation
     pinned: tuple = ()       # CPUs Taichi's worker threads were bound to, in order
     device: str = ""         # the Vulkan device's name where known ("" otherwise)
+    software: bool = False   # a CPU behind the Vulkan API (Mesa's lavapipe)
 
 
 _state = RuntimeState()
@@ -246,6 +249,7 @@ def _start(ti, arch, precision, offline_cache_dir, threads, debug, pin_threads) 
     _state.initialized = True
     _state.arch = actual
     _state.device = _device_name(actual)
+    _state.software = actual == "vulkan" and _software_vulkan_only()
     _state.requested_arch = arch
     _state.precision = precision
     _state.generation += 1
@@ -433,12 +437,21 @@ def generation() -> int:
 
 
 def on_gpu() -> bool:
-    """Whether the kernels run on a GPU backend (CUDA, Vulkan, Metal).  There a
-    loop run on one thread is one GPU thread, thousands of times slower than
-    the CPU's, so the loops that run serially on the CPU below a size (where
-    waking the thread pool costs more than the work) run in parallel."""
+    """Whether the kernels take the GPU's schedule: on a GPU device (CUDA,
+    Vulkan or Metal on a GPU) a loop run on one thread is one GPU thread,
+    thousands of times slower than the CPU's, so the loops that run serially
+    on the CPU below a size (where waking the thread pool costs more than the
+    work) run in parallel, and sums go through lanes
+    (:mod:`taichi_hh.linalg.lanes`).  Not on the CPU, nor on a software
+    Vulkan driver (Mesa's lavapipe runs on CPU threads: the CPU's schedule
+    fits it, and its long processes crash sooner under the GPU's;
+    docs/arch.md).  ``$TAICHI_HH_GPU_SCHEDULE`` = 1 or 0 forces it on or off
+    whatever the device (the tests of the GPU's code paths on the CPU)."""
+    forced = os.environ.get(GPU_SCHEDULE_VARIABLE, "")
+    if forced in ("0", "1"):
+        return forced == "1"
     ensure_init()
-    return _state.arch != "cpu"
+    return _state.arch != "cpu" and not _state.software
 
 
 def check_generation(made_in: int, what: str = "object") -> None:

@@ -1,6 +1,10 @@
-"""The GPU's reductions (taichi_hh.linalg.lanes) run on the CPU too when
-forced ($TAICHI_HH_LANES=1): the same sums as the CPU's loops, to round-off,
-on every kernel that uses them, and exact where the values are integers."""
+"""The GPU's schedule runs on the CPU too when forced
+($TAICHI_HH_GPU_SCHEDULE=1, :func:`taichi_hh.runtime.on_gpu`): its sums in
+lanes (taichi_hh.linalg.lanes) give the CPU loops' sums, to round-off, and
+exact where the values are integers; its parallel prefix sums, counting
+sort and multilevel set-up give the serial ones' results; a solve and a few
+flow steps give the CPU schedule's answer.  CI has no GPU: this is how every
+run checks the GPU's code paths (CUDA ran them on an H200, docs/arch.md)."""
 import numpy as np
 import pytest
 import taichi as ti
@@ -12,7 +16,7 @@ from taichi_hh.linalg import lanes
 @pytest.fixture
 def forced(monkeypatch):
     def use(flag: bool):
-        monkeypatch.setenv(lanes.LANES_VARIABLE, "1" if flag else "0")
+        monkeypatch.setenv(runtime.GPU_SCHEDULE_VARIABLE, "1" if flag else "0")
     return use
 
 
@@ -101,3 +105,62 @@ def test_bicgstab_agrees_with_and_without_lanes(forced):
         assert res.converged
         x[flag] = res.x
     assert np.abs(x[True] - x[False]).max() <= 1e-10 * np.abs(x[False]).max()
+
+
+def test_parallel_prefix_sums_and_counting_sorts_are_the_serial_ones(forced):
+    """The GPU's blocked prefix sum (i64 total), its counting sort (atomic
+    slots, then each cell's run in input order) and the neighbour grid's
+    parallel scatter with its inverse permutation: the serial results, bit
+    for bit, on clustered cells (many points in a few cells) and shuffled
+    input."""
+    from taichi_hh.sph.cell_sort import counting_sort
+    from taichi_hh.sph.neighbors import SCAN_BLOCK, CellGrid, GridSpec, exclusive_scan
+    runtime.ensure_init()
+    rng = np.random.default_rng(5)
+    counts = rng.integers(0, 50, 3 * SCAN_BLOCK + 7).astype(np.int32)
+    cell = np.minimum(rng.geometric(0.05, 20_000) - 1, 399).astype(np.int32)
+    pts = np.vstack([rng.random((60_000, 2)), 0.5 + 0.01 * rng.random((10_000, 2))])
+    pts = pts[rng.permutation(len(pts))]
+    spec = GridSpec.covering(pts.min(axis=0), pts.max(axis=0), 0.01)
+    got = {}
+    for flag in (False, True):
+        forced(flag)
+        c = runtime.array(ti.i32, len(counts) + 1)
+        c.from_numpy(np.r_[counts, 0])
+        start = runtime.array(ti.i32, len(counts) + 1)
+        total = exclusive_scan(c, start, len(counts))
+        order, cstart = counting_sort(cell, 400)
+        grid = CellGrid(spec)
+        pos = runtime.array(None, len(pts), 2)
+        pos.from_numpy(pts)
+        slots = grid.sort(pos, len(pts)).to_numpy()[: len(pts)].copy()
+        rank = grid.rank.to_numpy()[: len(pts)].copy() if grid.rank is not None else None
+        got[flag] = (total, start.to_numpy().copy(), order, cstart, slots, rank,
+                     grid.cell_start.to_numpy().copy())
+    serial, parallel = got[False], got[True]
+    assert serial[0] == parallel[0] == int(counts.sum())
+    assert np.array_equal(serial[1], np.r_[0, np.cumsum(counts)])
+    assert np.array_equal(serial[2], np.argsort(cell, kind="stable"))
+    assert serial[5] is not None     # shuffled and over RANK_MIN_N: the rank is recorded
+    for a, b in zip(serial[1:], parallel[1:]):
+        assert np.array_equal(a, b)
+
+
+def test_multilevel_levels_built_in_parallel_are_the_serial_ones(forced):
+    """The grid levels' coarsening, one launch per level under the GPU's
+    schedule, gives the serial loop's Galerkin operators bit for bit; the
+    cycles agree to round-off."""
+    from test_poisson import neumann_square
+    from taichi_hh.poisson.matrix import PoissonMatrix
+    from taichi_hh.poisson.multilevel import MultilevelPreconditioner
+    runtime.ensure_init()
+    ps, phi, b, kind = neumann_square(48, seed=1)
+    A = PoissonMatrix(ps.ops, bordered=True)
+    built = {}
+    for flag in (False, True):
+        forced(flag)
+        M = MultilevelPreconditioner(A)
+        built[flag] = [M.level_matrix(k).toarray() for k in range(len(M.level_sizes))]
+    assert len(built[False]) == len(built[True]) >= 3
+    for a, b in zip(built[False], built[True]):
+        assert np.array_equal(a, b)

@@ -17,8 +17,6 @@ that returns the entry's contribution (a real, or several packed with
 loops over the entries the CPU's way or in lanes (``in_lanes``: :func:`on`,
 a compile-time setting of the kernel).
 """
-import os
-
 import taichi as ti
 
 from .. import runtime
@@ -36,17 +34,9 @@ ADD, MAX = 0, 1
 _cache: dict = {}
 
 
-#: set to 1 or 0: lanes on or off whatever the arch (the CPU's tests of the
-#: GPU's reductions; unset: on a GPU arch only)
-LANES_VARIABLE = "TAICHI_HH_LANES"
-
-
 def on() -> bool:
-    """Whether reductions run in lanes: on a GPU arch (or as
-    ``$TAICHI_HH_LANES`` says)."""
-    forced = os.environ.get(LANES_VARIABLE, "")
-    if forced in ("0", "1"):
-        return forced == "1"
+    """Whether reductions run in lanes: under the GPU's schedule
+    (:func:`taichi_hh.runtime.on_gpu`)."""
     return runtime.on_gpu()
 
 
