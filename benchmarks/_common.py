@@ -69,6 +69,19 @@ def write_csv_atomic(path, rows: list[dict], fieldnames: list[str]) -> None:
     write_bytes_atomic(path, buf.getvalue().encode())
 
 
+def report_rows(rows: list[dict], out_dir, name: str, align: str | None = None) -> str:
+    """Print ``rows`` as a table (floats to 3 significant digits) and write them
+    to ``out_dir/name`` (CSV, atomically); returns the path."""
+    import os
+    fields = list(rows[0])
+    print(format_table(fields, [[f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k])
+                                 for k in fields] for r in rows], align))
+    os.makedirs(out_dir, exist_ok=True)
+    path = os.path.join(out_dir, name)
+    write_csv_atomic(path, rows, fields)
+    return path
+
+
 def save_figure_atomic(fig, path, **kwargs) -> None:
     from taichi_hh.app.io import atomic_savefig
     atomic_savefig(fig, str(path), **kwargs)

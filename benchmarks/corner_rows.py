@@ -109,11 +109,7 @@ def main(argv=None) -> int:
                      "wrong_sign": " ".join(f"{v:.3g}" for v, _ in negative),
                      "near_corner": " ".join(f"{s:.2f}" for _, s in negative)})
         print(rows[-1], flush=True)
-    fields = list(rows[0])
-    print(_common.format_table(fields, [[f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k])
-                                         for k in fields] for r in rows], "lrrr" + "r" * 3 + "ll"))
-    os.makedirs(args.out_dir, exist_ok=True)
-    _common.write_csv_atomic(os.path.join(args.out_dir, "corner_rows.csv"), rows, fields)
+    _common.report_rows(rows, args.out_dir, "corner_rows.csv", "lrrr" + "r" * 3 + "ll")
     return 0
 
 

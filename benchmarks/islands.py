@@ -113,11 +113,7 @@ def main(argv=None) -> int:
                          "err_r": err[1], "err_h": err[2], "iterations": its,
                          "seconds": seconds, "error": ""})
             print(rows[-1], flush=True)
-    names = list(rows[0])
-    print(_common.format_table(names, [[f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k])
-                                        for k in names] for r in rows], "ll" + "r" * 6 + "l"))
-    os.makedirs(args.out_dir, exist_ok=True)
-    _common.write_csv_atomic(os.path.join(args.out_dir, "islands.csv"), rows, names)
+    _common.report_rows(rows, args.out_dir, "islands.csv", "ll" + "r" * 6 + "l")
     return 0
 
 
