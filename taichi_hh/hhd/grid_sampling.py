@@ -111,20 +111,24 @@ def _cubic_weights(t):
 
 
 @ti.kernel
-def _spline_at(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64, y0: ti.f64,
-               hx: ti.f64, hy: ti.f64, m: ti.template(), scatter: ti.template(),
-               dest: ti.types.ndarray(), out: ti.types.ndarray()):
-    """out[p, :] (with ``scatter``: out[dest[p], :]) = the tensor-product cubic
-    B-spline of ``coef`` (NX, NY, m) at point p: the 4 x 4 knots around it
-    (indices clamped: ``nearest``); the ``m`` columns of a knot read together."""
+def _tensor_gather(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64, y0: ti.f64,
+                   hx: ti.f64, hy: ti.f64, pad: ti.template(), weights: ti.template(),
+                   m: ti.template(), scatter: ti.template(), dest: ti.types.ndarray(),
+                   out: ti.types.ndarray()):
+    """out[p, :] (with ``scatter``: out[dest[p], :]) = the tensor-product
+    4 x 4 interpolant of ``coef`` (NX, NY, m) at point p: ``weights(t)`` of
+    the fractional position along each axis, the knots offset by ``pad``
+    cells (indices clamped: ``nearest``); the ``m`` columns of a knot read
+    together.  The cubic B-spline (:func:`_cubic_weights`, SPLINE_PAD) and
+    the cubic Lagrange interpolant (:func:`_lagrange_weights`, 0)."""
     NX, NY = coef.shape[0], coef.shape[1]
     for p in range(pts.shape[0]):
-        x = (pts[p, 0] - x0) / hx + SPLINE_PAD
-        y = (pts[p, 1] - y0) / hy + SPLINE_PAD
+        x = (pts[p, 0] - x0) / hx + pad
+        y = (pts[p, 1] - y0) / hy + pad
         fx = ti.floor(x)
         fy = ti.floor(y)
-        wx = _cubic_weights(x - fx)
-        wy = _cubic_weights(y - fy)
+        wx = weights(x - fx)
+        wy = weights(y - fy)
         # clamp in floating point: far-away points would overflow i32
         ix = ti.cast(ti.math.clamp(fx, -2.0, ti.cast(NX, ti.f64)), ti.i32)
         iy = ti.cast(ti.math.clamp(fy, -2.0, ti.cast(NY, ti.f64)), ti.i32)
@@ -142,6 +146,7 @@ def _spline_at(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64, y0
             row_out = ti.cast(dest[p], ti.i32)
         for col in ti.static(range(m)):
             out[row_out, col] = acc[col]
+
 
 
 #: columns of the spline's evaluation kernel at most (a potential and its
@@ -168,9 +173,9 @@ def at_points(grid: Grid, u: np.ndarray, points, *, dest=None) -> np.ndarray:
         for a in range(0, m, SPLINE_COLUMNS):
             b = min(a + SPLINE_COLUMNS, m)
             part = out if (a, b) == (0, m) else np.zeros((len(pts), b - a))
-            _spline_at(c3 if (a, b) == (0, m) else np.ascontiguousarray(c3[..., a:b]), pts,
-                       float(grid.origin[0]), float(grid.origin[1]), grid.hx, grid.hy, b - a,
-                       scatter, rows, part)
+            _tensor_gather(c3 if (a, b) == (0, m) else np.ascontiguousarray(c3[..., a:b]),
+                           pts, float(grid.origin[0]), float(grid.origin[1]), grid.hx, grid.hy,
+                           SPLINE_PAD, _cubic_weights, b - a, scatter, rows, part)
             if part is not out:
                 out[:, a:b] = part
     return out if c.ndim == 3 else out[:, 0]
@@ -331,36 +336,6 @@ def one_sided_weights(grid: Grid, inside: np.ndarray, points) -> tuple:
     return FitWeights.of_slots(start, index, weights, reference), ok
 
 
-@ti.kernel
-def _lagrange_kernel(u: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64, y0: ti.f64,
-                     hx: ti.f64, hy: ti.f64, dest: ti.types.ndarray(),
-                     out: ti.types.ndarray()):
-    """out[dest[p], :2] = the tensor cubic Lagrange interpolant of the two
-    columns of ``u`` (nx, ny, 2) at point p from the 4 x 4 nodes around it
-    (indices clamped)."""
-    NX, NY = u.shape[0], u.shape[1]
-    for p in range(pts.shape[0]):
-        x = (pts[p, 0] - x0) / hx
-        y = (pts[p, 1] - y0) / hy
-        fx = ti.floor(x)
-        fy = ti.floor(y)
-        wx = _lagrange_weights(x - fx)
-        wy = _lagrange_weights(y - fy)
-        ix = ti.cast(ti.math.clamp(fx, -2.0, ti.cast(NX, ti.f64)), ti.i32)
-        iy = ti.cast(ti.math.clamp(fy, -2.0, ti.cast(NY, ti.f64)), ti.i32)
-        acc = ti.Vector.zero(ti.f64, 2)
-        for a in ti.static(range(4)):
-            i = ti.math.clamp(ix + a - 1, 0, NX - 1)
-            row = ti.Vector.zero(ti.f64, 2)
-            for b in ti.static(range(4)):
-                j = ti.math.clamp(iy + b - 1, 0, NY - 1)
-                row += wy[b] * ti.Vector([u[i, j, 0], u[i, j, 1]], dt=ti.f64)
-            acc += wx[a] * row
-        q = ti.cast(dest[p], ti.i32)
-        out[q, 0] = acc[0]
-        out[q, 1] = acc[1]
-
-
 @ti.func
 def _lagrange_weights(t):
     """The cubic Lagrange weights of the nodes -1, 0, 1, 2 at t in [0, 1)."""
@@ -370,13 +345,14 @@ def _lagrange_weights(t):
 
 
 def lagrange_at(grid: Grid, u: np.ndarray, points, dest) -> np.ndarray:
-    """(N, 2): :func:`_lagrange_kernel` of ``u`` (nx, ny, 2) at ``points``,
-    point p's values in row ``dest[p]``."""
+    """(N, 2): the tensor cubic Lagrange interpolant of the two columns of
+    ``u`` (nx, ny, 2) at ``points`` from the 4 x 4 nodes around each (indices
+    clamped; :func:`_tensor_gather`), point p's values in row ``dest[p]``."""
     runtime.ensure_init()
     pts = np.ascontiguousarray(points, dtype=np.float64)
     out = np.zeros((len(pts), 2))
     if len(pts):
-        _lagrange_kernel(np.ascontiguousarray(u, dtype=np.float64), pts,
-                         float(grid.origin[0]), float(grid.origin[1]), grid.hx, grid.hy,
-                         np.ascontiguousarray(dest, dtype=np.int64), out)
+        _tensor_gather(np.ascontiguousarray(u, dtype=np.float64), pts, float(grid.origin[0]),
+                       float(grid.origin[1]), grid.hx, grid.hy, 0.0, _lagrange_weights, 2, True,
+                       np.ascontiguousarray(dest, dtype=np.int64), out)
     return out
