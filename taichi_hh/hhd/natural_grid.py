@@ -45,7 +45,7 @@ from .grid_differences import (PAD, STENCILS, axis_derivative, codes_div_curl,
                                components_checks, div_curl, stencil_codes)
 
 __all__ = ["NodeGrid", "uniform_steps", "div_curl", "axis_derivative", "stencil_codes",
-           "smoothed", "mls_gradient_stencil", "eroded", "outline_distance", "fill_gaps",
+           "smoothed", "smoothing_steps", "mls_gradient_stencil", "eroded", "outline_distance", "fill_gaps",
            "natural_on_nodes", "decompose_nodes", "NodeResult", "NodeFields", "STENCILS", "PAD",
            "UNIFORM_RTOL"]
 
@@ -82,21 +82,15 @@ class NodeGrid(Grid):
         self.origin = np.asarray(origin, dtype=np.float64)
 
 
-def smoothed(F: np.ndarray, avail: np.ndarray, passes: int = 1) -> np.ndarray:
-    """``F`` (ny, nx[, k]) smoothed over the nodes ``avail`` by the binomial
-    filter [1, 2, 1] / 4 along x, then along y (each pass renormalised by the
-    weight of the available nodes; NaN off ``avail``), ``passes`` times (the
-    weights computed once).  One pass is what the
-    scattered path's cubic moving-least-squares divergence does to a field's
-    differences: on pivpy's noisy samples the differences smoothed so differ
-    from it by 16-22% (wing tip, soap film; 31-54% unsmoothed)."""
-    F = np.asarray(F, dtype=np.float64)
-    one = F.ndim == 2
-    Z = np.where(avail[..., None], F[..., None] if one else F, 0.0)
+def smoothing_steps(avail: np.ndarray) -> list:
+    """What :func:`smoothed` takes from the nodes ``avail`` alone: per axis
+    (x, then y) the slices of a node's lower and upper neighbours and the
+    renormalisation (one over the weight of the available nodes the filter
+    reaches; 0 off ``avail``)."""
     w = avail.astype(np.float64)
-    steps = []                          # (axis, lo, hi, the renormalisation)
+    steps = []                          # (lo, hi, the renormalisation)
     for axis in (1, 0):
-        n = Z.shape[axis]
+        n = avail.shape[axis]
         if n < 2:
             continue
         lo = (slice(None),) * axis + (slice(0, n - 1),)
@@ -105,6 +99,24 @@ def smoothed(F: np.ndarray, avail: np.ndarray, passes: int = 1) -> np.ndarray:
         den[hi] += w[lo]
         den[lo] += w[hi]
         steps.append((lo, hi, np.where(avail, 1.0 / np.maximum(den, 1e-300), 0.0)[..., None]))
+    return steps
+
+
+def smoothed(F: np.ndarray, avail: np.ndarray, passes: int = 1, steps: list | None = None) \
+        -> np.ndarray:
+    """``F`` (ny, nx[, k]) smoothed over the nodes ``avail`` by the binomial
+    filter [1, 2, 1] / 4 along x, then along y (each pass renormalised by the
+    weight of the available nodes; NaN off ``avail``), ``passes`` times
+    (``steps``: :func:`smoothing_steps` of ``avail`` if made already).  One
+    pass is what the
+    scattered path's cubic moving-least-squares divergence does to a field's
+    differences: on pivpy's noisy samples the differences smoothed so differ
+    from it by 16-22% (wing tip, soap film; 31-54% unsmoothed)."""
+    F = np.asarray(F, dtype=np.float64)
+    one = F.ndim == 2
+    Z = np.where(avail[..., None], F[..., None] if one else F, 0.0)
+    if steps is None:
+        steps = smoothing_steps(avail)
     for _ in range(passes):
         for lo, hi, scale in steps:
             num = 2.0 * Z
@@ -261,7 +273,8 @@ def natural_on_nodes(hx: float, hy: float, u: np.ndarray, v: np.ndarray, inside:
     ``curl``: div v, curl v on the inside nodes, the gaps' from their fill):
     ``phi``, ``psi``, ``curl_free`` and ``div_free`` ((ny, nx, 2)),
     ``harmonic`` (v - d - r on ``used``, NaN elsewhere), ``h_divergence``,
-    ``h_curl`` (div h and curl h), ``codes`` (the stencils along x and y
+    ``h_curl`` (div h and curl h), ``components_div_curl`` ((ny, nx, 2):
+    div d and curl r, 0 off ``inside``), ``codes`` (the stencils along x and y
     of the potentials, :func:`stencil_codes`), ``data_codes`` (those of the
     vectors: second order next to the outline), ``grid`` (:class:`NodeGrid`) and ``seconds`` per stage."""
     seconds = {}
@@ -301,6 +314,7 @@ def natural_on_nodes(hx: float, hy: float, u: np.ndarray, v: np.ndarray, inside:
     # is; h at the gaps from their fill): one launch
     drh = components_checks(P, vec, codes, hx, hy)
     d, r, h, hdc = drh[0], drh[1], drh[2], drh[3]
+    ddr = drh[4]
     lap("gradient")
     out = {"phi": P[..., 0], "psi": P[..., 1], "divergence": dc[..., 0], "curl": dc[..., 1],
            "curl_free": d, "div_free": r, "codes": (codes[0], codes[1]),
@@ -313,6 +327,7 @@ def natural_on_nodes(hx: float, hy: float, u: np.ndarray, v: np.ndarray, inside:
         h[~used] = np.nan
     out["harmonic"] = h
     out["h_divergence"], out["h_curl"] = hdc[..., 0], hdc[..., 1]
+    out["components_div_curl"] = ddr
     out["grid"] = grid
     lap("gather")
     out["seconds"] = seconds
@@ -328,7 +343,8 @@ class NodeFields:
     node (ny, nx[, 2], NaN off ``inside``) ``phi``, ``psi``, ``curl_free``,
     ``div_free``, ``divergence``, ``curl``, and ``harmonic`` (NaN off
     ``used``); ``codes``: the difference stencils along x and y
-    (:func:`stencil_codes`); ``spacing``: sqrt(area / nodes used);
+    (:func:`stencil_codes`); ``components_div_curl``: (ny, nx, 2) div d and
+    curl r by them (0 off ``inside``); ``spacing``: sqrt(area / nodes used);
     ``domain``: the outline; ``stats`` and ``options``: the decomposition's;
     ``frame``: the unit frame its potentials' logarithm took its length from.
     What its critical points are found from
@@ -350,6 +366,7 @@ class NodeFields:
     curl: np.ndarray
     codes: tuple
     data_codes: tuple
+    components_div_curl: np.ndarray
     spacing: float
     domain: object
     stats: dict
@@ -457,7 +474,7 @@ def decompose_nodes(xs: np.ndarray, ys: np.ndarray, steps: tuple, u: np.ndarray,
                       div_free=nat["div_free"], harmonic=nat["harmonic"],
                       divergence=nat["divergence"], curl=nat["curl"], codes=nat["codes"],
                       data_codes=nat["data_codes"],
-                      spacing=spacing, domain=domain, stats=stats, options=opts, frame=frame)
+                      components_div_curl=nat["components_div_curl"], spacing=spacing, domain=domain, stats=stats, options=opts, frame=frame)
 
 
 def _mean_norm(a: np.ndarray, b: np.ndarray) -> float:
