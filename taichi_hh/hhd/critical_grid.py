@@ -58,12 +58,10 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     # them (natural_grid.smoothed): the strengths, signs, coherence and
     # significance read them
     ddr = lat.components_div_curl
-    sm = smoothed(np.stack([lat.divergence, lat.curl, ddr[..., 0], ddr[..., 1], lat.phi, lat.psi],
-                           axis=-1), lat.inside, steps=geo.smoothing)
-    comps, pots = sm[..., 2:4], sm[..., 4:6]
-    if POT_PASSES > 1:
-        pots = smoothed(pots, lat.inside, POT_PASSES - 1, steps=geo.smoothing)
-    div_v, curl_v = sm[..., 0][used], sm[..., 1][used]
+    sm = smoothed(np.stack([lat.divergence, lat.curl, ddr[..., 0], ddr[..., 1], lat.phi, lat.psi]),
+                  lat.inside, (1, 1, 1, 1, POT_PASSES, POT_PASSES), steps=geo.smoothing)
+    comps, pots = sm[2:4], sm[4:6]
+    div_v, curl_v = sm[0][used], sm[1][used]
     vec = np.stack([lat.u[used], lat.v[used]], axis=1)
     scale = strength_scale(SimpleNamespace(divergence=div_v, curl=curl_v, vectors=vec,
                                            stats={"spacing": ell}), geo.edge_distance)
@@ -75,8 +73,8 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     sigma = None
     found = []              # (refined place, node, kind, strength, significance, coherence)
     for pot, fld, comp, kinds, signs in (
-            (pots[..., 0], lat.curl_free, comps[..., 0], ("source", "sink"), (1, -1)),
-            (pots[..., 1], lat.div_free, comps[..., 1], ("cw_vortex", "ccw_vortex"), (-1, 1))):
+            (pots[0], lat.curl_free, comps[0], ("source", "sink"), (1, -1)),
+            (pots[1], lat.div_free, comps[1], ("cw_vortex", "ccw_vortex"), (-1, 1))):
         pot = np.where(used, pot, np.nan)
         comp = np.where(used, comp, np.nan)
         with np.errstate(invalid="ignore"):

@@ -45,8 +45,8 @@ from .grid_differences import (PAD, STENCILS, axis_derivative, codes_div_curl,
                                components_checks, div_curl, stencil_codes)
 
 __all__ = ["NodeGrid", "uniform_steps", "div_curl", "axis_derivative", "stencil_codes",
-           "smoothed", "smoothing_steps", "mls_gradient_stencil", "eroded", "outline_distance", "fill_gaps",
-           "natural_on_nodes", "decompose_nodes", "NodeResult", "NodeFields", "STENCILS", "PAD",
+           "smoothed", "smoothing_steps", "mls_gradient_stencil", "eroded", "outline_distance",
+           "fill_gaps", "natural_on_nodes", "decompose_nodes", "NodeResult", "NodeFields", "STENCILS", "PAD",
            "UNIFORM_RTOL"]
 
 #: an axis is uniform when every step is within this fraction of the mean step:
@@ -84,9 +84,9 @@ class NodeGrid(Grid):
 
 def smoothing_steps(avail: np.ndarray) -> list:
     """What :func:`smoothed` takes from the nodes ``avail`` alone: per axis
-    (x, then y) the slices of a node's lower and upper neighbours and the
-    renormalisation (one over the weight of the available nodes the filter
-    reaches; 0 off ``avail``)."""
+    (x, then y) the slices of a node's lower and upper neighbours in a (k,
+    ny, nx) stack and the renormalisation (one over the weight of the
+    available nodes the filter reaches; 0 off ``avail``)."""
     w = avail.astype(np.float64)
     steps = []                          # (lo, hi, the renormalisation)
     for axis in (1, 0):
@@ -98,33 +98,42 @@ def smoothing_steps(avail: np.ndarray) -> list:
         den = 2.0 * w
         den[hi] += w[lo]
         den[lo] += w[hi]
-        steps.append((lo, hi, np.where(avail, 1.0 / np.maximum(den, 1e-300), 0.0)[..., None]))
+        steps.append(((slice(None),) + lo, (slice(None),) + hi,
+                      np.where(avail, 1.0 / np.maximum(den, 1e-300), 0.0)))
     return steps
 
 
-def smoothed(F: np.ndarray, avail: np.ndarray, passes: int = 1, steps: list | None = None) \
+def smoothed(F: np.ndarray, avail: np.ndarray, passes=1, steps: list | None = None) \
         -> np.ndarray:
-    """``F`` (ny, nx[, k]) smoothed over the nodes ``avail`` by the binomial
-    filter [1, 2, 1] / 4 along x, then along y (each pass renormalised by the
-    weight of the available nodes; NaN off ``avail``), ``passes`` times
-    (``steps``: :func:`smoothing_steps` of ``avail`` if made already).  One
-    pass is what the
-    scattered path's cubic moving-least-squares divergence does to a field's
-    differences: on pivpy's noisy samples the differences smoothed so differ
-    from it by 16-22% (wing tip, soap film; 31-54% unsmoothed)."""
+    """``F`` (ny, nx), or a stack of fields (k, ny, nx), smoothed over the
+    nodes ``avail`` by the binomial filter [1, 2, 1] / 4 along x, then along
+    y (each pass renormalised by the weight of the available nodes; NaN off
+    ``avail``), ``passes`` times (or per field: k counts); ``steps``:
+    :func:`smoothing_steps` of ``avail`` if made already.  One pass is what
+    the scattered path's cubic moving-least-squares divergence does to a
+    field's differences: on pivpy's noisy samples the differences smoothed
+    so differ from it by 16-22% (wing tip, soap film; 31-54% unsmoothed).
+    Fields first: each field's rows contiguous, the shifted sums 1.5 times
+    as fast as over interleaved fields."""
     F = np.asarray(F, dtype=np.float64)
     one = F.ndim == 2
-    Z = np.where(avail[..., None], F[..., None] if one else F, 0.0)
+    Z = np.where(avail, F[None] if one else F, 0.0)
     if steps is None:
         steps = smoothing_steps(avail)
-    for _ in range(passes):
+    counts = np.broadcast_to(np.asarray(passes), Z.shape[:1])
+    for done in range(int(counts.max(initial=0))):
+        sel = np.flatnonzero(counts > done)
+        run = sel[-1] - sel[0] + 1 == len(sel)          # a range of fields: a view
+        part = Z[sel[0]:sel[-1] + 1] if run else Z[sel]
         for lo, hi, scale in steps:
-            num = 2.0 * Z
-            num[hi] += Z[lo]
-            num[lo] += Z[hi]
-            Z = num * scale
-    Z[~avail] = np.nan
-    return Z[..., 0] if one else Z
+            num = 2.0 * part
+            num[hi] += part[lo]
+            num[lo] += part[hi]
+            np.multiply(num, scale, out=part)
+        if not run:
+            Z[sel] = part
+    Z[:, ~avail] = np.nan
+    return Z[0] if one else Z
 
 
 def mls_gradient_stencil(hx: float, hy: float, support: float) -> tuple:
