@@ -62,7 +62,10 @@ the unfiltered search finds (``filter=False``), and how many lie outside the
 data (not inside ``result.domain``, or farther than one grid spacing from
 every node decomposed); the whole call's seconds after a warm-up call, and
 the critical points' seconds (medians of ``--repeats`` calls after a warm-up, the
-critical points each on a fresh result: kernels compiled).  The issue's
+critical points each on a fresh result: kernels compiled; the layouts and
+geometries kept from the earlier calls on the grid, as in a run's frames),
+and both again on the grid as if seen for the first time (``new_grid_*``:
+``forget_layouts()`` before each).  The issue's
 targets: energy ratio <= 1.2, no critical point outside the data, and the
 critical points found in less time than the decomposition.
 
@@ -133,7 +136,8 @@ EXTRA_CONDITIONS = ("normal-parallel",)
 FIELDS = ["dataset", "variant", "condition", "condition_used", "format", "grid", "n_valid",
           "n_invalid", "n_used",
           "energy_ratio", "h_divergence", "h_curl", "n_critical", "n_unfiltered", "n_outside",
-          "targets", "seconds", "critical_seconds", "critical_kinds", "e_d", "e_r", "e_h", "e_rh", "flags", "invalid_rule", "units", "flow", "file"]
+          "targets", "seconds", "critical_seconds", "new_grid_seconds",
+          "new_grid_critical_seconds", "critical_kinds", "e_d", "e_r", "e_h", "e_rh", "flags", "invalid_rule", "units", "flow", "file"]
 
 
 def data_dir() -> str:
@@ -266,18 +270,28 @@ def run_one(thh, np, spec, variant, condition, x, y, u, v, repeats: int = 3):
         row.update(n_used=0, energy_ratio=float("nan"), h_divergence=float("nan"),
                    h_curl=float("nan"), n_critical=0, n_unfiltered=0, n_outside=0,
                    targets="error", seconds=float("nan"), critical_seconds=float("nan"),
+                   new_grid_seconds=float("nan"), new_grid_critical_seconds=float("nan"),
                    critical_kinds="", flags=f"error: {exc}"[:300])
         row.update(e_d=float("nan"), e_r=float("nan"), e_h=float("nan"), e_rh=float("nan"))
         return row, None, None
     s = res.stats
     from taichi_hh.hhd.critical import critical_points
+    from taichi_hh.hhd.grid import forget_layouts
     res.critical_points()                        # warm-up
-    times = []
+    times, new_times, new_critical = [], [], []
     for _ in range(repeats):                     # each on a fresh result, as users call it
         fresh = call()
         t = time.perf_counter()
         critical = fresh.critical_points()
         times.append(time.perf_counter() - t)
+        # the grid seen for the first time: nothing kept from earlier calls
+        forget_layouts()
+        t = time.perf_counter()
+        first = call()
+        t1 = time.perf_counter()
+        first.critical_points()
+        new_times.append(t1 - t)
+        new_critical.append(time.perf_counter() - t1)
     critical_seconds = statistics.median(times)
     unfiltered = critical_points(res, filter=False)
     n_out = outside(np, res, critical)
@@ -289,6 +303,8 @@ def run_one(thh, np, spec, variant, condition, x, y, u, v, repeats: int = 3):
                n_critical=len(critical), n_unfiltered=len(unfiltered), n_outside=n_out,
                targets="met" if met else "MISSED", seconds=seconds,
                critical_seconds=critical_seconds,
+               new_grid_seconds=statistics.median(new_times),
+               new_grid_critical_seconds=statistics.median(new_critical),
                critical_kinds=" ".join(f"{kinds.count(k)} {k}" for k in CRITICAL_KINDS
                                        if k in kinds),
                flags=" | ".join(list(s.get("flags", []))))
@@ -397,7 +413,8 @@ def main(argv=None) -> int:
         return 0
     cols = ["dataset", "variant", "condition", "condition_used", "grid", "n_valid", "n_invalid", "n_used",
             "energy_ratio", "h_divergence", "h_curl", "n_critical", "n_unfiltered", "n_outside",
-            "targets", "seconds", "critical_seconds", "e_d", "e_r", "e_h", "e_rh", "flags"]
+            "targets", "seconds", "critical_seconds", "new_grid_seconds",
+            "new_grid_critical_seconds", "e_d", "e_r", "e_h", "e_rh", "flags"]
 
     def cell(r, k):
         val = r[k]
@@ -405,10 +422,11 @@ def main(argv=None) -> int:
             return str(len([f for f in str(val).split(" | ") if f])) if val else "0"
         return f"{val:.3g}" if isinstance(val, float) else str(val)
     print(_common.format_table(cols, [[cell(r, k) for k in cols] for r in rows],
-                               "llll" + "r" * 17))
+                               "llll" + "r" * 19))
     print(f"targets: energy ratio <= {ENERGY_TARGET:g}, no critical point outside the data, "
-          "critical points in less time than the decomposition; flags: their count (text "
-          "in the CSV)")
+          "critical points in less time than the decomposition (both on a grid decomposed "
+          "before, as a run's frames are; new_grid_*: the same on a grid seen for the first "
+          "time, nothing kept); flags: their count (text in the CSV)")
     for r in rows:
         if r["critical_kinds"]:
             print(f"  {r['dataset']} {r['variant']} {r['condition']}: {r['critical_kinds']}")

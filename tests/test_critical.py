@@ -293,3 +293,45 @@ def test_filter_options():
         assert on <= one <= raw, name
     assert key(critical_points(res, edge=None, significance=None, coherence=None)) == raw
     assert critical_points(res, threshold=100.0) == []
+
+
+def test_kept_geometry_changes_nothing():
+    """The critical points' geometry kept between calls on the same grid
+    (critical_grid.CriticalGeometry: outline distances, windows, the noise
+    filter, the disc means' spreads) gives the points a fresh one gives, with
+    another mask's geometry made and kept in between; and the significance's
+    spreads of the windows clear of the outline, shared by all of them, are
+    those computed window by window."""
+    from taichi_hh.hhd import critical_grid
+    from taichi_hh.hhd.grid import forget_layouts
+    x, y, X, pts = _grid(64)
+    v = _noisy_max(_vortices(pts), 0.05, seed=3)
+    u, w = v[:, 0].reshape(X.shape), v[:, 1].reshape(X.shape)
+    Y = np.meshgrid(x, y)[1]
+    holes = [(X - 0.75) ** 2 + (Y - 0.2) ** 2 < 0.08 ** 2, (X - 0.2) ** 2 + (Y - 0.8) ** 2 < 0.1 ** 2]
+
+    def full(c):             # repr: exact, and NaN (filters off) equal to NaN
+        return repr((c.x, c.y, c.kind, c.strength, c.significance, c.coherence))
+    forget_layouts()
+    first = [[full(c) for c in critical_points(thh.decompose_grid(x, y, u, w, mask=m),
+                                               filter=f)]
+             for m in holes for f in (True, False)]
+    again = [[full(c) for c in critical_points(thh.decompose_grid(x, y, u, w, mask=m),
+                                               filter=f)]
+             for m in holes for f in (True, False)]
+    assert first == again and all(first[::2]), first
+    res = thh.decompose_grid(x, y, u, w, mask=holes[0])
+    lat = res.lattice
+    rad = critical_grid.grid_support(lat.hx, lat.hy, lat.options.support_ratio)
+    geo = critical_grid.CriticalGeometry.of(lat, rad, critical.SCALE_EDGE * lat.spacing)
+    jj, ii = np.nonzero(lat.used)
+    spreads = geo.spreads(jj, ii)
+    clear = geo.clear_windows()[jj, ii]
+    assert 0 < clear.sum() < len(jj)
+    rows = critical_grid.GridRows(geo)
+    ny, nx = lat.used.shape
+    for k in np.flatnonzero(clear)[::97]:
+        j, i = int(jj[k]), int(ii[k])
+        win = critical_grid.window(j, i, geo.Ry, geo.Rx, ny, nx)
+        mine = geo.discs[:, win[2][0], win[2][1]] & lat.used[win[0]][None]
+        np.testing.assert_allclose(spreads[k], rows.mean_row_norms(mine, win), rtol=1e-12)

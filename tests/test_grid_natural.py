@@ -261,26 +261,30 @@ def _numpy_split(vec, inside, hx, hy, P=None):
     P = vec if P is None else P
     from taichi_hh.hhd.grid_differences import DATA_CODE_OF_RUNS as DATA
 
-    def dcurl(F, table):
+    def dcurl(F, table, pick=(0, 1)):
         dx = ng.axis_derivative(F, inside, 1, hx, table)
         dy = ng.axis_derivative(F, inside, 0, hy, table)
-        return np.stack([dx[..., 0] + dy[..., 1], dx[..., 1] - dy[..., 0]], axis=-1)
+        return np.stack([dx[..., 0] + dy[..., 1], dx[..., 1] - dy[..., 0]], axis=-1)[..., pick]
     dc = dcurl(vec, DATA)
     gx, gy = ng.axis_derivative(P, inside, 1, hx), ng.axis_derivative(P, inside, 0, hy)
     d = np.stack([gx[..., 0], gy[..., 0]], axis=-1)
     r = np.stack([gy[..., 1], -gx[..., 1]], axis=-1)
     h = vec - d - r
+    # div d and curl r by the potentials' stencils (what the critical points read)
+    ddr = np.stack([dcurl(np.where(inside[..., None], d, 0.0), None, 0),
+                    dcurl(np.where(inside[..., None], r, 0.0), None, 1)], axis=-1)
+    ddr[~inside] = 0.0
     for a in (d, r, h):
         a[~inside] = np.nan
-    return dc, np.stack([d, r, h, dcurl(np.where(inside[..., None], h, 0.0), DATA)])
+    return dc, np.stack([d, r, h, dcurl(np.where(inside[..., None], h, 0.0), DATA), ddr])
 
 
 def test_fused_kernels_are_their_numpy_reference():
     """The two launches of the grid path (hhd/grid_differences.py): the stencil
     codes each node picks in the kernel are stencil_codes' (both tables), and
     div/curl of the data (the codes picked, or kept from the last call on the
-    same nodes), d, r, h and div/curl of h equal the numpy reference node by
-    node, on random masks (strips, corners, single nodes) and a full grid."""
+    same nodes), d, r, h, div/curl of h, div d and curl r equal the numpy
+    reference node by node, on random masks (strips, corners, single nodes) and a full grid."""
     from taichi_hh.hhd import grid_differences as gd
     rng = np.random.default_rng(5)
     for k in range(6):
@@ -302,8 +306,9 @@ def test_fused_kernels_are_their_numpy_reference():
                                    rtol=0, atol=3e-13 * scale)
         got = gd.components_checks(F, F, codes, hx, hy)
         np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
-        np.testing.assert_allclose(np.nan_to_num(got), np.nan_to_num(want), rtol=0,
-                                   atol=1e-13 * np.nanmax(np.abs(want)))
+        for layer in range(len(want)):                # each to its own scale
+            np.testing.assert_allclose(np.nan_to_num(got[layer]), np.nan_to_num(want[layer]),
+                                       rtol=0, atol=1e-13 * np.nanmax(np.abs(want[layer])))
 
 
 def test_the_split_is_its_reference_and_as_accurate_as_before():
@@ -324,7 +329,7 @@ def test_the_split_is_its_reference_and_as_accurate_as_before():
     dc, _ = _numpy_split(vec, inside, hx, hy)
     pot = convolve_fft(got["grid"], np.stack([dc[..., 0].T, -dc[..., 1].T]))
     P = np.stack([pot[0].T, pot[1].T], axis=-1)
-    _, (d, r, h, hdc) = _numpy_split(vec, inside, hx, hy, P)
+    _, (d, r, h, hdc, _) = _numpy_split(vec, inside, hx, hy, P)
     h[~used] = np.nan
     P[~inside] = np.nan
     vm = np.abs(vec).max()

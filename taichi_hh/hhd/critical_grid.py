@@ -4,6 +4,7 @@ neighbour search (candidates by shifted views of the whole grid, the
 significance sums and the refinements for all candidates at once)."""
 from __future__ import annotations
 
+import functools
 import math
 from types import SimpleNamespace
 
@@ -12,6 +13,7 @@ import numpy as np
 from .critical import (COHERENCE, COHERENCE_RADIUS, EDGE, NOISE_SAMPLES, POT_PASSES, SCALE_EDGE,
                        SIGNIFICANCE, SIGNIFICANCE_RADII, THRESHOLD, CriticalPoint, noise_sigma,
                        strength_scale)
+from .recent import Recent
 
 
 def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float | None = None,
@@ -34,56 +36,51 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
       straight edges, at most the exact one at the outline's corners);
     - the noise from the quadratic fit to each sampled node's 20 nearest
       nodes (a fixed filter on the grid where all of them are used), the
-      white-noise spread of a disc mean from the difference stencils' rows.
+      white-noise spread of a disc mean from the difference stencils' rows;
+    - what those take from the nodes alone (:class:`CriticalGeometry`) kept
+      for the last few grids, as the decomposition keeps its layouts.
     """
-    from .natural_grid import outline_distance, smoothed
-    used, inside = lat.used, lat.inside
+    from .natural_grid import smoothed
+    used = lat.used
     n = int(used.sum())
     if n < 4:
         return []
     if not filter:
         edge = significance = coherence = None
-    hx, hy = lat.hx, lat.hy
-    ny, nx = used.shape
     ell = float(lat.spacing)
-    support = grid_support(hx, hy, lat.options.support_ratio)
+    support = grid_support(lat.hx, lat.hy, lat.options.support_ratio)
     rad = support if radius is None else float(radius)
     # distances to the outline (in the points' units) up to what the tests need
     far = max(SCALE_EDGE, edge or 0.0) * ell
-    jj, ii, best, _ = outline_distance(used, inside, hx, hy, far)
-    dist = np.full(used.shape, np.inf)
-    dist[jj, ii] = best
+    geo = CriticalGeometry.of(lat, rad, far)
+    dist = geo.dist
     # the derivatives smoothed as the scattered path's MLS operator smooths
     # them (natural_grid.smoothed): the strengths, signs, coherence and
     # significance read them
-    dd = lat.div_curl(lat.curl_free)
-    dr = lat.div_curl(lat.div_free)
-    sm = smoothed(np.stack([lat.divergence, lat.curl, dd[..., 0], dr[..., 1], lat.phi, lat.psi],
-                           axis=-1), lat.inside)
-    comps, pots = sm[..., 2:4], sm[..., 4:6]
-    if POT_PASSES > 1:
-        pots = smoothed(pots, lat.inside, POT_PASSES - 1)
-    div_v, curl_v = sm[..., 0][used], sm[..., 1][used]
+    ddr = lat.components_div_curl
+    sm = smoothed(np.stack([lat.divergence, lat.curl, ddr[..., 0], ddr[..., 1], lat.phi, lat.psi]),
+                  lat.inside, (1, 1, 1, 1, POT_PASSES, POT_PASSES), steps=geo.smoothing)
+    comps, pots = sm[2:4], sm[4:6]
+    div_v, curl_v = sm[0][used], sm[1][used]
     vec = np.stack([lat.u[used], lat.v[used]], axis=1)
     scale = strength_scale(SimpleNamespace(divergence=div_v, curl=curl_v, vectors=vec,
-                                           stats={"spacing": ell}), dist[used] / ell)
+                                           stats={"spacing": ell}), geo.edge_distance)
     if scale == 0.0 or not math.isfinite(scale):
         return []
-    Ry, Rx = int(rad // hy), int(rad // hx)
-    oy, ox = np.mgrid[-Ry:Ry + 1, -Rx:Rx + 1]
-    r_off = np.hypot(oy * hy, ox * hx)
+    Ry, Rx, oy, ox, r_off = geo.Ry, geo.Rx, geo.oy, geo.ox, geo.r_off
+    ny, nx = used.shape
     in_rad = (r_off < rad) & (r_off > 0)                  # the others within radius
     sigma = None
-    rows = None
     found = []              # (refined place, node, kind, strength, significance, coherence)
     for pot, fld, comp, kinds, signs in (
-            (pots[..., 0], lat.curl_free, comps[..., 0], ("source", "sink"), (1, -1)),
-            (pots[..., 1], lat.div_free, comps[..., 1], ("cw_vortex", "ccw_vortex"), (-1, 1))):
+            (pots[0], lat.curl_free, comps[0], ("source", "sink"), (1, -1)),
+            (pots[1], lat.div_free, comps[1], ("cw_vortex", "ccw_vortex"), (-1, 1))):
         pot = np.where(used, pot, np.nan)
         comp = np.where(used, comp, np.nan)
         with np.errstate(invalid="ignore"):
             strength = np.abs(comp) / scale
-            speed = np.hypot(fld[..., 0], fld[..., 1])
+            # by the squares: np.hypot's guard costs five times as much
+            speed = np.sqrt(fld[..., 0] * fld[..., 0] + fld[..., 1] * fld[..., 1])
             cand = used & (strength >= threshold) & (speed <= np.abs(comp) * rad)
             if edge is not None and edge > 0:
                 cand &= dist >= edge * ell
@@ -96,19 +93,17 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
         # used nodes) as nanmin/nanmax do; none but NaN: no extremum
         padded = _padded(pot, Ry, Rx, np.nan)
         lo8 = hi8 = None
-        count8 = np.zeros(pot.shape, dtype=np.int64)
         for dy in range(-min(Ry, 1), min(Ry, 1) + 1):
             for dx in range(-min(Rx, 1), min(Rx, 1) + 1):
                 if dy or dx:
                     view = padded[Ry + dy:Ry + dy + ny, Rx + dx:Rx + dx + nx]
                     lo8 = view if lo8 is None else np.fmin(lo8, view)
                     hi8 = view if hi8 is None else np.fmax(hi8, view)
-                    count8 += np.isfinite(view)
         if lo8 is None:
             continue
         with np.errstate(invalid="ignore"):
             low8, high8 = pot < lo8, pot > hi8
-            cand &= (low8 | high8) & (count8 >= 2)
+            cand &= (low8 | high8) & geo.two_of_eight      # pot is finite on the used nodes
             jj, ii = np.nonzero(cand)
             low, high = low8[jj, ii], high8[jj, ii]
             nb = padded[jj[:, None] + Ry + oy[in_rad][None, :],
@@ -119,10 +114,10 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
             high &= (here > np.fmax.reduce(nb, axis=1)) & (c_here * signs[1] > 0)
             keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
         jj, ii, low = jj[keep], ii[keep], low[keep]
+        cpad = _padded(comp, Ry, Rx, np.nan)
         c_all = np.full(jj.size, math.nan)
         if coherence is not None and jj.size:            # one sign over the disc
             sel = (r_off <= COHERENCE_RADIUS * ell)
-            cpad = _padded(comp, Ry, Rx, np.nan)
             disc_c = cpad[jj[:, None] + Ry + oy[sel][None, :], ii[:, None] + Rx + ox[sel][None, :]]
             sign = np.sign(comp[jj, ii])
             total = np.nansum(np.abs(disc_c), axis=1)
@@ -135,14 +130,11 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
         z_all = np.full(jj.size, math.nan)
         if significance is not None and jj.size:
             if sigma is None:
-                sigma = grid_noise_sigma(lat)
-            if rows is None:
-                rows = _GridRows(lat)
-            z_all = _grid_significance(rows, comp, used, jj, ii, (oy, ox, r_off), rad, ell,
-                                       sigma)
+                sigma = grid_noise_sigma(lat, geometry=geo)
+            z_all = _grid_significance(geo, comp, cpad, jj, ii, sigma)
             keep = z_all >= significance
             jj, ii, low, c_all, z_all = jj[keep], ii[keep], low[keep], c_all[keep], z_all[keep]
-        places = _grid_refine(lat, pot, used, jj, ii, (oy, ox, r_off), rad)
+        places = _grid_refine(lat, geo, padded, jj, ii, rad)
         for k in range(jj.size):
             j, i = int(jj[k]), int(ii[k])
             found.append((places[k], (float(lat.x[i]), float(lat.y[j])),
@@ -152,7 +144,7 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
         # a refined place outside the outline falls back to its node (one
         # vectorised test for all)
         moved = np.array([f[0] for f in found], dtype=np.float64)
-        inside = _inside_outline(lat.domain, moved)
+        inside = _inside_outline(lat.domain, moved, geo.segments)
         found = [(f[0] if ok else f[1],) + f[1:] for f, ok in zip(found, inside)]
     out = [CriticalPoint(float(p[0][0]), float(p[0][1]), p[2], p[3], p[4], p[5])
            for p in found]
@@ -160,17 +152,20 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     return out
 
 
-def _inside_outline(domain, points) -> np.ndarray:
+def _inside_outline(domain, points, segments=None) -> np.ndarray:
     """``domain.contains(points)`` for a few points: the even-odd crossing
     test over every boundary segment (outer ring and holes), O(points x
     segments) without the point locator :meth:`Polygon.contains` builds on
     its first query (0.15 s for the staircase outline of a masked 64 x 64
-    grid, four times the decomposition).  Points on the boundary itself (a
-    set of measure zero) may go either way."""
-    segments = getattr(domain, "segments", None)
+    grid, four times the decomposition).  ``segments``: ``domain.segments()``
+    if made already.  Points on the boundary itself (a set of measure zero)
+    may go either way."""
+    if segments is None:
+        segments = getattr(domain, "segments", None)
+        segments = None if segments is None else segments()
     if segments is None or len(points) > 256:
         return domain.contains(points)
-    a, b = segments()
+    a, b = segments
     px, py = points[:, 0:1], points[:, 1:2]                     # (k, 1) against (S,)
     crosses = (a[:, 1] > py) != (b[:, 1] > py)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -178,6 +173,7 @@ def _inside_outline(domain, points) -> np.ndarray:
     return ((crosses & (px < at)).sum(axis=1) % 2) == 1
 
 
+@functools.lru_cache(maxsize=16)
 def grid_support(hx: float, hy: float, support_ratio: float) -> float:
     """The adaptive support of a grid's node (:mod:`taichi_hh.sph.support`):
     ``support_ratio`` times its local spacing, the distance to its 12th
@@ -190,7 +186,7 @@ def grid_support(hx: float, hy: float, support_ratio: float) -> float:
     return support_ratio * float(r[k]) * math.sqrt(math.pi / k)     # r[0]: the node itself
 
 
-def _window(j, i, Ry, Rx, ny, nx):
+def window(j, i, Ry, Rx, ny, nx):
     """``(grid slice, window shape, slice of the full window)`` of the nodes
     within Ry rows and Rx columns of (j, i), clipped to the grid."""
     j0, j1 = max(j - Ry, 0), min(j + Ry + 1, ny)
@@ -208,83 +204,43 @@ def _padded(values, Ry, Rx, fill):
     return out
 
 
-def _gather(values, jj, ii, offsets, fill):
-    """``values`` (ny, nx) at the nodes (jj + oy, ii + ox) for every candidate
-    (jj, ii) (K,) and offset (oy, ox) (O,): (K, O), ``fill`` off the grid."""
-    oy, ox = offsets
-    Ry, Rx = int(np.abs(oy).max(initial=0)), int(np.abs(ox).max(initial=0))
-    padded = _padded(values, Ry, Rx, fill)
-    return padded[jj[:, None] + Ry + oy[None, :], ii[:, None] + Rx + ox[None, :]]
-
-
-def _grid_significance(rows, comp, used, jj, ii, window, rad, ell, sigma) -> np.ndarray:
+def _grid_significance(geo, comp, padded_comp, jj, ii, sigma) -> np.ndarray:
     """Per candidate node (jj, ii) (K,), the significance of
     :func:`find_grid_critical_points`: the best over ``SIGNIFICANCE_RADII`` of
-    the mean of ``comp`` over the used nodes of the disc (also within
-    ``rad``), signed by the candidate's, over ``sigma`` times the disc mean's
-    white-noise spread (:class:`_GridRows`).  The sums for all candidates at
-    once; the spreads of windows in the grid's interior computed once."""
-    oy, ox, r_off = window
-    Ry, Rx = oy.shape[0] // 2, ox.shape[1] // 2
-    ny, nx = used.shape
-    discs = np.stack([(r_off < rad) & (r_off <= radius_i * ell)
-                      for radius_i in SIGNIFICANCE_RADII])          # (4, wy, wx)
-    flat = discs.reshape(len(discs), -1).astype(np.float64)
-    offsets = (oy.ravel(), ox.ravel())
-    g_used = _gather(used, jj, ii, offsets, False)                    # (K, wy * wx)
-    g_comp = _gather(np.where(used, comp, 0.0), jj, ii, offsets, 0.0)    # finite where used
-    counts = g_used.astype(np.float64) @ flat.T                       # (K, 4)
-    sums = g_comp @ flat.T
+    the mean of ``comp`` over the used nodes of the disc (also within the
+    radius), signed by the candidate's, over ``sigma`` times the disc mean's
+    white-noise spread (:meth:`CriticalGeometry.spreads`).  The sums for all
+    candidates at once (``padded_comp``: ``comp`` padded by the window,
+    NaN off the used nodes)."""
+    g_used = geo.window_gather(geo.padded_used, jj, ii)                 # (K, wy * wx)
+    g_comp = np.where(g_used, geo.window_gather(padded_comp, jj, ii), 0.0)
+    counts = g_used.astype(np.float64) @ geo.disc_weights.T              # (K, 4)
+    sums = g_comp @ geo.disc_weights.T
     sign = np.where(comp[jj, ii] > 0, 1.0, -1.0)
     means = sign[:, None] * sums / np.maximum(counts, 1)
-    # windows whose nodes are all used, whose filter reach (one node more) is
-    # inside and takes the central stencils, clear of the grid's edges: the
-    # same discs and rows wherever they lie (_GridRows.cached_mean_row_norms)
-    off_centre = _padded(~rows.inside | (rows.cx != 0) | (rows.cy != 0), 1, 1, False)
-    area = np.zeros((ny + 3, nx + 3), dtype=np.int64)
-    area[1:, 1:] = off_centre.cumsum(0).cumsum(1)
-    j0, j1 = jj - Ry - 1, jj + Ry + 2
-    i0, i1 = ii - Rx - 1, ii + Rx + 2
-    clear = (j0 >= 0) & (i0 >= 0) & (j1 <= ny) & (i1 <= nx) & g_used.all(axis=1)
-    a0, a1, b0, b1 = (np.clip(t + 1, 0, s) for t, s in
-                      ((j0, ny + 2), (j1, ny + 2), (i0, nx + 2), (i1, nx + 2)))
-    clear &= (area[a1, b1] - area[a0, b1] - area[a1, b0] + area[a0, b0]) == 0
-    norms = np.empty((len(jj), len(discs)))
-    first_clear = None
-    for k in range(len(jj)):
-        if clear[k] and first_clear is not None:
-            norms[k] = norms[first_clear]
-            continue
-        first_clear = k if clear[k] else first_clear
-        j, i = int(jj[k]), int(ii[k])
-        win = _window(j, i, Ry, Rx, ny, nx)
-        mine = discs[:, win[2][0], win[2][1]] & used[win[0]][None]
-        norms[k] = rows.cached_mean_row_norms(mine, win, used)
-    spread = sigma * norms
+    spread = sigma * geo.spreads(jj, ii)
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(spread > 0, means / np.where(spread > 0, spread, 1.0),
                      np.where(means > 0, math.inf, -math.inf))
     return z.max(axis=1) if z.size else np.full(len(jj), -math.inf)
 
 
-def _grid_refine(lat, pot, used, jj, ii, window, rad) -> list:
+def _grid_refine(lat, geo, padded_pot, jj, ii, rad) -> list:
     """Per candidate node (jj, ii), the stationary point of the quadratic
-    least-squares fit of ``pot`` over the used nodes within ``rad`` of it
-    (the node kept where the fit has fewer than 6 nodes, is singular, or
-    its stationary point falls farther than ``rad``; the caller keeps it
-    where it falls outside the domain's outline): all fits at once."""
-    oy, ox, r_off = window
-    near = r_off < rad
-    offsets = (oy[near], ox[near])
-    here = np.c_[lat.x[ii], lat.y[jj]]
+    least-squares fit of the potential (``padded_pot``: padded by the window,
+    NaN off the used nodes) over the used nodes within ``rad`` of it (the
+    node kept where the fit has fewer than 6 nodes, is singular, or its
+    stationary point falls farther than ``rad``; the caller keeps it where
+    it falls outside the domain's outline): all fits at once."""
     if len(jj) == 0:
         return []
-    m = _gather(used, jj, ii, offsets, False)                          # (K, O)
-    nx, ny = len(lat.x), len(lat.y)
-    cols, rows = ii[:, None] + offsets[1][None, :], jj[:, None] + offsets[0][None, :]
-    X = np.where(m, lat.x[np.clip(cols, 0, nx - 1)] - here[:, :1], 0.0)
-    Y = np.where(m, lat.y[np.clip(rows, 0, ny - 1)] - here[:, 1:], 0.0)
-    P = np.where(m, _gather(pot, jj, ii, offsets, 0.0), 0.0)
+    oy, ox = geo.near_offsets
+    here = np.stack([lat.x[ii], lat.y[jj]], axis=1)
+    rows, cols = jj[:, None] + geo.Ry + oy[None, :], ii[:, None] + geo.Rx + ox[None, :]
+    m = geo.padded_used[rows, cols]                                     # (K, O)
+    X = np.where(m, geo.padded_x[cols] - here[:, :1], 0.0)
+    Y = np.where(m, geo.padded_y[rows] - here[:, 1:], 0.0)
+    P = np.where(m, padded_pot[rows, cols], 0.0)
     A = np.stack([m.astype(np.float64), X, Y, X * X, X * Y, Y * Y], axis=-1)   # (K, O, 6)
     normal = np.einsum("koa,kob->kab", A, A)
     rhs = np.einsum("koa,ko->ka", A, P)
@@ -312,17 +268,41 @@ def _grid_refine(lat, pot, used, jj, ii, window, rad) -> list:
     return out
 
 
-def grid_noise_sigma(lat, samples: int = NOISE_SAMPLES) -> float:
+def grid_noise_sigma(lat, samples: int = NOISE_SAMPLES, *, geometry=None) -> float:
     """:func:`noise_sigma` on a grid: the quadratic moving-least-squares fit
     to each sampled node's 20 nearest nodes (itself left out; Wendland
     weights on the distance over 1.5 times the 20th), a fixed filter at the
     nodes whose 20 neighbours are all used; where fewer than a tenth of the
-    samples have them, :func:`noise_sigma` of the used nodes."""
-    used = lat.used
+    samples have them, :func:`noise_sigma` of the used nodes.  ``geometry``:
+    the grid's :class:`CriticalGeometry` if made already."""
+    filt, centre, rows = (geometry.noise_filter(samples) if geometry is not None
+                          else noise_filter(lat.used, lat.hx, lat.hy, samples))
+    if filt is None:
+        flat = np.flatnonzero(lat.used.ravel())
+        nx = lat.used.shape[1]
+        vec = np.stack([lat.u, lat.v], axis=-1).reshape(-1, 2)
+        return noise_sigma(np.c_[lat.x[np.divmod(flat, nx)[1]], lat.y[np.divmod(flat, nx)[0]]],
+                           vec[flat], samples)
+    out = []
+    for comp in (lat.u, lat.v):
+        padded = _padded(comp, NOISE_REACH, NOISE_REACH, 0.0).ravel()
+        out.append(padded[centre] - padded[rows] @ filt)
+    return 1.4826 * float(np.median(np.abs(np.stack(out, axis=1))))
+
+
+#: the noise filter's reach in nodes: its 20 nearest within 3 steps each way
+NOISE_REACH = 3
+
+
+def noise_filter(used: np.ndarray, hx: float, hy: float, samples: int = NOISE_SAMPLES) -> tuple:
+    """``(filter, centres, rows)`` of :func:`grid_noise_sigma`: the fixed
+    filter's weights (20,), and the flat indices (into the grid padded by
+    :data:`NOISE_REACH`) of the sampled nodes whose 20 neighbours are all
+    used and of those neighbours ((S,), (S, 20)); ``(None, None, None)``
+    where fewer than a tenth of the samples have them."""
     ny, nx = used.shape
-    hx, hy = lat.hx, lat.hy
     k = 20
-    R = 3
+    R = NOISE_REACH
     oy, ox = np.mgrid[-R:R + 1, -R:R + 1]
     oy, ox = oy.ravel(), ox.ravel()
     r = np.hypot(oy * hy, ox * hx)
@@ -346,30 +326,173 @@ def grid_noise_sigma(lat, samples: int = NOISE_SAMPLES) -> float:
     near = centre[:, None] + (oy * width + ox)[None, :]
     full = np.pad(used, R).ravel()[near].all(axis=1)
     if full.sum() < max(8, 0.1 * len(at)):
-        vec = np.stack([lat.u, lat.v], axis=-1).reshape(-1, 2)
-        return noise_sigma(np.c_[lat.x[np.divmod(flat, nx)[1]], lat.y[np.divmod(flat, nx)[0]]],
-                           vec[flat], samples)
-    rows = near[full]
-    out = []
-    for comp in (lat.u, lat.v):
-        padded = np.pad(comp, R).ravel()
-        out.append(padded[centre[full]] - padded[rows] @ filt)
-    return 1.4826 * float(np.median(np.abs(np.stack(out, axis=1))))
+        return None, None, None
+    return filt, centre[full], near[full]
 
 
-class _GridRows:
+class CriticalGeometry:
+    """What :func:`find_grid_critical_points` takes from a grid's nodes
+    alone (the nodes used and inside, the steps, the spacing, the radius and
+    the outline distances' reach): the distances to the outline, the
+    smoothing's weights, the window of offsets within the radius and the
+    significance discs over it, the noise filter, and the disc means'
+    white-noise spreads per window.  :meth:`of` keeps those of the last
+    :data:`KEPT_GEOMETRIES` grids (a run's frames on a fixed mask pay for
+    them once)."""
+
+    def __init__(self, lat, rad: float, far: float):
+        from .natural_grid import outline_distance, smoothing_steps
+        self.used, self.inside = lat.used, lat.inside
+        self.data_codes = lat.data_codes
+        self.hx, self.hy = lat.hx, lat.hy
+        ell = float(lat.spacing)
+        jj, ii, best, _ = outline_distance(self.used, self.inside, self.hx, self.hy, far)
+        dist = np.full(self.used.shape, np.inf)
+        dist[jj, ii] = best
+        self.dist = dist
+        self.edge_distance = dist[self.used] / ell
+        self.smoothing = smoothing_steps(self.inside)
+        self.Ry, self.Rx = int(rad // self.hy), int(rad // self.hx)
+        self.oy, self.ox = np.mgrid[-self.Ry:self.Ry + 1, -self.Rx:self.Rx + 1]
+        self.r_off = np.hypot(self.oy * self.hy, self.ox * self.hx)
+        self.window_offsets = (self.oy.ravel(), self.ox.ravel())
+        self.discs = np.stack([(self.r_off < rad) & (self.r_off <= radius_i * ell)
+                               for radius_i in SIGNIFICANCE_RADII])      # (4, wy, wx)
+        self.disc_weights = self.discs.reshape(len(self.discs), -1).astype(np.float64)
+        near = self.r_off < rad
+        self.near_offsets = (self.oy[near], self.ox[near])
+        self.padded_used = _padded(self.used, self.Ry, self.Rx, False)
+        # the axes padded by the window (clamped: the padding is never used)
+        ny, nx = self.used.shape
+        self.padded_x = lat.x[np.clip(np.arange(-self.Rx, nx + self.Rx), 0, nx - 1)]
+        self.padded_y = lat.y[np.clip(np.arange(-self.Ry, ny + self.Ry), 0, ny - 1)]
+        # the used nodes with two used nodes or more among their 8 neighbours
+        count8 = np.zeros(self.used.shape, dtype=np.int64)
+        ry, rx = min(self.Ry, 1), min(self.Rx, 1)
+        for dy in range(-ry, ry + 1):
+            for dx in range(-rx, rx + 1):
+                if dy or dx:
+                    count8 += self.padded_used[self.Ry + dy:self.Ry + dy + ny,
+                                               self.Rx + dx:self.Rx + dx + nx]
+        self.two_of_eight = count8 >= 2
+        segments = getattr(lat.domain, "segments", None)
+        self.segments = None if segments is None else segments()
+        self._rows = None
+        self._off_centre_area = None
+        self._noise = {}
+        self._spreads = {}                    # node -> its windows' spreads
+        self._clear = None
+
+    @classmethod
+    def of(cls, lat, rad: float, far: float) -> "CriticalGeometry":
+        """The geometry of ``lat``'s grid: one of the last few made where the
+        nodes, steps, spacing, radius and reach are the same, else a new one
+        (kept up to :data:`KEPT_GEOMETRY_NODES` nodes)."""
+        used, inside = lat.used, lat.inside
+        if used.size > KEPT_GEOMETRY_NODES:
+            return cls(lat, rad, far)
+        key = (used.shape, used.tobytes(), inside.tobytes(), lat.x.tobytes(), lat.y.tobytes(),
+               float(lat.spacing), float(rad), float(far), lat.options.support_ratio)
+        geo = _GEOMETRIES.get(key)
+        if geo is None:
+            geo = cls(lat, rad, far)
+        _GEOMETRIES.put(key, geo)
+        return geo
+
+    def window_gather(self, padded, jj, ii) -> np.ndarray:
+        """(K, wy * wx): ``padded`` (a grid array padded by the window) over
+        the window of each node (jj, ii)."""
+        oy, ox = self.window_offsets
+        return padded[jj[:, None] + self.Ry + oy[None, :], ii[:, None] + self.Rx + ox[None, :]]
+
+    def noise_filter(self, samples: int) -> tuple:
+        """:func:`noise_filter` of these nodes (made once per ``samples``)."""
+        if samples not in self._noise:
+            self._noise[samples] = noise_filter(self.used, self.hx, self.hy, samples)
+        return self._noise[samples]
+
+    def spreads(self, jj, ii) -> np.ndarray:
+        """(K, 4): per candidate node (jj, ii) the white-noise spread of its
+        discs' means in units of the noise (:class:`GridRows`).  A window of
+        used nodes whose filter reach (one node more) is inside, takes the central
+        stencils and is clear of the grid's edges has the same discs and
+        rows wherever it lies: computed once; the others once per node."""
+        rows, Ry, Rx = self.rows(), self.Ry, self.Rx
+        ny, nx = self.used.shape
+        clear = self.clear_windows()[jj, ii]
+        norms = np.empty((len(jj), len(self.discs)))
+        for k in range(len(jj)):
+            key = "clear" if clear[k] else (int(jj[k]), int(ii[k]))
+            found = self._spreads.get(key)
+            if found is None:
+                j, i = int(jj[k]), int(ii[k])
+                win = window(j, i, Ry, Rx, ny, nx)
+                mine = self.discs[:, win[2][0], win[2][1]] & self.used[win[0]][None]
+                found = self._spreads[key] = rows.cached_mean_row_norms(mine, win, self.used)
+            norms[k] = found
+        return norms
+
+
+    def rows(self) -> "GridRows":
+        """The rows of the operator the spreads read (made once)."""
+        if self._rows is None:
+            self._rows = GridRows(self)
+        return self._rows
+
+    def clear_windows(self) -> np.ndarray:
+        """(ny, nx) bool: the nodes whose window (its nodes all used) and the
+        filter's reach around it (one node more: inside, the central
+        stencils) lie clear of the grid's edges and the outline (made once)."""
+        if self._clear is not None:
+            return self._clear
+        rows, Ry, Rx = self.rows(), self.Ry, self.Rx
+        ny, nx = self.used.shape
+        jj, ii = np.mgrid[0:ny, 0:nx]
+
+        def box_sum(flags, j0, j1, i0, i1):      # of flags over rows j0:j1, columns i0:i1
+            area = np.zeros((ny + 1, nx + 1), dtype=np.int64)
+            area[1:, 1:] = flags.cumsum(0).cumsum(1)
+            a0, a1, b0, b1 = (np.clip(t, 0, s) for t, s in ((j0, ny), (j1, ny), (i0, nx),
+                                                             (i1, nx)))
+            return area[a1, b1] - area[a0, b1] - area[a1, b0] + area[a0, b0]
+        j0, j1, i0, i1 = jj - Ry - 1, jj + Ry + 2, ii - Rx - 1, ii + Rx + 2
+        clear = (j0 >= 0) & (i0 >= 0) & (j1 <= ny) & (i1 <= nx)
+        window_nodes = (2 * Ry + 1) * (2 * Rx + 1)
+        clear &= box_sum(self.used, j0 + 1, j1 - 1, i0 + 1, i1 - 1) == window_nodes
+        off_centre = ~rows.inside | (rows.cx != 0) | (rows.cy != 0)
+        clear &= box_sum(off_centre, j0, j1, i0, i1) == 0
+        self._clear = clear
+        return clear
+
+
+#: the geometries :meth:`CriticalGeometry.of` keeps (as the layouts,
+#: :data:`~taichi_hh.hhd.grid.KEPT_LAYOUTS`)
+KEPT_GEOMETRIES = 4
+#: grids of more nodes keep none (their windows' spreads are a small part of
+#: their critical points' time)
+KEPT_GEOMETRY_NODES = 1_000_000
+_GEOMETRIES = Recent(KEPT_GEOMETRIES)
+
+
+def forget_geometries() -> None:
+    """Drop the kept :class:`CriticalGeometry` (their memory, or to time a
+    grid seen for the first time)."""
+    _GEOMETRIES.clear()
+
+
+class GridRows:
     """The rows of the operator the critical points read on a grid: the
     difference stencils of the vectors (:mod:`taichi_hh.hhd.natural_grid`,
     along x on u, along y on v), smoothed by the binomial filter
     (:func:`~taichi_hh.hhd.natural_grid.smoothed`): the white-noise spread of
     a mean over a disc of nodes."""
 
-    def __init__(self, lat):
+    def __init__(self, geo):
         from .natural_grid import PAD, STENCILS
-        self.cx, self.cy = lat.data_codes
-        self.inside = lat.inside
+        self.cx, self.cy = geo.data_codes
+        self.inside = geo.inside
         self.table, self.pad = STENCILS, PAD
-        self.hx, self.hy = lat.hx, lat.hy
+        self.hx, self.hy = geo.hx, geo.hy
         self._interior = {}          # discs' shape -> the norms of an interior window
 
     def cached_mean_row_norms(self, discs, win, used) -> np.ndarray:
@@ -396,7 +519,7 @@ class _GridRows:
     def mean_row_norms(self, discs, win) -> np.ndarray:
         """2-norms of the means of the smoothed divergence rows of the nodes
         of each of ``discs`` (bool (k, wy, wx) over the window ``win``,
-        :func:`_window`): each disc's indicator smeared by the binomial
+        :func:`window`): each disc's indicator smeared by the binomial
         filter weighs the rows of the nodes it reaches; the central stencils
         (nearly every node's) by shifted sums, the others node by node."""
         P = self.pad

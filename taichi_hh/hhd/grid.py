@@ -244,13 +244,15 @@ _OUTLINES: dict = {}
 
 
 def forget_layouts() -> None:
-    """Drop the layouts, outlines and stencil codes :func:`decompose_grid`
-    keeps (their memory; or to time a call on a grid seen for the first
-    time)."""
+    """Drop the layouts, outlines, stencil codes and critical points'
+    geometries :func:`decompose_grid` and its results keep (their memory; or
+    to time a call on a grid seen for the first time)."""
+    from .critical_grid import forget_geometries
     from .grid_differences import forget_codes
     _LAYOUTS.clear()
     _OUTLINES.clear()
     forget_codes()
+    forget_geometries()
 
 
 def _keep(cache: dict, key, value) -> None:

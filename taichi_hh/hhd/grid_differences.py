@@ -212,7 +212,8 @@ def _components_checks(P: ti.types.ndarray(), V: ti.types.ndarray(),
     """out[0], out[1], out[2]: d = grad P[0, ..., 0], r = J grad P[0, ..., 1] =
     (dpsi/dy, -dpsi/dx), h = V - d - r by the stencils codes[0], codes[1]
     (NaN at the nodes not available); then out[3] = (div h, curl h) by the
-    data's stencils codes[2], codes[3] (0 at the nodes not available)."""
+    data's stencils codes[2], codes[3] and out[4] = (div d, curl r) by
+    codes[0], codes[1] (0 at the nodes not available)."""
     for j, i in ti.ndrange(P.shape[1], P.shape[2]):
         a = ti.cast(codes[0, j, i], ti.i32)
         b = ti.cast(codes[1, j, i], ti.i32)
@@ -240,6 +241,17 @@ def _components_checks(P: ti.types.ndarray(), V: ti.types.ndarray(),
                                      hy, table)
         out[3, j, i, 0] = div
         out[3, j, i, 1] = curl
+        div_d = ti.f64(0.0)
+        curl_r = ti.f64(0.0)
+        a = ti.cast(codes[0, j, i], ti.i32)
+        if a != UNAVAILABLE:
+            b = ti.cast(codes[1, j, i], ti.i32)
+            div_d = _derivative(out, 0, a, 0, j, i, 0, 1, table) / hx + \
+                _derivative(out, 0, b, 1, j, i, 1, 0, table) / hy
+            curl_r = _derivative(out, 1, a, 1, j, i, 0, 1, table) / hx - \
+                _derivative(out, 1, b, 0, j, i, 1, 0, table) / hy
+        out[4, j, i, 0] = div_d
+        out[4, j, i, 1] = curl_r
 
 
 def _layered(F: np.ndarray) -> np.ndarray:
@@ -304,12 +316,13 @@ def codes_div_curl(avail: np.ndarray, F: np.ndarray, hx: float, hy: float) -> tu
 
 def components_checks(P: np.ndarray, V: np.ndarray, codes: np.ndarray, hx: float,
                       hy: float) -> np.ndarray:
-    """(4, ny, nx, 2): d = grad P[..., 0], r = J grad P[..., 1] and h = V - d
+    """(5, ny, nx, 2): d = grad P[..., 0], r = J grad P[..., 1] and h = V - d
     - r at the nodes the stencils ``codes`` (:func:`codes_div_curl`) reach
-    (NaN elsewhere), then (div h, curl h) by the data's stencils (0 off
-    them).  One kernel launch."""
+    (NaN elsewhere), then (div h, curl h) by the data's stencils and (div d,
+    curl r) by the potentials' (0 off them; what the critical points read).
+    One kernel launch."""
     runtime.ensure_init()
-    out = np.empty((4,) + P.shape[:2] + (2,))
+    out = np.empty((5,) + P.shape[:2] + (2,))
     _components_checks(_layered(P), np.ascontiguousarray(V, dtype=np.float64), codes,
                        STENCILS, float(hx), float(hy), out)
     return out

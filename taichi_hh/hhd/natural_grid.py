@@ -45,8 +45,8 @@ from .grid_differences import (PAD, STENCILS, axis_derivative, codes_div_curl,
                                components_checks, div_curl, stencil_codes)
 
 __all__ = ["NodeGrid", "uniform_steps", "div_curl", "axis_derivative", "stencil_codes",
-           "smoothed", "mls_gradient_stencil", "eroded", "outline_distance", "fill_gaps",
-           "natural_on_nodes", "decompose_nodes", "NodeResult", "NodeFields", "STENCILS", "PAD",
+           "smoothed", "smoothing_steps", "mls_gradient_stencil", "eroded", "outline_distance",
+           "fill_gaps", "natural_on_nodes", "decompose_nodes", "NodeResult", "NodeFields", "STENCILS", "PAD",
            "UNIFORM_RTOL"]
 
 #: an axis is uniform when every step is within this fraction of the mean step:
@@ -82,21 +82,15 @@ class NodeGrid(Grid):
         self.origin = np.asarray(origin, dtype=np.float64)
 
 
-def smoothed(F: np.ndarray, avail: np.ndarray, passes: int = 1) -> np.ndarray:
-    """``F`` (ny, nx[, k]) smoothed over the nodes ``avail`` by the binomial
-    filter [1, 2, 1] / 4 along x, then along y (each pass renormalised by the
-    weight of the available nodes; NaN off ``avail``), ``passes`` times (the
-    weights computed once).  One pass is what the
-    scattered path's cubic moving-least-squares divergence does to a field's
-    differences: on pivpy's noisy samples the differences smoothed so differ
-    from it by 16-22% (wing tip, soap film; 31-54% unsmoothed)."""
-    F = np.asarray(F, dtype=np.float64)
-    one = F.ndim == 2
-    Z = np.where(avail[..., None], F[..., None] if one else F, 0.0)
+def smoothing_steps(avail: np.ndarray) -> list:
+    """What :func:`smoothed` takes from the nodes ``avail`` alone: per axis
+    (x, then y) the slices of a node's lower and upper neighbours in a (k,
+    ny, nx) stack and the renormalisation (one over the weight of the
+    available nodes the filter reaches; 0 off ``avail``)."""
     w = avail.astype(np.float64)
-    steps = []                          # (axis, lo, hi, the renormalisation)
+    steps = []                          # (lo, hi, the renormalisation)
     for axis in (1, 0):
-        n = Z.shape[axis]
+        n = avail.shape[axis]
         if n < 2:
             continue
         lo = (slice(None),) * axis + (slice(0, n - 1),)
@@ -104,15 +98,42 @@ def smoothed(F: np.ndarray, avail: np.ndarray, passes: int = 1) -> np.ndarray:
         den = 2.0 * w
         den[hi] += w[lo]
         den[lo] += w[hi]
-        steps.append((lo, hi, np.where(avail, 1.0 / np.maximum(den, 1e-300), 0.0)[..., None]))
-    for _ in range(passes):
+        steps.append(((slice(None),) + lo, (slice(None),) + hi,
+                      np.where(avail, 1.0 / np.maximum(den, 1e-300), 0.0)))
+    return steps
+
+
+def smoothed(F: np.ndarray, avail: np.ndarray, passes=1, steps: list | None = None) \
+        -> np.ndarray:
+    """``F`` (ny, nx), or a stack of fields (k, ny, nx), smoothed over the
+    nodes ``avail`` by the binomial filter [1, 2, 1] / 4 along x, then along
+    y (each pass renormalised by the weight of the available nodes; NaN off
+    ``avail``), ``passes`` times (or per field: k counts); ``steps``:
+    :func:`smoothing_steps` of ``avail`` if made already.  One pass is what
+    the scattered path's cubic moving-least-squares divergence does to a
+    field's differences: on pivpy's noisy samples the differences smoothed
+    so differ from it by 16-22% (wing tip, soap film; 31-54% unsmoothed).
+    Fields first: each field's rows contiguous, the shifted sums 1.5 times
+    as fast as over interleaved fields."""
+    F = np.asarray(F, dtype=np.float64)
+    one = F.ndim == 2
+    Z = np.where(avail, F[None] if one else F, 0.0)
+    if steps is None:
+        steps = smoothing_steps(avail)
+    counts = np.broadcast_to(np.asarray(passes), Z.shape[:1])
+    for done in range(int(counts.max(initial=0))):
+        sel = np.flatnonzero(counts > done)
+        run = sel[-1] - sel[0] + 1 == len(sel)          # a range of fields: a view
+        part = Z[sel[0]:sel[-1] + 1] if run else Z[sel]
         for lo, hi, scale in steps:
-            num = 2.0 * Z
-            num[hi] += Z[lo]
-            num[lo] += Z[hi]
-            Z = num * scale
-    Z[~avail] = np.nan
-    return Z[..., 0] if one else Z
+            num = 2.0 * part
+            num[hi] += part[lo]
+            num[lo] += part[hi]
+            np.multiply(num, scale, out=part)
+        if not run:
+            Z[sel] = part
+    Z[:, ~avail] = np.nan
+    return Z[0] if one else Z
 
 
 def mls_gradient_stencil(hx: float, hy: float, support: float) -> tuple:
@@ -261,7 +282,8 @@ def natural_on_nodes(hx: float, hy: float, u: np.ndarray, v: np.ndarray, inside:
     ``curl``: div v, curl v on the inside nodes, the gaps' from their fill):
     ``phi``, ``psi``, ``curl_free`` and ``div_free`` ((ny, nx, 2)),
     ``harmonic`` (v - d - r on ``used``, NaN elsewhere), ``h_divergence``,
-    ``h_curl`` (div h and curl h), ``codes`` (the stencils along x and y
+    ``h_curl`` (div h and curl h), ``components_div_curl`` ((ny, nx, 2):
+    div d and curl r, 0 off ``inside``), ``codes`` (the stencils along x and y
     of the potentials, :func:`stencil_codes`), ``data_codes`` (those of the
     vectors: second order next to the outline), ``grid`` (:class:`NodeGrid`) and ``seconds`` per stage."""
     seconds = {}
@@ -301,6 +323,7 @@ def natural_on_nodes(hx: float, hy: float, u: np.ndarray, v: np.ndarray, inside:
     # is; h at the gaps from their fill): one launch
     drh = components_checks(P, vec, codes, hx, hy)
     d, r, h, hdc = drh[0], drh[1], drh[2], drh[3]
+    ddr = drh[4]
     lap("gradient")
     out = {"phi": P[..., 0], "psi": P[..., 1], "divergence": dc[..., 0], "curl": dc[..., 1],
            "curl_free": d, "div_free": r, "codes": (codes[0], codes[1]),
@@ -313,6 +336,7 @@ def natural_on_nodes(hx: float, hy: float, u: np.ndarray, v: np.ndarray, inside:
         h[~used] = np.nan
     out["harmonic"] = h
     out["h_divergence"], out["h_curl"] = hdc[..., 0], hdc[..., 1]
+    out["components_div_curl"] = ddr
     out["grid"] = grid
     lap("gather")
     out["seconds"] = seconds
@@ -328,7 +352,8 @@ class NodeFields:
     node (ny, nx[, 2], NaN off ``inside``) ``phi``, ``psi``, ``curl_free``,
     ``div_free``, ``divergence``, ``curl``, and ``harmonic`` (NaN off
     ``used``); ``codes``: the difference stencils along x and y
-    (:func:`stencil_codes`); ``spacing``: sqrt(area / nodes used);
+    (:func:`stencil_codes`); ``components_div_curl``: (ny, nx, 2) div d and
+    curl r by them (0 off ``inside``); ``spacing``: sqrt(area / nodes used);
     ``domain``: the outline; ``stats`` and ``options``: the decomposition's;
     ``frame``: the unit frame its potentials' logarithm took its length from.
     What its critical points are found from
@@ -350,6 +375,7 @@ class NodeFields:
     curl: np.ndarray
     codes: tuple
     data_codes: tuple
+    components_div_curl: np.ndarray
     spacing: float
     domain: object
     stats: dict
@@ -457,7 +483,7 @@ def decompose_nodes(xs: np.ndarray, ys: np.ndarray, steps: tuple, u: np.ndarray,
                       div_free=nat["div_free"], harmonic=nat["harmonic"],
                       divergence=nat["divergence"], curl=nat["curl"], codes=nat["codes"],
                       data_codes=nat["data_codes"],
-                      spacing=spacing, domain=domain, stats=stats, options=opts, frame=frame)
+                      components_div_curl=nat["components_div_curl"], spacing=spacing, domain=domain, stats=stats, options=opts, frame=frame)
 
 
 def _mean_norm(a: np.ndarray, b: np.ndarray) -> float:
