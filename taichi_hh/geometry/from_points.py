@@ -416,7 +416,10 @@ def _alpha_shape(points, alpha: float, margin: float, radius_advice, to_caller=N
     rings = [_fill_notches(r, pts, spacing, NOTCH_DEPTH) for r in _rings(edges[boundary()])]
     areas = np.array([_signed_area(pts[r]) for r in rings])
     if np.count_nonzero(areas > 0) > 1:
-        piece = where(pts[rings[int(np.argsort(areas)[-2])][0]])
+        # the second piece's vertex least in x, then y (not the ring's first:
+        # that is the triangulation's order)
+        ring = pts[rings[int(np.argsort(areas)[-2])]]
+        piece = where(ring[np.lexsort((ring[:, 1], ring[:, 0]))[0]])
         raise InputError(
             f"the data fall into {np.count_nonzero(areas > 0)} pieces at an alpha-shape radius "
             f"of {alpha:g} local spacings (one near ({piece[0]:.4g}, {piece[1]:.4g})): "

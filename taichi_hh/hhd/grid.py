@@ -37,6 +37,7 @@ from ..errors import AccuracyWarning, InputError
 from ..geometry.polygon import Polygon
 from ..geometry.raster import cell_outlines, check_axis
 from .auto import ORTHOGONAL_CONDITION, energy_closer, natural_cancels
+from .recent import Recent
 
 __all__ = ["decompose_grid", "GridResult", "GridLayout", "grid_components", "forget_layouts",
            "HOLE_SIZE", "KEPT_LAYOUTS"]
@@ -239,8 +240,8 @@ KEPT_LAYOUTS = 4
 #: grids of more nodes are not kept (their arrays' memory; their set-up is a
 #: small part of their decomposition)
 KEPT_NODES = 1_000_000
-_LAYOUTS: dict = {}
-_OUTLINES: dict = {}
+_LAYOUTS = Recent(KEPT_LAYOUTS)
+_OUTLINES = Recent(KEPT_LAYOUTS)
 
 
 def forget_layouts() -> None:
@@ -255,23 +256,13 @@ def forget_layouts() -> None:
     forget_geometries()
 
 
-def _keep(cache: dict, key, value) -> None:
-    """``value`` the most recent of ``cache`` (at most :data:`KEPT_LAYOUTS`)."""
-    cache[key] = value
-    while len(cache) > KEPT_LAYOUTS:
-        try:
-            cache.pop(next(iter(cache)), None)
-        except (RuntimeError, StopIteration):    # another thread's change: it trims too
-            break
-
-
 def _outline(xs, ys, outside) -> tuple:
     """``(domain, holes, n_pieces, inside)``: the outline of the nodes not
     ``outside`` (:func:`~taichi_hh.geometry.raster.cell_outlines`; its largest
     piece) and the nodes inside it, kept for the last few ``outside`` (dropouts
     that change from frame to frame leave the regions cut out as they are)."""
     key = (xs.tobytes(), ys.tobytes(), outside.shape, outside.tobytes())
-    found = _OUTLINES.pop(key, None) if outside.size <= KEPT_NODES else None
+    found = _OUTLINES.get(key) if outside.size <= KEPT_NODES else None
     if found is None:
         pieces = cell_outlines(xs, ys, ~outside)
         outer, holes = pieces[0]
@@ -285,7 +276,7 @@ def _outline(xs, ys, outside) -> tuple:
         inside.setflags(write=False)
         found = (domain, holes, len(pieces), inside)
     if outside.size <= KEPT_NODES:
-        _keep(_OUTLINES, key, found)
+        _OUTLINES.put(key, found)
     return found
 
 
@@ -331,10 +322,10 @@ class GridLayout:
             return cls(x_in, y_in, invalid, hole_size, min_neighbours)
         key = (x_in.tobytes(), y_in.tobytes(), invalid.shape, invalid.tobytes(), hole_size,
                min_neighbours)
-        layout = _LAYOUTS.pop(key, None)
+        layout = _LAYOUTS.get(key)
         if layout is None:
             layout = cls(x_in, y_in, invalid, hole_size, min_neighbours)
-        _keep(_LAYOUTS, key, layout)
+        _LAYOUTS.put(key, layout)
         return layout
 
     def flux_band(self) -> tuple:

@@ -22,6 +22,7 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
+from .recent import Recent
 
 __all__ = ["STENCILS", "PAD", "NO_STENCIL", "UNAVAILABLE", "CODE_OF_RUNS", "DATA_CODE_OF_RUNS",
            "stencil_codes", "node_codes", "axis_derivative", "div_curl", "codes_div_curl",
@@ -279,7 +280,7 @@ KEPT_CODES = 4
 #: grids of more nodes keep none (the codes' memory, 4 bytes a node, and
 #: their key's)
 KEPT_CODES_NODES = 1_000_000
-_CODES: dict = {}
+_CODES = Recent(KEPT_CODES)
 
 
 def forget_codes() -> None:
@@ -298,17 +299,12 @@ def codes_div_curl(avail: np.ndarray, F: np.ndarray, hx: float, hy: float) -> tu
     ny, nx = avail.shape
     kept = avail.size <= KEPT_CODES_NODES
     key = (avail.shape, avail.tobytes()) if kept else None
-    codes = _CODES.pop(key, None) if kept else None
+    codes = _CODES.get(key) if kept else None
     if codes is None:
         codes = node_codes(avail)
         codes.setflags(write=False)
     if kept:
-        _CODES[key] = codes                              # the most recent last
-    while len(_CODES) > KEPT_CODES:
-        try:
-            _CODES.pop(next(iter(_CODES)), None)
-        except (RuntimeError, StopIteration):    # another thread's change: it trims too
-            break
+        _CODES.put(key, codes)
     dc = np.empty((ny, nx, 2))
     _div_curl(_layered(F), codes, 2, STENCILS, float(hx), float(hy), dc)
     return codes, dc
