@@ -440,7 +440,8 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
                                     gx = 0.0
                                     gy = 0.0
                                     for m in ti.static(range(nq)):
-                                        b = px[ti.static(_MONO[q][m][0])] * py[ti.static(_MONO[q][m][1])]
+                                        b = px[ti.static(_MONO[q][m][0])] \
+                                            * py[ti.static(_MONO[q][m][1])]
                                         gx += rows[m, 0] * b
                                         gy += rows[m, 1] * b
                                     widx[slot] = k
@@ -475,7 +476,8 @@ def fit_gradients(grid: Grid, binned: "PointBins", values, targets, degree: int 
                        grid.hy, binned.start, binned.points,
                        np.ascontiguousarray(values, dtype=np.float64), int(degree),
                        ti.Vector([float(r) for r in radii], dt=ti.f64), int(min_points),
-                       int(EDGE_DEGREE if edge_degree is None else edge_degree), float(FIT_MIN_PIVOT),
+                       int(EDGE_DEGREE if edge_degree is None else edge_degree),
+                       float(FIT_MIN_PIVOT),
                        np.ascontiguousarray(np.broadcast_to(max(grid.hx, grid.hy) if scale is None
                                                             else scale, len(tg)),
                                             dtype=np.float64),
