@@ -107,6 +107,12 @@ def test_node_fit_on_three_rows_drops_to_a_lower_degree(monkeypatch):
         assert count.min() >= node_fits.FIT_MIN_POINTS          # the first radius: a cubic
         guarded, unguarded = err
         assert guarded < 2.5e-3
+        # the fits kept as weights take the same lower degree
+        w = node_fits.FitWeights(grid, b, targets, scale=np.full(len(targets), 0.03),
+                                 edge=np.zeros(len(targets), bool))
+        g = node_fits.fit_gradients(grid, b, vals, targets, scale=np.full(len(targets), 0.03),
+                                    edge=np.zeros(len(targets), bool))
+        assert np.abs(w.gradients(vals) - g).max() < 1e-9 * np.abs(g).max()
         assert unguarded > 4 * guarded
 
 
