@@ -8,14 +8,18 @@ boundary condition; taichi_hh/validation/sphere.py), sampled
 
 * on a 0.25 degree grid with NaN land (blobs over calm air, 15% of the
   nodes: the exact split stays the field's);
-* at 15 000 scattered points (uniform on the sphere's area; no land: the
-  points' box is the domain, and land reaching the region's edge would leave
-  parts of it without data, which the natural condition refuses).
+* at 15 000 scattered points (uniform on the sphere's area): without land
+  (the points' box is the domain), and with the grid's land blobs (the
+  points over them dropped; the domain the coast given as rings in degrees,
+  or the points' alpha shape at 2 local spacings).
 
 The bumps' radii are 0.28-0.4 of the region's smaller side, at most 8
 degrees, more bumps in larger regions (each 0.7-1 times that): a 10 x 10
 region's 2.0-2.6 degree bumps span 8-10 grid steps of radius, a 60 x 35
-region's 5.9-6.8 degree ones 24-27.
+region's 5.9-6.8 degree ones 24-27.  Where that resolution, or the
+scattered points' spacing (0.5 degrees at 15 000 over 80 x 60), limits the
+error, the refinement rows show it: the 10 x 10 grid at 0.25, 0.125 and
+0.0625 degrees, the 80 x 60 region at 15 000 to 120 000 points.
 
 The same field plus a stream through the region (curl-free and
 divergence-free on the sphere: harmonic_stream) is a window of a larger flow:
@@ -37,6 +41,7 @@ region's edges), median of 3 calls after a warm-up.
 
     python benchmarks/lonlat.py                     # all regions, CSV to outputs/benchmarks/
     python benchmarks/lonlat.py --regions 60x35 --no-peer
+    python benchmarks/lonlat.py --regions "" --no-timing   # the refinement rows only
     python benchmarks/lonlat.py --figure            # also docs/figures/lonlat.png (README's)
 """
 from __future__ import annotations
@@ -212,6 +217,42 @@ def run_region(size, args, rows):
         rows.append(row)
         print(f"  {size} scattered {condition}: rot {row['rot_err']:.2e} "
               f"div {row['div_err']:.2e} ({row['chosen']}, {seconds:.2f} s)")
+    # scattered with land: the points over the grid's land blobs dropped, the
+    # domain the coast given (the sea nodes' outline in degrees, its land
+    # holes) or left to the points' alpha shape
+    from taichi_hh.errors import InputError
+    from taichi_hh.geometry.polygon import Polygon
+    from taichi_hh.geometry.raster import cell_outlines
+    outer, holes = cell_outlines(lon, lat[::-1], ~land[::-1])[0]
+    # (the points within 0.01 degrees of the coast left out too: the map's
+    # chords of the outline's edges depart from them by up to 0.025 spacings)
+    sea = Polygon(outer, holes).signed_distance(np.c_[plon, plat]) < -0.01
+    lw = field.evaluate(plon[sea], plat[sea])
+    lscale = np.hypot(lw["u"], lw["v"]).mean()
+    for label, dom in (("default, land, the coast given", [outer, *holes]),
+                       ("default, land, alpha shape (2 spacings)", ("alpha", 2.0))):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            t = time.perf_counter()
+            try:
+                s = decompose_lonlat(plon[sea], plat[sea], lw["u"], lw["v"], domain=dom)
+            except InputError as exc:       # the alpha shape's outline can cross land bays
+                rows.append(dict(region=size, layout="scattered", n=int(sea.sum()),
+                                 condition=label, chosen="refused",
+                                 seconds=time.perf_counter() - t))
+                print(f"  {size} scattered {label}: refused ({exc})")
+                continue
+            seconds = time.perf_counter() - t
+        row = dict(region=size, layout="scattered", n=int(sea.sum()), condition=label,
+                   chosen=s.stats.get("boundary_condition"), seconds=seconds,
+                   max_map_factor=s.stats["max_map_factor"])
+        row["rot_err"], row["rot_err_v"] = errors(s.div_free, np.c_[lw["u_psi"], lw["v_psi"]],
+                                                  lscale)
+        row["div_err"], row["div_err_v"] = errors(s.curl_free,
+                                                  np.c_[lw["u_chi"], lw["v_chi"]], lscale)
+        rows.append(row)
+        print(f"  {size} scattered {label}: rot {row['rot_err']:.2e} "
+              f"div {row['div_err']:.2e} ({row['chosen']}, {seconds:.2f} s)")
     su, sv = harmonic_stream(plon, plat, CENTRE)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -226,6 +267,83 @@ def run_region(size, args, rows):
     rows.append(row)
     print(f"  {size} scattered window: rot {row['rot_err']:.2e} div {row['div_err']:.2e} "
           f"({row['chosen']}, {seconds:.2f} s)")
+
+
+def run_refinement(rows, args):
+    """Where a region misses 1% by resolution: the same field refined.  The
+    10 x 10 region's 0.25 degree grid (its bumps 8-10 grid steps of radius)
+    at 0.25, 0.125 and 0.0625 degrees, with the land blobs (the same shapes
+    at each step) and without; the 80 x 60 region's scattered points (0.5
+    degrees apart at 15 000) at 15 000 to 120 000.  Default condition; the
+    order printed is log2 of the error's ratio per halving of the step
+    (per quadrupling of the points)."""
+    from taichi_hh.hhd.lonlat import decompose_lonlat
+    from taichi_hh.validation.sphere import land_mask, regional_field
+
+    def add(size, layout, n, got_rot, exact_rot, got_div, exact_div, scale, chosen, seconds):
+        row = dict(region=size, layout=layout, n=n, condition="default, refinement",
+                   chosen=chosen, seconds=seconds)
+        row["rot_err"], row["rot_err_v"] = errors(got_rot, exact_rot, scale)
+        row["div_err"], row["div_err_v"] = errors(got_div, exact_div, scale)
+        rows.append(row)
+        print(f"  {size} {layout} (n {n}): rot {row['rot_err']:.2e} div {row['div_err']:.2e} "
+              f"({chosen}, {seconds:.2f} s)")
+        return row["rot_err"], row["div_err"]
+
+    size = "10x10"
+    lo0, lo1, la0, la1 = region_bounds(size)
+    field = regional_field(lo0, lo1, la0, la1, seed=11, max_width=8.0)
+    for with_land in (True, False):
+        errs = []
+        for step in args.refine_steps:
+            lon = np.arange(lo0, lo1 + 1e-9, step)
+            lat = np.arange(la1, la0 - 1e-9, -step)
+            w = field.evaluate(*np.meshgrid(lon, lat))
+            land = land_mask(lon, lat, field, seed=5, fraction=0.15) if with_land \
+                else np.zeros(w["u"].shape, dtype=bool)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                t = time.perf_counter()
+                g = decompose_lonlat(lon, lat, np.where(land, np.nan, w["u"]),
+                                     np.where(land, np.nan, w["v"]))
+                seconds = time.perf_counter() - t
+            errs.append(add(size, f"grid {step:g}" + ("" if with_land else ", no land"),
+                            int(g.used.sum()), g.div_free,
+                            np.stack([w["u_psi"], w["v_psi"]], -1), g.curl_free,
+                            np.stack([w["u_chi"], w["v_chi"]], -1),
+                            np.hypot(w["u"], w["v"])[~land].mean(),
+                            g.stats.get("boundary_condition"), seconds))
+        _say_orders(f"{size} grid{'' if with_land else ', no land'}", args.refine_steps, errs,
+                    halving=True)
+    size = "80x60"
+    lo0, lo1, la0, la1 = region_bounds(size)
+    field = regional_field(lo0, lo1, la0, la1, seed=11, max_width=8.0)
+    errs = []
+    for n in args.refine_points:
+        rng = np.random.default_rng(3)
+        plon = rng.uniform(lo0, lo1, n)
+        plat = np.degrees(np.arcsin(rng.uniform(np.sin(np.radians(la0)),
+                                                np.sin(np.radians(la1)), n)))
+        pw = field.evaluate(plon, plat)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            t = time.perf_counter()
+            s = decompose_lonlat(plon, plat, pw["u"], pw["v"])
+            seconds = time.perf_counter() - t
+        errs.append(add(size, "scattered", n, s.div_free, np.c_[pw["u_psi"], pw["v_psi"]],
+                        s.curl_free, np.c_[pw["u_chi"], pw["v_chi"]],
+                        np.hypot(pw["u"], pw["v"]).mean(), s.stats.get("boundary_condition"),
+                        seconds))
+    _say_orders(f"{size} scattered", args.refine_points, errs, halving=False)
+
+
+def _say_orders(label, sizes, errs, *, halving: bool):
+    """The observed orders between successive refinements: per halving of the
+    step, or in the spacing (N^-1/2) for points."""
+    for (a, ea), (b, eb) in zip(zip(sizes, errs), zip(sizes[1:], errs[1:])):
+        ratio = a / b if halving else np.sqrt(b / a)
+        orders = [np.log(x / y) / np.log(ratio) for x, y in zip(ea, eb)]
+        print(f"  {label} {a:g} -> {b:g}: order rot {orders[0]:.2f} div {orders[1]:.2f}")
 
 
 def run_timing(rows, repeats: int):
@@ -289,10 +407,18 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3, help="timed calls of the 5 s target")
     ap.add_argument("--no-peer", action="store_true", help="skip skyborn.windspharm")
     ap.add_argument("--no-timing", action="store_true", help="skip the 1440 x 721 target")
+    ap.add_argument("--no-refinement", action="store_true",
+                    help="skip the refinement rows (10 x 10 grids, 80 x 60 points)")
+    ap.add_argument("--refine-steps", default="0.25,0.125,0.0625",
+                    help="grid steps of the 10 x 10 refinement, degrees")
+    ap.add_argument("--refine-points", default="15000,30000,60000,120000",
+                    help="scattered points of the 80 x 60 refinement")
     ap.add_argument("--figure", action="store_true",
                     help="also write docs/figures/lonlat.png (the README's)")
     args = ap.parse_args(argv)
     args.conditions = _common.parse_list(args.conditions, str)
+    args.refine_steps = _common.parse_list(args.refine_steps, float)
+    args.refine_points = _common.parse_list(args.refine_points, int)
     import taichi_hh as thh
     thh.init(arch="cpu", precision="f64")
     if not args.no_peer:
@@ -304,6 +430,8 @@ def main(argv=None) -> int:
     rows = []
     for size in _common.parse_list(args.regions, str):
         run_region(size, args, rows)
+    if not args.no_refinement:
+        run_refinement(rows, args)
     if not args.no_timing:
         run_timing(rows, args.repeats)
     OUT.mkdir(parents=True, exist_ok=True)

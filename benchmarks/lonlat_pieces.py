@@ -11,9 +11,11 @@ regions"): each error taken apart by the piece that could cause it.
   the same bumps on a planar lattice of the same steps (``decompose_grid``).
 * land: the 20 x 15 grid with and without land on the sphere; a planar field
   on the map's own points and polygon with all the land, with only the flat
-  land notch on the north edge, and with the rest; then a larger first fit
-  radius of the natural path's node fits (a diagnostic: the module constant
-  node_fits.FIT_RADII patched for the call, restored after).
+  land notch on the north edge, and with the rest; then the natural path's
+  node fits without their conditioning guard (node_fits.FIT_MIN_PIVOT 0: the
+  nearly singular one-sided cubics next to the notch kept), and so with a
+  larger first fit radius instead (diagnostics: the module constants
+  patched for the call, restored after).
 
     python benchmarks/lonlat_pieces.py                  # all parts, CSV to outputs/benchmarks/
     python benchmarks/lonlat_pieces.py --parts land
@@ -174,14 +176,21 @@ def part_land(rows):
                          n=int(u.sum()), rot_err=error(res.div_free, rot[u]),
                          div_err=error(res.curl_free, div[u])))
         _say(rows[-1])
-    # diagnostic: the natural path's node fits with a larger first radius
-    saved = node_fits.FIT_RADII
+    # the node fits' conditioning guard (node_fits.FIT_MIN_PIVOT: a nearly
+    # singular fit drops a degree) turned off, and instead of it a larger
+    # first fit radius (diagnostics: module constants patched, restored after)
+    saved = node_fits.FIT_MIN_PIVOT, node_fits.FIT_RADII
     try:
-        node_fits.FIT_RADII = (4.5, 6.0, 6.0)
-        for sz in ("20x15", "10x10"):
-            _sphere_grid(rows, "land", sz, 0.25, label=", land, fits' first radius 4.5")
+        for label, pivot, radii in ((", land, fits unguarded", 0.0, saved[1]),
+                                    (", land, unguarded, first radius 4.5", 0.0,
+                                     (4.5, 6.0, 6.0))):
+            node_fits.FIT_MIN_PIVOT, node_fits.FIT_RADII = pivot, radii
+            for sz in ("20x15", "10x10"):
+                _sphere_grid(rows, "land", sz, 0.25, label=label)
     finally:
-        node_fits.FIT_RADII = saved
+        node_fits.FIT_MIN_PIVOT, node_fits.FIT_RADII = saved
+    for sz in ("10x10",):
+        _sphere_grid(rows, "land", sz, 0.25, label=", land")
 
 
 def _say(row):

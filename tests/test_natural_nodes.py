@@ -73,6 +73,49 @@ def test_node_fit_with_few_points_falls_to_a_lower_degree():
     assert np.allclose(g[0], [[2.0 + 1.0, 2.0], [-1.0, 1.0]], atol=1e-9)
 
 
+def test_node_fit_on_three_rows_drops_to_a_lower_degree(monkeypatch):
+    """Points on three rows within the fit's radius (a lattice with rows
+    twice as far apart as its columns, cut by a straight edge, the rows bent
+    as a map bends them, issue 33): a cubic in y is (nearly) undetermined,
+    its normal equations' smallest relative pivot 1e-9-1e-6.  The guard
+    (FIT_MIN_PIVOT) drops such a fit to the quadratic: the gradient errs by
+    the quadratic's truncation (1.5e-3 of its size here), against 7e-3 to
+    2.6e-2 with the near-singular cubic (the guard off)."""
+    grid = free_space.Grid(BOX, 0.03)
+    x = np.arange(0.0, 2.0 + 1e-9, 0.02)
+
+    def field(p):
+        a, b = 2 * p[:, 0] + p[:, 1], p[:, 0] - 1.5 * p[:, 1]
+        return np.c_[np.sin(a), np.cos(b)], np.stack(
+            [np.c_[2 * np.cos(a), np.cos(a)], np.c_[-np.sin(b), 1.5 * np.sin(b)]], axis=1)
+
+    for bend in (0.0, 0.02, 0.05):
+        rows = [np.c_[x, 1.0 - j * 0.04 - bend * (x - 1) ** 2] for j in range(25)]
+        b = node_fits.PointBins(grid, np.concatenate(rows))
+        vals, _ = field(b.points)
+        off = np.linspace(-0.5, 0.5, 11)
+        targets = np.c_[1.0 + off, 1.0 - bend * off ** 2]        # on the top row
+        _, exact = field(targets)
+        err = []
+        for guard in (node_fits.FIT_MIN_PIVOT, 0.0):
+            monkeypatch.setattr(node_fits, "FIT_MIN_PIVOT", guard)
+            g, count = node_fits.fit_gradients(grid, b, vals, targets, counts=True,
+                                               scale=np.full(len(targets), 0.03),
+                                               edge=np.zeros(len(targets), bool))
+            err.append(np.abs(g - exact).max() / np.abs(exact).max())
+        monkeypatch.undo()
+        assert count.min() >= node_fits.FIT_MIN_POINTS          # the first radius: a cubic
+        guarded, unguarded = err
+        assert guarded < 2.5e-3
+        # the fits kept as weights take the same lower degree
+        w = node_fits.FitWeights(grid, b, targets, scale=np.full(len(targets), 0.03),
+                                 edge=np.zeros(len(targets), bool))
+        g = node_fits.fit_gradients(grid, b, vals, targets, scale=np.full(len(targets), 0.03),
+                                    edge=np.zeros(len(targets), bool))
+        assert np.abs(w.gradients(vals) - g).max() < 1e-9 * np.abs(g).max()
+        assert unguarded > 4 * guarded
+
+
 def test_node_fit_is_the_same_in_any_input_order():
     """The points binned by cell (a stable sort) and the fit's sums in that
     order: a shuffled input gives the same gradients up to rounding (at the

@@ -115,10 +115,12 @@ def decompose_lonlat(lon, lat, u, v, radius: float = EARTH_RADIUS, *, domain=Non
     region where the boundary conditions hold, default the points' box in
     longitude and latitude (the polar cap down to their lowest latitude when
     they surround a pole), or ``(lon0, lat0, lon1, lat1)``, an (M, 2) array of
-    (lon, lat) vertices, ``"hull"``, ``"alpha"`` or ``("alpha", A)`` (of the
-    points on the map).  Gridded: lon (nx,), lat (ny,), u, v (..., ny, nx)
-    with NaN (or ``mask``, True) where missing, land for example; the domain
-    is made from the valid nodes as :func:`~taichi_hh.hhd.grid.decompose_grid`
+    (lon, lat) vertices, a list of such arrays (the outline, then its holes:
+    the coast of land inside the region), ``"hull"``, ``"alpha"`` or
+    ``("alpha", A)`` (of the points on the map).  Gridded: lon (nx,), lat
+    (ny,), u, v (..., ny, nx) with NaN (or ``mask``, True) where missing,
+    land for example; the domain is made from the valid nodes as
+    :func:`~taichi_hh.hhd.grid.decompose_grid`
     makes it (``hole_size``, ``min_neighbours`` alike), every leading index one
     snapshot.  ``region``: ``(lon_min, lon_max, lat_min, lat_max)``, degrees:
     only the points (grid columns and rows) within it are decomposed (a region
@@ -323,23 +325,39 @@ def _scattered_domain(proj, lon, lat, points, domain):
                          lat.max() + pad)
         return _map_polygon(proj, 0.5 * tol, ring)
     if isinstance(domain, Polygon):
-        raise InputError("decompose_lonlat's domain is in degrees: (lon0, lat0, lon1, lat1) or "
-                         "an (M, 2) array of (lon, lat) vertices, not a Polygon on the plane")
-    arr = np.asarray(as_real_array(domain, "domain", "a numeric array of degrees"),
-                     dtype=np.float64)
-    if arr.shape == (4,):
-        ring = _box_ring(*arr)
-    elif arr.ndim == 2 and arr.shape[1] == 2 and len(arr) >= 3:
-        ring = arr.copy()
-    else:
-        raise InputError(f"domain must be (lon0, lat0, lon1, lat1), an (M, 2) array of (lon, "
-                         f"lat) vertices, 'hull' or 'alpha'; got an array of shape {arr.shape}")
-    if not np.isfinite(ring).all():
-        raise InputError("domain must hold finite degrees")
-    _check_latitudes(ring[:, 1])
+        raise InputError("decompose_lonlat's domain is in degrees: (lon0, lat0, lon1, lat1), "
+                         "an (M, 2) array of (lon, lat) vertices or a list of them (the "
+                         "outline, then its holes), not a Polygon on the plane")
+    rings = _degree_rings(domain)
     # the vertices' longitudes on the points' side of the dateline
-    ring[:, 0] = np.mean(lon) + (ring[:, 0] - np.mean(lon) + 180.0) % 360.0 - 180.0
-    return _map_polygon(proj, 0.5 * tol, ring)
+    centre = np.mean(lon)
+    for ring in rings:
+        _check_latitudes(ring[:, 1])
+        ring[:, 0] = centre + (ring[:, 0] - centre + 180.0) % 360.0 - 180.0
+    return _map_polygon(proj, 0.5 * tol, rings[0], rings[1:])
+
+
+def _degree_rings(domain) -> list:
+    """A scattered field's ``domain`` in degrees as rings of (lon, lat)
+    vertices: ``(lon0, lat0, lon1, lat1)`` (a box), an (M, 2) array (one
+    ring), or a list of (M, 2) arrays (the outline, then its holes: land)."""
+    shaped = (isinstance(domain, (list, tuple)) and len(domain) > 0
+              and all(np.ndim(r) == 2 for r in domain))
+    parts = list(domain) if shaped else [domain]
+    rings = []
+    for part in parts:
+        arr = np.array(as_real_array(part, "domain", "a numeric array of degrees"),
+                       dtype=np.float64)
+        if arr.shape == (4,) and not shaped:
+            arr = _box_ring(*arr)
+        elif not (arr.ndim == 2 and arr.shape[1] == 2 and len(arr) >= 3):
+            raise InputError(f"domain must be (lon0, lat0, lon1, lat1), an (M, 2) array of "
+                             f"(lon, lat) vertices, a list of such arrays (the outline, then "
+                             f"its holes), 'hull' or 'alpha'; got an array of shape {arr.shape}")
+        if not np.isfinite(arr).all():
+            raise InputError("domain must hold finite degrees")
+        rings.append(arr)
+    return rings
 
 
 def _surrounds(proj, points, pole_lat) -> bool:

@@ -90,27 +90,37 @@ def _mls_add(M, rhs, d, v):
 
 
 @ti.func
-def cholesky_solve(M, rhs, n: ti.template(), dt: ti.template(), floor: ti.template()):
-    """x with M x = rhs for the symmetric positive n x n ``M`` and n x 2 ``rhs``
-    in precision ``dt`` (Cholesky, the diagonal raised by 1e-12 of the trace
-    and ``floor``)."""
+def cholesky_factor(M, n: ti.template(), dt: ti.template(), floor: ti.template()):
+    """``(L, pivot)``: the Cholesky factor L L^T = M of the symmetric positive
+    n x n ``M`` in precision ``dt`` (the diagonal raised by 1e-12 of the
+    trace and ``floor``), and its smallest pivot relative to its diagonal
+    entry, min_j L[j, j]^2 / M[j, j]: the squared sine of the angle between
+    column j and the columns before it (1 for orthogonal columns, near 0
+    where a column is nearly a combination of the earlier ones)."""
     tr = ti.cast(0.0, dt)
     for a in ti.static(range(n)):
         tr += M[a, a]
     for a in ti.static(range(n)):
         M[a, a] += 1e-12 * tr + floor
-    # Cholesky M = L L^T, then L y = rhs, L^T x = y
     L = ti.Matrix.zero(dt, n, n)
+    pivot = ti.cast(1.0, dt)
     for jj in ti.static(range(n)):
         s = M[jj, jj]
         for kk in ti.static(range(jj)):
             s -= L[jj, kk] * L[jj, kk]
         L[jj, jj] = ti.sqrt(ti.max(s, 1e-30))
+        pivot = ti.min(pivot, s / M[jj, jj])
         for ii in ti.static(range(jj + 1, n)):
             s2 = M[ii, jj]
             for kk in ti.static(range(jj)):
                 s2 -= L[ii, kk] * L[jj, kk]
             L[ii, jj] = s2 / L[jj, jj]
+    return L, pivot
+
+
+@ti.func
+def cholesky_substitute(L, rhs, n: ti.template(), dt: ti.template()):
+    """x with L L^T x = rhs (n x 2), L from :func:`cholesky_factor`."""
     y = ti.Matrix.zero(dt, n, 2)
     for ii in ti.static(range(n)):
         r0 = rhs[ii, 0]
@@ -131,6 +141,15 @@ def cholesky_solve(M, rhs, n: ti.template(), dt: ti.template(), floor: ti.templa
         x[ii, 0] = r0 / L[ii, ii]
         x[ii, 1] = r1 / L[ii, ii]
     return x
+
+
+@ti.func
+def cholesky_solve(M, rhs, n: ti.template(), dt: ti.template(), floor: ti.template()):
+    """x with M x = rhs for the symmetric positive n x n ``M`` and n x 2 ``rhs``
+    in precision ``dt`` (Cholesky, the diagonal raised by 1e-12 of the trace
+    and ``floor``)."""
+    L, _ = cholesky_factor(M, n, dt, floor)
+    return cholesky_substitute(L, rhs, n, dt)
 
 
 @ti.kernel
@@ -254,6 +273,14 @@ FIT_MIN_POINTS = 22
 #: cavity: energy ratio 1.36 with cubic, 1.10 with quadratic; 1.17 with the
 #: SPH operator before)
 EDGE_DEGREE = 2
+#: the smallest relative Cholesky pivot (:func:`cholesky_factor`) of a fit's
+#: normal equations taken as well posed; below it the fit drops to the next
+#: lower degree.  Points nearly on fewer curves than the degree needs (three
+#: rows of a lattice bent by a map, next to a straight land edge: a one-sided
+#: cubic) give pivots of 1e-9-1e-6 and gradients off by 1e-2 of their size;
+#: scattered points' fits stay above 3e-4, a straight lattice's above 3.6e-3
+#: (issue 33, docs/notes/lonlat.md "The fits' conditioning guard")
+FIT_MIN_PIVOT = 1e-5
 
 
 def _monomials(p: int) -> list:
@@ -297,6 +324,7 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
                    ly: ti.f64, hx: ti.f64, hy: ti.f64, start: ti.types.ndarray(),
                    pos: ti.types.ndarray(), vals: ti.types.ndarray(), p: ti.template(),
                    radii: ti.types.vector(3, ti.f64), min_points: ti.i32, edge_degree: ti.i32,
+                   min_pivot: ti.f64,
                    scale: ti.types.ndarray(), edge: ti.types.ndarray(),
                    out: ti.types.ndarray(), emit: ti.template(), wstart: ti.types.ndarray(),
                    widx: ti.types.ndarray(), wval: ti.types.ndarray(),
@@ -307,8 +335,9 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
     corner) within the first of ``radii`` (times the target's ``scale``)
     holding ``min_points``: out[t] = (d0/dx, d0/dy, d1/dx, d1/dy, the points
     in the fit); a radius beyond the first at a target flagged ``edge``: at
-    most ``edge_degree``; fewer points than a degree's monomials and two:
-    the next lower degree.  One gather per
+    most ``edge_degree``; fewer points than a degree's monomials and two,
+    or normal equations whose smallest relative pivot is below ``min_pivot``
+    (nearly singular: :data:`FIT_MIN_PIVOT`): the next lower degree.  One gather per
     target; the normal equations from the weighted moments of the offsets (a
     monomial pair's entry is one moment), solved by Cholesky.  With ``emit``
     also each point's weights in the target's gradient, written to the slots
@@ -387,33 +416,38 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
                     rhs[m, 1] = r1[m]
                     for l in ti.static(range(nq)):
                         M[m, l] = mom[ti.static(_GRAM[p][m][l])]
-                x = cholesky_solve(M, rhs, nq, ti.f64, 1e-30)
-                g = ti.Vector([x[1, 0], x[2, 0], x[1, 1], x[2, 1]]) / R
-                solved = True
-                if ti.static(emit):
-                    # the rows 1 and 2 of M^-1 (M symmetric: its columns)
-                    unit = ti.Matrix.zero(ti.f64, nq, 2)
-                    unit[1, 0] = 1.0
-                    unit[2, 1] = 1.0
-                    rows = cholesky_solve(M, unit, nq, ti.f64, 1e-30)
-                    slot = wstart[t]
-                    wref[t] = kref
-                    inv = 1.0 / R
-                    for i in range(i0, i1 + 1):
-                        row = i * ny
-                        for k in range(start[row + j0], start[row + j1 + 1]):
-                            near, px, py = _fit_powers(pos, k, X, inv, q)
-                            if near:
-                                gx = 0.0
-                                gy = 0.0
-                                for m in ti.static(range(nq)):
-                                    b = px[ti.static(_MONO[q][m][0])] * py[ti.static(_MONO[q][m][1])]
-                                    gx += rows[m, 0] * b
-                                    gy += rows[m, 1] * b
-                                widx[slot] = k
-                                wval[slot, 0] = gx * inv
-                                wval[slot, 1] = gy * inv
-                                slot += 1
+                L, pivot = cholesky_factor(M, nq, ti.f64, 1e-30)
+                # a nearly singular fit (the points nearly on fewer curves
+                # than the degree needs): the next lower degree
+                if pivot >= min_pivot or q == 1:
+                    x = cholesky_substitute(L, rhs, nq, ti.f64)
+                    g = ti.Vector([x[1, 0], x[2, 0], x[1, 1], x[2, 1]]) / R
+                    solved = True
+                    if ti.static(emit):
+                        # the rows 1 and 2 of M^-1 (M symmetric: its columns)
+                        unit = ti.Matrix.zero(ti.f64, nq, 2)
+                        unit[1, 0] = 1.0
+                        unit[2, 1] = 1.0
+                        rows = cholesky_substitute(L, unit, nq, ti.f64)
+                        slot = wstart[t]
+                        wref[t] = kref
+                        inv = 1.0 / R
+                        for i in range(i0, i1 + 1):
+                            row = i * ny
+                            for k in range(start[row + j0], start[row + j1 + 1]):
+                                near, px, py = _fit_powers(pos, k, X, inv, q)
+                                if near:
+                                    gx = 0.0
+                                    gy = 0.0
+                                    for m in ti.static(range(nq)):
+                                        b = px[ti.static(_MONO[q][m][0])] \
+                                            * py[ti.static(_MONO[q][m][1])]
+                                        gx += rows[m, 0] * b
+                                        gy += rows[m, 1] * b
+                                    widx[slot] = k
+                                    wval[slot, 0] = gx * inv
+                                    wval[slot, 1] = gy * inv
+                                    slot += 1
         for c in ti.static(range(4)):
             out[t, c] = g[c]
         out[t, 4] = count
@@ -443,6 +477,7 @@ def fit_gradients(grid: Grid, binned: "PointBins", values, targets, degree: int 
                        np.ascontiguousarray(values, dtype=np.float64), int(degree),
                        ti.Vector([float(r) for r in radii], dt=ti.f64), int(min_points),
                        int(EDGE_DEGREE if edge_degree is None else edge_degree),
+                       float(FIT_MIN_PIVOT),
                        np.ascontiguousarray(np.broadcast_to(max(grid.hx, grid.hy) if scale is None
                                                             else scale, len(tg)),
                                             dtype=np.float64),
@@ -509,7 +544,7 @@ class FitWeights:
             _fit_gradients(tg, grid.nx, grid.ny, float(lower[0]), float(lower[1]), grid.hx,
                            grid.hy, binned.start, binned.points, zero, int(FIT_DEGREE),
                            ti.Vector([float(r) for r in FIT_RADII], dt=ti.f64),
-                           int(FIT_MIN_POINTS), int(EDGE_DEGREE),
+                           int(FIT_MIN_POINTS), int(EDGE_DEGREE), float(FIT_MIN_PIVOT),
                            np.ascontiguousarray(np.broadcast_to(
                                max(grid.hx, grid.hy) if scale is None else scale, len(tg)),
                                dtype=np.float64),
