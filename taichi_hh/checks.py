@@ -350,45 +350,29 @@ def check_seed(seed) -> np.random.Generator:
 
 
 # --------------------------------------------------------------------------- argparse types
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return v
+def _argparse_number(name: str, convert, noun: str, accept, requirement: str, doc: str):
+    """The argparse type ``name``: ``convert(text)`` (else "not {noun}") that
+    ``accept`` takes (else "must be {requirement}")."""
+    def parse(text: str):
+        try:
+            v = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not {noun}: {text!r}") from None
+        if not accept(v):
+            raise argparse.ArgumentTypeError(f"must be {requirement}, got {text!r}")
+        return v
+    parse.__name__ = parse.__qualname__ = name
+    parse.__doc__ = f"argparse type: {doc}."
+    return parse
 
 
-def nonnegative_float(text: str) -> float:
-    """argparse type: a finite number >= 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"must be a non-negative number, got {text!r}")
-    return v
-
-
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
-    return v
-
-
-def nonnegative_int(text: str) -> int:
-    """argparse type: an integer >= 0."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}")
-    return v
+positive_float = _argparse_number("positive_float", float, "a number",
+                                  lambda v: math.isfinite(v) and v > 0,
+                                  "a positive number", "a finite number > 0")
+nonnegative_float = _argparse_number("nonnegative_float", float, "a number",
+                                     lambda v: math.isfinite(v) and v >= 0,
+                                     "a non-negative number", "a finite number >= 0")
+positive_int = _argparse_number("positive_int", int, "an integer", lambda v: v >= 1,
+                                "a positive integer", "an integer >= 1")
+nonnegative_int = _argparse_number("nonnegative_int", int, "an integer", lambda v: v >= 0,
+                                   "a non-negative integer", "an integer >= 0")
