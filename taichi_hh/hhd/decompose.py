@@ -339,6 +339,11 @@ class _LazyPointSet:
     def __init__(self, make):
         self._make, self._ps = make, None
 
+    @property
+    def built(self) -> bool:
+        """Whether the point set has been made (read, or asked for) yet."""
+        return self._ps is not None
+
     def __getattr__(self, name):
         if name.startswith("__"):
             raise AttributeError(name)

@@ -500,7 +500,7 @@ class PoissonMatrix:
                 failure = SolverError(res.message, reason=res.reason,
                                       iteration=res.iterations, residual=res.relative_residual)
                 try:                # a small system at the default cap: as solve() does
-                    results[c] = self._direct_instead(B[:, c], tol, failure, "bicgstab",
+                    results[c] = self.solve_densely_instead(B[:, c], tol, failure, "bicgstab",
                                                       kwargs)
                 except SolverError:
                     if raise_on_failure:
@@ -511,8 +511,8 @@ class PoissonMatrix:
                 res.x = res.x[: self.n_particles]
         return results
 
-    def _direct_instead(self, b: np.ndarray, tol: float, failure: SolverError, method: str,
-                        kwargs: dict):
+    def solve_densely_instead(self, b: np.ndarray, tol: float, failure: SolverError, method: str,
+                              kwargs: dict):
         """The small system BiCGSTAB failed on (at its default cap or stagnating)
         solved by dense LU in double precision (:data:`DIRECT_MAX`); ``failure``
         raised again where that does not apply or does not reach ``tol``."""
@@ -676,7 +676,7 @@ class PoissonMatrix:
             else:
                 res = solve[method](self, b, x0, tol=tol, **kwargs)
         except SolverError as exc:
-            res = self._direct_instead(b, tol, exc, method, kwargs)
+            res = self.solve_densely_instead(b, tol, exc, method, kwargs)
         res.border = float(res.x[-1]) if self.bordered else 0.0
         if self.bordered:
             res.x = res.x[: self.n_particles]

@@ -146,7 +146,7 @@ class MultilevelPreconditioner:
         # coarsest level: pseudo-inverse (singular for a Neumann problem)
         U, sv, Vt = np.linalg.svd(coarsest)
         keep = sv > noise
-        if (self._bordered or self._constant_mode) and len(sv):
+        if (self._bordered or self.constant_mode) and len(sv):
             # the constant is fixed elsewhere: by the border unknown of a
             # bordered system, or by the exact rank-one correction below; the
             # coarse level must not invert its round-off-level image (inverting a
@@ -181,7 +181,7 @@ class MultilevelPreconditioner:
         n = self.n
         self.colsum = self.pool.vector("colsum", None, size=n)
         self._constant_c = 1.0
-        self._constant_mode = False
+        self.constant_mode = False
         if self._bordered or not callable(getattr(A, "apply_transpose", None)):
             return
         ones = runtime.array(runtime.real_dtype(), A.n)
@@ -197,7 +197,7 @@ class MultilevelPreconditioner:
         eps = float(np.finfo(runtime.np_real()).eps)
         noise = 100.0 * eps * math.sqrt(n) * float(row_abs.max())
         if abs(total) > noise:
-            self._constant_mode = True
+            self.constant_mode = True
             self._constant_c = total
 
     # ---- the hierarchy on the host (inspection and tests) ------------------------
@@ -272,6 +272,6 @@ class MultilevelPreconditioner:
         if shape is None:
             shape = self._shapes[cols] = CycleShape(
                 cols, self.serial, self._by_cell, self.schedule, self.post, self.omega,
-                self.correction, self._bordered, self.gamma, self._constant_mode)
+                self.correction, self._bordered, self.gamma, self.constant_mode)
         run_cycle(shape, self.n, self.fine_level, self.cell_levels, self._work(cols), self._border_c,
                   self.colsum, self._constant_c, r, z)
