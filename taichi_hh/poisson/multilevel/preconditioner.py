@@ -43,7 +43,10 @@ class Level(NamedTuple):
 class MultilevelPreconditioner:
     """Aggregation-multigrid cycle approximating ``A^-1`` (module doc).
 
-    A: a :class:`~taichi_hh.poisson.matrix.PoissonMatrix` (rows assembled).
+    A: a :class:`~taichi_hh.poisson.matrix.PoissonMatrix` (rows assembled), read
+    through two methods only: ``pair_rows()`` (:class:`~taichi_hh.poisson.matrix.PairRows`:
+    the rows, where they live, the border) and ``apply_transpose`` (the
+    column sums of a ridge system's constant mode).
     cycle: ``"W"`` (default) or ``"V"``.  The W-cycle visits every structured
     level below the first cell level twice per visit of its parent (the
     particle level and the first cell level, which carry almost all the
@@ -110,8 +113,8 @@ class MultilevelPreconditioner:
         # below SERIAL_MAX_N particles the cycle's loops run on one thread
         # (on the CPU: a GPU's one thread is far slower)
         self.serial = n < SERIAL_MAX_N and not runtime.on_gpu()
-        self._bordered = bool(getattr(A, "bordered", False))
-        self._border_c = float(getattr(A, "border_c", 1.0)) if self._bordered else 1.0
+        self._bordered = bool(rows.bordered)
+        self._border_c = float(rows.border_c) if self._bordered else 1.0
         self.pool = ArrayPool(reuse.pool if reuse is not None else None)
         self._columns_scratch = {}
         self._shapes = {}                    # the cycle kernel's CycleShape by columns
@@ -182,7 +185,7 @@ class MultilevelPreconditioner:
         self.colsum = self.pool.vector("colsum", None, size=n)
         self._constant_c = 1.0
         self.constant_mode = False
-        if self._bordered or not callable(getattr(A, "apply_transpose", None)):
+        if self._bordered:
             return
         ones = runtime.array(runtime.real_dtype(), A.n)
         ones.fill(1.0)
