@@ -25,7 +25,8 @@ from .errors import InputError
 __all__ = ["as_real_array", "check_spread", "check_points", "check_values", "check_real", "check_int", "check_bool",
            "check_choice", "check_names", "check_option", "did_you_mean", "OptionSpec",
            "check_seed",
-           "positive_float", "nonnegative_float", "positive_int", "nonnegative_int"]
+           "positive_float", "nonnegative_float", "positive_int", "nonnegative_int",
+           "at_least_one_or_off", "OFF"]
 
 
 # --------------------------------------------------------------------------- arrays
@@ -376,3 +377,18 @@ positive_int = _argparse_number("positive_int", int, "an integer", lambda v: v >
                                 "a positive integer", "an integer >= 1")
 nonnegative_int = _argparse_number("nonnegative_int", int, "an integer", lambda v: v >= 0,
                                    "a non-negative integer", "an integer >= 0")
+
+
+#: what :func:`at_least_one_or_off` gives for ``off`` (an option's None, which
+#: an option not given on the command line cannot say)
+OFF = "off"
+
+
+def at_least_one_or_off(text: str):
+    """argparse type: a number >= 1, or ``off`` (:data:`OFF`)."""
+    if text.strip().lower() == OFF:
+        return OFF
+    v = positive_float(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be a number >= 1 or 'off', got {text!r}")
+    return v

@@ -28,7 +28,8 @@ import time
 
 from .. import __version__
 from ..runtime import ARCHES, default_arch
-from ..checks import nonnegative_float, nonnegative_int, positive_float, positive_int
+from ..checks import (OFF, at_least_one_or_off, nonnegative_float, nonnegative_int,
+                      positive_float, positive_int)
 
 #: HHDOptions fields not on the command line: the multilevel cycle's tuning
 #: (a library option: ``decompose(..., multilevel_options={...})``)
@@ -180,7 +181,7 @@ def _add_common(p, command):
     types = {"support_ratio": (positive_float, "R"), "kappa": (nonnegative_float, "K"),
              "tol": (positive_float, "TOL"), "max_iterations": (positive_int, "N"),
              "seed": (nonnegative_int, "SEED"), "support_neighbours": (positive_int, "K"),
-             "positive_rows": (_positive_rows, "P")}
+             "positive_rows": (at_least_one_or_off, "P")}
     for f in dataclasses.fields(HHDOptions):
         name = f.name
         if name in LIBRARY_ONLY_OPTIONS:
@@ -321,23 +322,8 @@ def option_overrides(args) -> dict:
     """The decomposition options the command line gave (the others stay the
     method's), by :class:`~taichi_hh.hhd.decompose.HHDOptions` field name."""
     from ..hhd.decompose import HHDOptions
-    return {f.name: None if getattr(args, f.name) is _OFF else getattr(args, f.name)
+    return {f.name: None if getattr(args, f.name) is OFF else getattr(args, f.name)
             for f in dataclasses.fields(HHDOptions) if getattr(args, f.name, None) is not None}
-
-
-#: what ``--positive-rows off`` parses to (the option's None: an option not
-#: given is None on the command line)
-_OFF = "off"
-
-
-def _positive_rows(text: str):
-    """argparse type of ``--positive-rows``: a number >= 1, or ``off``."""
-    if text.strip().lower() == _OFF:
-        return _OFF
-    v = positive_float(text)
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be a number >= 1 or 'off', got {text!r}")
-    return v
 
 
 def output_dir(args) -> str:
