@@ -177,8 +177,9 @@ DROPLET_ENERGY = 0.5 * (2.0 * 2.0 - math.pi * 0.25 ** 2) * DROPLET_U ** 2
 #: error, of the kinetic energy's scale).  Physically nothing (the
 #: discretisation's own error is of order a percent of these scales), and
 #: 10^3 to 10^5 times what rounding moves between CPUs (the recording machine
-#: against an AVX-512 Xeon and an AMD EPYC: 1.1e-9 in max_div, 4e-12 in the
-#: centroid, 1.4e-10 in the rise speed, 3e-13 in the energy), so the same
+#: against an AVX-512 Xeon: 1.1e-9 in max_div, 4e-12 in the centroid, 1.4e-10
+#: in the rise speed, 3e-13 in the energy; an AMD EPYC: up to 1.8e-8 of max_div
+#: relative, 2.2e-9 elsewhere), so the same
 #: code passes on any CPU while a change of the numerics (a stencil, a
 #: tolerance, a solver) moves the diagnostics by far more.  Counts (steps,
 #: iterations) must be equal: rounding at 1e-9 does not move a stopping test
