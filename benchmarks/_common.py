@@ -69,17 +69,24 @@ def write_csv_atomic(path, rows: list[dict], fieldnames: list[str]) -> None:
     write_bytes_atomic(path, buf.getvalue().encode())
 
 
+def write_rows(out_dir, name: str, rows: list[dict], fields: list[str] | None = None) -> str:
+    """Write ``rows`` (columns ``fields``, default the first row's keys) to
+    ``out_dir/name`` as CSV, atomically, the folder made if need be; returns
+    the path."""
+    import os
+    os.makedirs(out_dir, exist_ok=True)
+    path = os.path.join(out_dir, name)
+    write_csv_atomic(path, rows, list(rows[0]) if fields is None else fields)
+    return path
+
+
 def report_rows(rows: list[dict], out_dir, name: str, align: str | None = None) -> str:
     """Print ``rows`` as a table (floats to 3 significant digits) and write them
-    to ``out_dir/name`` (CSV, atomically); returns the path."""
-    import os
+    to ``out_dir/name`` (:func:`write_rows`); returns the path."""
     fields = list(rows[0])
     print(format_table(fields, [[f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k])
                                  for k in fields] for r in rows], align))
-    os.makedirs(out_dir, exist_ok=True)
-    path = os.path.join(out_dir, name)
-    write_csv_atomic(path, rows, fields)
-    return path
+    return write_rows(out_dir, name, rows, fields)
 
 
 def save_figure_atomic(fig, path, **kwargs) -> None:

@@ -55,13 +55,9 @@ def main(argv=None) -> int:
                          "energy_ratio": s["energy_ratio"], "flags": len(s["flags"]),
                          "seconds": seconds})
             print(rows[-1], flush=True)
-    names = list(rows[0])
-    print(_common.format_table(names, [[f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k])
-                                        for k in names] for r in rows], "lll" + "r" * 9))
-    os.makedirs(args.out_dir, exist_ok=True)
     suffix = "" if args.sampling == "poisson" else f"_{args.sampling}"
-    path = os.path.join(args.out_dir, f"boundary_conditions{suffix}.csv")
-    _common.write_csv_atomic(path, rows, names)
+    path = _common.report_rows(rows, args.out_dir, f"boundary_conditions{suffix}.csv",
+                               "lll" + "r" * 9)
     print(f"wrote {path}")
     return 0
 

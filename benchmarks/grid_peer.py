@@ -156,9 +156,7 @@ def main(argv=None) -> int:
         [[r["grid"], r["method"], f"{1e3 * r['median_s']:.1f}", f"{1e3 * r['min_s']:.1f}",
           f"{r['ratio']:.2f}", f"{100 * r['err_d']:.4f}", f"{100 * r['err_r']:.4f}",
           f"{100 * r['err_h']:.4f}", f"{r['load']:.1f}"] for r in rows]))
-    os.makedirs(args.out_dir, exist_ok=True)
-    path = os.path.join(args.out_dir, "grid_peer.csv")
-    _common.write_csv_atomic(path, rows, names)
+    path = _common.write_rows(args.out_dir, "grid_peer.csv", rows, names)
     print(f"wrote {path}")
     return 0
 

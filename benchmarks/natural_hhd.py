@@ -85,9 +85,7 @@ def main(argv=None) -> int:
     table = [[(f"{r[k]:.3g}" if isinstance(r.get(k), float) else str(r.get(k, "")))
               for k in names] for r in rows]
     print(_common.format_table(header, table))
-    os.makedirs(args.out_dir, exist_ok=True)
-    path = os.path.join(args.out_dir, "natural_hhd.csv")
-    _common.write_csv_atomic(path, rows, names)
+    path = _common.write_rows(args.out_dir, "natural_hhd.csv", rows, names)
     print(f"wrote {path}")
     import matplotlib
     matplotlib.use("Agg")

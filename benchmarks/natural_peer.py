@@ -102,9 +102,7 @@ def main(argv=None) -> int:
     print(_common.format_table(
         ["N", "ours s", "pynhhd s", "ours err d", "r", "h", "pynhhd err d", "r", "h"],
         [[str(r[k]) if k == "n" else f"{r[k]:.3g}" for k in names] for r in rows]))
-    os.makedirs(args.out_dir, exist_ok=True)
-    path = os.path.join(args.out_dir, "natural_peer.csv")
-    _common.write_csv_atomic(path, rows, names)
+    path = _common.write_rows(args.out_dir, "natural_peer.csv", rows, names)
     print(f"wrote {path}")
     return 0
 

@@ -145,9 +145,7 @@ def main(argv=None) -> int:
                  for r in rows]
     print("natural step, seconds of the median warm call:")
     print(_common.format_table(nat_header, nat_table))
-    os.makedirs(args.out_dir, exist_ok=True)
-    path = os.path.join(args.out_dir, "natural_scale.csv")
-    _common.write_csv_atomic(path, rows, names)
+    path = _common.write_rows(args.out_dir, "natural_scale.csv", rows, names)
     print(f"wrote {path}")
     return 0
 

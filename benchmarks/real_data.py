@@ -433,8 +433,7 @@ def main(argv=None) -> int:
     for r in rows:
         if r["flags"]:
             print(f"  {r['dataset']} {r['variant']} {r['condition']}: {r['flags']}")
-    os.makedirs(args.out_dir, exist_ok=True)
-    _common.write_csv_atomic(os.path.join(args.out_dir, "real_data.csv"), rows, FIELDS)
+    _common.write_rows(args.out_dir, "real_data.csv", rows, FIELDS)
     return 0
 
 

@@ -151,12 +151,8 @@ def main(argv=None) -> int:
                          "matched": matched, "spurious": spurious, "seconds": seconds,
                          "error": ""})
             print(rows[-1], flush=True)
-    names = list(rows[0])
-    print(_common.format_table(names, [[f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k])
-                                        for k in names] for r in rows], "ll" + "r" * 8 + "l"))
+    _common.report_rows(rows, args.out_dir, "windows.csv", "ll" + "r" * 8 + "l")
     print(f"cores inside: {len(wanted)} (matched within {2 * core:g})")
-    os.makedirs(args.out_dir, exist_ok=True)
-    _common.write_csv_atomic(os.path.join(args.out_dir, "windows.csv"), rows, names)
     return 0
 
 

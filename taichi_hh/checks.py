@@ -25,7 +25,8 @@ from .errors import InputError
 __all__ = ["as_real_array", "check_spread", "check_points", "check_values", "check_real", "check_int", "check_bool",
            "check_choice", "check_names", "check_option", "did_you_mean", "OptionSpec",
            "check_seed",
-           "positive_float", "nonnegative_float", "positive_int", "nonnegative_int"]
+           "positive_float", "nonnegative_float", "positive_int", "nonnegative_int",
+           "at_least_one_or_off", "OFF"]
 
 
 # --------------------------------------------------------------------------- arrays
@@ -350,45 +351,44 @@ def check_seed(seed) -> np.random.Generator:
 
 
 # --------------------------------------------------------------------------- argparse types
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return v
+def _argparse_number(name: str, convert, noun: str, accept, requirement: str, doc: str):
+    """The argparse type ``name``: ``convert(text)`` (else "not {noun}") that
+    ``accept`` takes (else "must be {requirement}")."""
+    def parse(text: str):
+        try:
+            v = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not {noun}: {text!r}") from None
+        if not accept(v):
+            raise argparse.ArgumentTypeError(f"must be {requirement}, got {text!r}")
+        return v
+    parse.__name__ = parse.__qualname__ = name
+    parse.__doc__ = f"argparse type: {doc}."
+    return parse
 
 
-def nonnegative_float(text: str) -> float:
-    """argparse type: a finite number >= 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"must be a non-negative number, got {text!r}")
-    return v
+positive_float = _argparse_number("positive_float", float, "a number",
+                                  lambda v: math.isfinite(v) and v > 0,
+                                  "a positive number", "a finite number > 0")
+nonnegative_float = _argparse_number("nonnegative_float", float, "a number",
+                                     lambda v: math.isfinite(v) and v >= 0,
+                                     "a non-negative number", "a finite number >= 0")
+positive_int = _argparse_number("positive_int", int, "an integer", lambda v: v >= 1,
+                                "a positive integer", "an integer >= 1")
+nonnegative_int = _argparse_number("nonnegative_int", int, "an integer", lambda v: v >= 0,
+                                   "a non-negative integer", "an integer >= 0")
 
 
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+#: what :func:`at_least_one_or_off` gives for ``off`` (an option's None, which
+#: an option not given on the command line cannot say)
+OFF = "off"
+
+
+def at_least_one_or_off(text: str):
+    """argparse type: a number >= 1, or ``off`` (:data:`OFF`)."""
+    if text.strip().lower() == OFF:
+        return OFF
+    v = positive_float(text)
     if v < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
-    return v
-
-
-def nonnegative_int(text: str) -> int:
-    """argparse type: an integer >= 0."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}")
+        raise argparse.ArgumentTypeError(f"must be a number >= 1 or 'off', got {text!r}")
     return v

@@ -267,6 +267,15 @@ def _thread_runtimes() -> dict:
     return out
 
 
+def busy_threads(ran: dict, workers: int) -> list:
+    """The threads (sorted ids) that ran more than a tenth of a worker's fair
+    share, ``sum(ran) / workers``, of ``ran`` (thread id -> nanoseconds run
+    during the probe loops): Taichi's workers where their count is
+    ``workers`` (:func:`_pin_workers` binds nothing otherwise)."""
+    total = sum(ran.values())
+    return sorted(t for t, dt in ran.items() if total and dt > 0.1 * total / workers)
+
+
 def _pin_workers(ti) -> tuple:
     """Bind Taichi's CPU worker threads one to a core; return the cores used.
 
@@ -304,9 +313,7 @@ def _pin_workers(ti) -> tuple:
         spin(out)
         ti.sync()
         now = _thread_runtimes()
-        ran = {t: now[t] - start.get(t, 0) for t in now if t != main}
-        total = sum(ran.values())
-        busy = sorted(t for t, dt in ran.items() if total and dt > 0.1 * total / workers)
+        busy = busy_threads({t: now[t] - start.get(t, 0) for t in now if t != main}, workers)
         if len(busy) == workers:
             break
     if len(busy) != workers:

@@ -168,6 +168,21 @@ def test_options_only_override_what_is_given():
     assert cli.output_dir(args) == os.path.join("outputs", "my.field_decompose")
 
 
+def test_positive_rows_takes_a_number_or_off(capsys):
+    """--positive-rows: a number >= 1 (the option's float), or off (its None,
+    which an option not given cannot say)."""
+    from taichi_hh.hhd.decompose import options_for
+    parser = cli.build_parser()
+    for given, want in (("2", 2.0), ("off", None)):
+        args = parser.parse_args(["decompose", "f.npz", "--positive-rows", given])
+        over = cli.option_overrides(args)
+        assert over == {"positive_rows": want}
+        assert options_for("default", **over).positive_rows == want
+    with pytest.raises(SystemExit):
+        parser.parse_args(["decompose", "f.npz", "--positive-rows", "0.5"])
+    assert "must be a number >= 1 or 'off'" in capsys.readouterr().err
+
+
 # --------------------------------------------------------------------------- project
 def test_project(gaussian_files):
     out = gaussian_files["dir"] / "proj"

@@ -221,12 +221,12 @@ def test_cli_series_keeps_the_points_setup(grid_first):
             vec = _window(pts, t)
             got = series(pts, vec, None)
             want = decompose_field(pts, vec, None, **kw)
-            kept = series._kept
+            kept = series.decomposer
             for name in FIELDS:
                 a, b = getattr(got, name), getattr(want, name)
                 assert np.nanmax(np.abs(a - b)) <= 1e-6 * np.nanmax(np.abs(b)), name
             assert got.stats.get("grid", None) == want.stats.get("grid", None)
-        assert series._kept is kept              # the second file reused the first's set-up
+        assert series.decomposer is kept              # the second file reused the first's set-up
 
 
 @pytest.mark.slow

@@ -594,11 +594,12 @@ def test_vorticity_on_the_flows_own_pairs():
     flow's pair list (no neighbour search of its own), in id order.  Exact on a
     rigid rotation up to the walls; after a step, on that step's pairs (found
     before the particles moved), it matches a fresh search to 1e-4 of its
-    largest value; against the stand-alone render.vorticity (a fresh search and
-    summation-density volumes, V = dx^2 / C_i, where the flow's are dx^2) it
+    largest value; against a PointSet's corrected curl at the particles (a
+    fresh search and summation-density volumes, V = dx^2 / C_i, where the
+    flow's are dx^2) it
     agrees to 1% of the largest value away from the walls (measured 0.2%; up to
     8% at the walls, where the fluid-only summation density is one-sided)."""
-    from taichi_hh.app import render
+    from taichi_hh.sph.pointset import PointSet
     pts, dx = tank(16, 32)
     omega = 1.3
     rigid = omega * np.c_[-(pts[:, 1] - 1.0), pts[:, 0] - 0.5]
@@ -614,7 +615,7 @@ def test_vorticity_on_the_flows_own_pairs():
     w = flow.vorticity()
     a = np.abs(w).max()
     assert a > 0.1
-    ref = render.vorticity(pos, vel, flow.dx, flow.support)
+    ref = PointSet(pos, support=flow.support, area=len(pos) * flow.dx ** 2).curl(vel, "corrected")
     inner = np.all((pos > flow.support) & (pos < [1 - flow.support, 2 - flow.support]), axis=1)
     assert np.abs(w - ref)[inner].max() < 1e-2 * a
     assert np.abs(w - ref).max() < 0.2 * a

@@ -206,16 +206,16 @@ def test_small_ridge_kappa_costs_no_iterations():
         P = poisson_problems(pts, F.evaluate(pts).v, F.domain, method="petronetto2010",
                              kappa=kappa, remove_mean=True)
         M = P.A.multilevel()
-        assert M._constant_mode and not P.A.bordered
+        assert M.constant_mode and not P.A.bordered
         its[kappa] = [P.A.solve(P.rhs[k], tol=1e-6, preconditioner=M).iterations
                       for k in ("phi", "psi")]
     assert all(a <= b + 3 for a, b in zip(its[1e-8], its[1e-2])), its
     # bordered systems leave the constant to the border; a singular (kappa = 0)
     # matrix has no constant-mode equation to solve
     ps, A, b = _matrix(24)
-    assert not A.multilevel()._constant_mode
+    assert not A.multilevel().constant_mode
     B = PoissonMatrix(ps.ops, kappa=0.0, bordered=False)
-    assert not MultilevelPreconditioner(B)._constant_mode
+    assert not MultilevelPreconditioner(B).constant_mode
 
 
 def test_domain_with_a_hole():

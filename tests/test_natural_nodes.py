@@ -204,10 +204,10 @@ def test_default_takes_the_nodes_and_other_operators_the_points(window_6k):
     sec = res.stats["seconds"]
     assert "natural_fit" in sec and "natural_reconstruct" not in sec
     assert set(sec) >= {"setup", "divergence", "natural", "total"}
-    assert res.unit.pointset._ps is None
+    assert not res.unit.pointset.built
     found = res.critical_points()
     assert len(found) == len(W.critical_points())
-    assert res.unit.pointset._ps is not None
+    assert res.unit.pointset.built
     other = thh.decompose(pts, ex.v, W.domain, support_ratio=3.0)
     assert "natural_reconstruct" in other.stats["seconds"]
     vm = np.linalg.norm(ex.v, axis=1).mean()

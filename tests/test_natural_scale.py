@@ -105,7 +105,7 @@ def test_knearest_bins_its_sources_as_a_stable_sort():
     search = KNearest(pts)
     cells = search.cells(pts)
     order = np.argsort(cells, kind="stable")
-    assert np.array_equal(search._order, order)
+    assert np.array_equal(search.order.to_numpy(), order)
     assert np.array_equal(search.pos.to_numpy(), pts[order])
     assert np.array_equal(search.start.to_numpy(),
                           np.r_[0, np.cumsum(np.bincount(cells, minlength=search.spec.ncells))])

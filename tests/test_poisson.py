@@ -226,12 +226,12 @@ def test_a_small_system_at_the_cap_is_solved_directly():
     ps, phi, b, kind = neumann_square(10, seed=1)
     A = PoissonMatrix(ps.ops, bordered=True)
     b = np.append(b, 0.0)                       # the border's row, as solve() appends it
-    direct = A._direct_instead(b, 1e-12, SolverError("stuck", reason="stagnation",
+    direct = A.solve_densely_instead(b, 1e-12, SolverError("stuck", reason="stagnation",
                                                       iteration=7, residual=1e-3),
                                "bicgstab", {})
     assert direct.converged and direct.relative_residual <= 1e-12
     assert "dense LU" in direct.message and direct.iterations == 7
     with pytest.raises(SolverError):
-        A._direct_instead(b, 1e-12, SolverError("cap", reason="max_iterations", iteration=3,
+        A.solve_densely_instead(b, 1e-12, SolverError("cap", reason="max_iterations", iteration=3,
                                                 residual=1e-3), "bicgstab",
                           {"max_iterations": 3})

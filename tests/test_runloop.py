@@ -231,7 +231,7 @@ def test_checkpoint_round_trip_and_errors(tmp_path):
     with pytest.raises(ValueError, match="not a taichi_hh checkpoint"):
         Checkpoint.load(str(tmp_path / "other.npz"))
     np.savez(str(tmp_path / "future.npz"), x=np.zeros(2),
-             **{Checkpoint._VERSION_KEY: np.asarray(99)})
+             **{Checkpoint.VERSION_KEY: np.asarray(99)})
     with pytest.raises(ValueError, match="format 99"):
         Checkpoint.load(str(tmp_path / "future.npz"))
 

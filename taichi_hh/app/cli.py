@@ -28,7 +28,8 @@ import time
 
 from .. import __version__
 from ..runtime import ARCHES, default_arch
-from ..checks import nonnegative_float, nonnegative_int, positive_float, positive_int
+from ..checks import (OFF, at_least_one_or_off, nonnegative_float, nonnegative_int,
+                      positive_float, positive_int)
 
 #: HHDOptions fields not on the command line: the multilevel cycle's tuning
 #: (a library option: ``decompose(..., multilevel_options={...})``)
@@ -66,6 +67,9 @@ _OPTION_HELP = {
                       "cycle on the neighbour grid), jacobi (diagonal), auto (multilevel from "
                       "1000 particles on, Jacobi below and for cgnr)",
     "max_iterations": "iteration cap of each linear solve (none = max(1000, unknowns))",
+    "positive_rows": "corrected-Laplacian rows with sum |C_ij| above P times sum C_ij (or "
+                     "a diagonal of the wrong sign) replaced by positive stencils exact on "
+                     "quadratics (P >= 1; off: none replaced)",
     "seed": "random seed of sampled boundary/fake particles",
     "boundary_condition": "boundary condition of the decomposition (decompose only): auto = "
                           "natural, or no-flux where the flow does not cross the boundary (a "
@@ -156,14 +160,17 @@ def _add_common(p, command):
         "poly6 (Mueller's, Colin's), cubic (cubic spline). Gradient variants: basic (Colin "
         "Eq. 8), difference (Petronetto Eq. 8), colin_difference (DGAF, Colin Eq. 13), "
         "symmetric (SGAF, Colin Eq. 17), corrected (Bonet-Lok, exact on linear fields), "
-        "quadratic (moving least squares of order 2, exact on quadratics). Laplacian "
+        "quadratic (moving least squares of order 2, exact on quadratics), cubic (order 3, "
+        "exact on cubics). Laplacian "
         "variants: basic (Colin Eq. 9), colin_difference (Colin Eq. 21), brookshaw "
         "(Petronetto Eq. 10), corrected (renormalised, exact on quadratics).")
     num.add_argument("--method", default="default", choices=tuple(METHODS),
                      help="bundle of numerical options: default = most accurate (Wendland "
-                          "C2, cubic MLS divergence and curl, quadratic MLS gradients in "
-                          "the Neumann rows, corrected Laplacian, collocated boundary "
-                          "rows, the boundary condition chosen from the data); petronetto2010 = Petronetto et al. 2010 as "
+                          "C2 over 3.5 local spacings, cubic MLS divergence and curl, "
+                          "quadratic MLS gradients for d, r and the Neumann rows, corrected "
+                          "Laplacian with the rows that lose their sign made positive, "
+                          "collocated boundary rows, the boundary condition chosen from the "
+                          "data); petronetto2010 = Petronetto et al. 2010 as "
                           "published; colin2006 = Colin et al. 2006's operators "
                           "(default: default)")
     choices = {"kernel": KERNELS, "divergence": GRADIENT_VARIANTS,
@@ -173,7 +180,8 @@ def _add_common(p, command):
                "boundary_condition": BOUNDARY_CONDITIONS, "natural_evaluation": NATURAL_EVALUATIONS}
     types = {"support_ratio": (positive_float, "R"), "kappa": (nonnegative_float, "K"),
              "tol": (positive_float, "TOL"), "max_iterations": (positive_int, "N"),
-             "seed": (nonnegative_int, "SEED"), "support_neighbours": (positive_int, "K")}
+             "seed": (nonnegative_int, "SEED"), "support_neighbours": (positive_int, "K"),
+             "positive_rows": (at_least_one_or_off, "P")}
     for f in dataclasses.fields(HHDOptions):
         name = f.name
         if name in LIBRARY_ONLY_OPTIONS:
@@ -314,8 +322,8 @@ def option_overrides(args) -> dict:
     """The decomposition options the command line gave (the others stay the
     method's), by :class:`~taichi_hh.hhd.decompose.HHDOptions` field name."""
     from ..hhd.decompose import HHDOptions
-    return {f.name: getattr(args, f.name) for f in dataclasses.fields(HHDOptions)
-            if getattr(args, f.name, None) is not None}
+    return {f.name: None if getattr(args, f.name) is OFF else getattr(args, f.name)
+            for f in dataclasses.fields(HHDOptions) if getattr(args, f.name, None) is not None}
 
 
 def output_dir(args) -> str:

@@ -473,6 +473,14 @@ def _savez(path, arrays) -> None:
         np.savez_compressed(fh, **arrays)
 
 
+def _float64_fields(result, names: dict) -> dict:
+    """``{file name: result.<attribute> as a float64 array}`` for ``names``
+    (file name -> attribute)."""
+    import numpy as np
+    return {key: np.asarray(getattr(result, attr), dtype=np.float64)
+            for key, attr in names.items()}
+
+
 def write_components(path, result, critical_points=None, threshold: float = 0.1) -> None:
     """Write a :class:`~taichi_hh.hhd.decompose.HHDResult` as a ``.npz`` file, atomically.
 
@@ -489,15 +497,9 @@ def write_components(path, result, critical_points=None, threshold: float = 0.1)
         critical_points = result.critical_points(threshold=threshold)
     cps = list(critical_points)
     _savez(path, {
-        "points": np.asarray(result.points, dtype=np.float64),
-        "v": np.asarray(result.vectors, dtype=np.float64),
-        "d": np.asarray(result.curl_free, dtype=np.float64),
-        "r": np.asarray(result.div_free, dtype=np.float64),
-        "h": np.asarray(result.harmonic, dtype=np.float64),
-        "phi": np.asarray(result.phi, dtype=np.float64),
-        "psi": np.asarray(result.psi, dtype=np.float64),
-        "divergence": np.asarray(result.divergence, dtype=np.float64),
-        "curl": np.asarray(result.curl, dtype=np.float64),
+        **_float64_fields(result, {"points": "points", "v": "vectors", "d": "curl_free",
+                                   "r": "div_free", "h": "harmonic", "phi": "phi", "psi": "psi",
+                                   "divergence": "divergence", "curl": "curl"}),
         "xs": np.array([c[0] for c in cps], dtype=np.float64),
         "ys": np.array([c[1] for c in cps], dtype=np.float64),
         "kinds": np.array([c[2] for c in cps], dtype="<U10"),
@@ -513,11 +515,8 @@ def write_projection(path, result) -> None:
     before projecting) and ``iterations`` (solver iterations per pass)."""
     import numpy as np
     _savez(path, {
-        "points": np.asarray(result.points, dtype=np.float64),
-        "vectors": np.asarray(result.vectors, dtype=np.float64),
-        "initial": np.asarray(result.initial, dtype=np.float64),
-        "divergence": np.asarray(result.divergence, dtype=np.float64),
-        "max_divergence": np.asarray(result.max_divergence, dtype=np.float64),
-        "sum_sq_divergence": np.asarray(result.sum_sq_divergence, dtype=np.float64),
+        **_float64_fields(result, {name: name for name in (
+            "points", "vectors", "initial", "divergence", "max_divergence",
+            "sum_sq_divergence")}),
         "iterations": np.asarray(result.stats.get("iterations", []), dtype=np.int64),
     })

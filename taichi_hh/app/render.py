@@ -4,9 +4,10 @@ No window, no GGUI (which needs Vulkan, absent on CPU machines) and no Taichi:
 numpy draws the particles into a ``(H, W, 3)`` u8 image, as discs or as the
 smooth interpolated colour field (``style``), and a minimal PNG encoder (no
 filtering, zlib level 1) writes it: Pillow's adaptive row filters cost more
-than the whole draw (docs/notes/app.md).  Nothing here starts Taichi (only
-:func:`vorticity` uses it), so the scenes draw their frames in a worker process
-beside the time loop (:mod:`taichi_hh.app.outputs`).
+than the whole draw (docs/notes/app.md).  Nothing here starts Taichi (a
+frame coloured by vorticity takes the flow's, computed on its own neighbour
+pairs), so the scenes draw their frames in a worker process beside the time
+loop (:mod:`taichi_hh.app.outputs`).
 
 How a frame is drawn.  numpy turns positions into pixel coordinates (f32, y
 up) and gives every particle its colour-table row: its phase's palette entry,
@@ -178,39 +179,16 @@ def _draw_smooth_field(px, colour, radius: float, full: float, stride: int, imag
     np.copyto(image, field[height - 1::-1], casting="unsafe")   # row 0 is the top: y flipped
 
 
-def vorticity(positions, velocities, spacing: float, support: float) -> np.ndarray:
-    """Vorticity ``dv_y/dx - dv_x/dy`` of each particle, from the particles alone
-    (a neighbour search of its own: particles with no flow at hand; a flow's
-    frames take :meth:`taichi_hh.flow.TwoPhaseFlow.vorticity`, on its pairs).
-
-    The corrected SPH curl (:meth:`taichi_hh.PointSet.curl`, Bonet & Lok 1999:
-    exact on linear velocity fields, so a rigid rotation at angular velocity
-    omega gives 2 omega at every particle, up to the free edges' one-sided
-    neighbourhoods too) over the given particles only, with kernel support
-    ``support`` and particle area ``spacing**2``.  Walls are not included: at a
-    no-slip wall the value is the one-sided estimate from the fluid side.
-    """
-    pos = np.asarray(positions, dtype=np.float64)
-    vel = np.asarray(velocities, dtype=np.float64)
-    if len(pos) == 0:
-        return np.zeros(0)
-    from ..sph.pointset import PointSet
-    points = PointSet(pos, support=float(support), area=len(pos) * float(spacing) ** 2)
-    return points.curl(vel, "corrected")
-
-
-def frame_colouring(color: str, positions, velocities, spacing: float, support: float, *,
-                    vorticity_values=None):
+def frame_colouring(color: str, velocities, *, vorticity=None):
     """What a frame coloured by ``color`` (one of :data:`COLOURINGS`) shows:
     ``(scalar per particle or None, vmin, vmax, colour bar name)``.
 
     ``"phase"``: no scalar (the phase palette).  ``"speed"``: ``|v|`` over
-    ``[0, max]``.  ``"vorticity"``: ``vorticity_values`` (per particle, e.g.
-    the flow's :meth:`~taichi_hh.flow.TwoPhaseFlow.vorticity`; default
-    :func:`vorticity` of the particles) over symmetric limits ``[-a, a]``,
-    ``a`` its largest magnitude, so zero sits at the diverging colormap's white
-    centre.  Limits are per frame (a frame's colours compare within it; the
-    colour bar gives the scale)."""
+    ``[0, max]``.  ``"vorticity"``: ``vorticity`` (per particle: the flow's
+    :meth:`~taichi_hh.flow.TwoPhaseFlow.vorticity`, on its own neighbour pairs)
+    over symmetric limits ``[-a, a]``, ``a`` its largest magnitude, so zero
+    sits at the diverging colormap's white centre.  Limits are per frame (a
+    frame's colours compare within it; the colour bar gives the scale)."""
     if color == "phase":
         return None, 0.0, 1.0, ""
     vel = np.asarray(velocities, dtype=np.float64)
@@ -218,8 +196,10 @@ def frame_colouring(color: str, positions, velocities, spacing: float, support: 
         scalar = np.linalg.norm(vel, axis=1)
         return scalar, 0.0, float(scalar.max()) if scalar.size else 1.0, "speed"
     if color == "vorticity":
-        scalar = (vorticity(positions, vel, spacing, support) if vorticity_values is None
-                  else np.asarray(vorticity_values, dtype=np.float64))
+        if vorticity is None:
+            raise ValueError("color 'vorticity' needs the particles' vorticity "
+                             "(TwoPhaseFlow.vorticity)")
+        scalar = np.asarray(vorticity, dtype=np.float64)
         finite = scalar[np.isfinite(scalar)]
         a = float(np.abs(finite).max()) if finite.size else 0.0
         a = a if a > 0 else 1.0

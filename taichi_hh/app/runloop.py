@@ -187,11 +187,12 @@ class Checkpoint:
     """
 
     FORMAT_VERSION = 1
-    _VERSION_KEY = "__taichi_hh_checkpoint_version__"
+    #: the entry of the .npz that holds FORMAT_VERSION
+    VERSION_KEY = "__taichi_hh_checkpoint_version__"
 
     @classmethod
     def save(cls, path: str, state: dict) -> str:
-        arrays = {cls._VERSION_KEY: np.asarray(cls.FORMAT_VERSION)}
+        arrays = {cls.VERSION_KEY: np.asarray(cls.FORMAT_VERSION)}
         for key, value in state.items():
             if not isinstance(key, str) or not key.isidentifier() or key.startswith("__"):
                 raise ValueError(f"checkpoint keys must be identifiers not starting with '__', got {key!r}")
@@ -216,14 +217,14 @@ class Checkpoint:
             raise ValueError(f"{path} is not a readable checkpoint ({problem}); "
                              "start afresh without --resume")
         with np.load(path, allow_pickle=False) as data:
-            if cls._VERSION_KEY not in data.files:
+            if cls.VERSION_KEY not in data.files:
                 raise ValueError(f"{path} is not a taichi_hh checkpoint (no format version)")
-            version = int(data[cls._VERSION_KEY])
+            version = int(data[cls.VERSION_KEY])
             if version != cls.FORMAT_VERSION:
                 raise ValueError(f"{path} has checkpoint format {version}; this version of "
                                  f"taichi_hh reads format {cls.FORMAT_VERSION}")
             return {k: (data[k].item() if data[k].ndim == 0 else data[k])
-                    for k in data.files if k != cls._VERSION_KEY}
+                    for k in data.files if k != cls.VERSION_KEY}
 
 
 # ---- diagnostics CSV -------------------------------------------------------------------

@@ -339,8 +339,8 @@ def run_scene(scene: Scene, argv=None) -> SceneRun:
         data = flow.particle_data()
         position = data.pop("position")
         colouring = frame_colouring(
-            args.color, position, data["velocity"], flow.dx, flow.support,
-            vorticity_values=flow.vorticity() if args.color == "vorticity" else None)
+            args.color, data["velocity"],
+            vorticity=flow.vorticity() if args.color == "vorticity" else None)
         outputs.frame(int(round(t / args.output_interval)), t, position, data, colouring)
         result.frames += 1
         t1 = time.perf_counter()

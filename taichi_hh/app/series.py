@@ -64,6 +64,14 @@ class FieldSeries:
         self.overrides, self.grid_first = dict(overrides), grid_first
         self._key = self._kept = None
 
+    @property
+    def decomposer(self):
+        """The set-up kept for the current points (a
+        :class:`~taichi_hh.hhd.decomposer.Decomposer` or
+        :class:`~taichi_hh.hhd.decomposer.GridDecomposer`; None before the
+        first call)."""
+        return None if self._kept is None else self._kept[2]
+
     def __call__(self, points, vectors, domain):
         from ..hhd.decomposer import Decomposer, GridDecomposer
         from ..hhd.grid import as_rows, grid_of, on_nodes

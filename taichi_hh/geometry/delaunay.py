@@ -151,6 +151,44 @@ def _legalize(a0_edge, xy: ti.template(), triangles: ti.template(), halfedges: t
     return ar
 
 
+@ti.func
+def _walk_hull(forward: ti.template(), start, i, x, y, n, xy: ti.template(),
+               triangles: ti.template(), halfedges: ti.template(), hull_prev: ti.template(),
+               hull_next: ti.template(), hull_tri: ti.template(), stack: ti.template(),
+               state: ti.template()):
+    """From hull vertex ``start``, forward (along ``hull_next``) or backward,
+    fan new point ``i`` at (x, y) to every hull edge it sees, taking the edge's
+    inner vertex off the hull; returns the vertex where the walk stopped.  A
+    walk that does not stop within ``n`` edges (the hull no longer a cycle)
+    or a flip budget spent on the way set ``state[2]`` (failed)."""
+    v = start
+    ended = 0
+    for _step in range(n):
+        q = hull_next[v] if ti.static(forward) else hull_prev[v]
+        a, b = (v, q) if ti.static(forward) else (q, v)     # the edge, counter-clockwise
+        if not _ccw(x, y, xy[a, 0], xy[a, 1], xy[b, 0], xy[b, 1]):
+            ended = 1
+            break
+        if _full(triangles, state):
+            ended = 1
+            break
+        if ti.static(forward):
+            t = _add_triangle(triangles, halfedges, state, v, i, q, hull_tri[i], -1,
+                              hull_tri[v])
+            hull_tri[i] = _legalize(t + 2, xy, triangles, halfedges, hull_prev, hull_tri,
+                                    stack, state)
+        else:
+            t = _add_triangle(triangles, halfedges, state, q, i, v, -1, hull_tri[v],
+                              hull_tri[q])
+            _legalize(t + 2, xy, triangles, halfedges, hull_prev, hull_tri, stack, state)
+            hull_tri[q] = t
+        hull_next[v] = v                # removed from the hull
+        v = q
+    if ended == 0:
+        state[2] = 1
+    return v
+
+
 @ti.kernel
 def _sweep(n: ti.i32, xy: ti.types.ndarray(), ids: ti.types.ndarray(), seed: ti.types.ndarray(),
            cx: ti.f64, cy: ti.f64, hash_size: ti.i32, eps: ti.f64,
@@ -236,45 +274,14 @@ def _sweep(n: ti.i32, xy: ti.types.ndarray(), ids: ti.types.ndarray(), seed: ti.
             hull_tri[i] = _legalize(t + 2, xy, triangles, halfedges, hull_prev, hull_tri,
                                     stack, state)
             hull_tri[e] = t
-            # forward along the hull
-            m = hull_next[e]
-            ended = 0
-            for _step in range(n):
-                q = hull_next[m]
-                if not _ccw(x, y, xy[m, 0], xy[m, 1], xy[q, 0], xy[q, 1]):
-                    ended = 1
-                    break
-                if _full(triangles, state):
-                    ended = 1
-                    break
-                t = _add_triangle(triangles, halfedges, state, m, i, q, hull_tri[i], -1,
-                                  hull_tri[m])
-                hull_tri[i] = _legalize(t + 2, xy, triangles, halfedges, hull_prev, hull_tri,
-                                        stack, state)
-                hull_next[m] = m                # removed from the hull
-                m = q
-            if ended == 0 or state[2] != 0:
-                state[2] = 1
+            m = _walk_hull(True, hull_next[e], i, x, y, n, xy, triangles, halfedges,
+                           hull_prev, hull_next, hull_tri, stack, state)
+            if state[2] != 0:
                 break
-            # backward along the hull
             if e == start:
-                ended = 0
-                for _step in range(n):
-                    q = hull_prev[e]
-                    if not _ccw(x, y, xy[q, 0], xy[q, 1], xy[e, 0], xy[e, 1]):
-                        ended = 1
-                        break
-                    if _full(triangles, state):
-                        ended = 1
-                        break
-                    t = _add_triangle(triangles, halfedges, state, q, i, e, -1, hull_tri[e],
-                                      hull_tri[q])
-                    _legalize(t + 2, xy, triangles, halfedges, hull_prev, hull_tri, stack, state)
-                    hull_tri[q] = t
-                    hull_next[e] = e
-                    e = q
-                if ended == 0 or state[2] != 0:
-                    state[2] = 1
+                e = _walk_hull(False, e, i, x, y, n, xy, triangles, halfedges, hull_prev,
+                               hull_next, hull_tri, stack, state)
+                if state[2] != 0:
                     break
             state[0] = e
             hull_prev[i] = e

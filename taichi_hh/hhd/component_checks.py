@@ -1,19 +1,38 @@
-"""The checks every decomposition makes of its own components: the energy of
-the parts against the field's (Petronetto Eq. 16) and how harmonic h is.
+"""The components every decomposition returns (:class:`Components`, the
+arrays its result records share) and the checks it makes of them: the energy
+of the parts against the field's (Petronetto Eq. 16) and how harmonic h is.
 Both flag what they find in ``stats["flags"]`` and by an
 :class:`~taichi_hh.errors.AccuracyWarning`."""
 from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import AccuracyWarning
 from .options import METHODS, HHDOptions
 
-__all__ = ["HARMONIC_LIMIT", "ENERGY_LIMIT", "flag_harmonic", "check_energy",
+__all__ = ["Components", "HARMONIC_LIMIT", "ENERGY_LIMIT", "flag_harmonic", "check_energy",
            "check_harmonic", "divergence_curl"]
+
+
+@dataclass(kw_only=True)
+class Components:
+    """The arrays every decomposition result holds
+    (:class:`~taichi_hh.hhd.decompose.HHDResult`,
+    :class:`~taichi_hh.hhd.decomposer.SeriesResult`,
+    :class:`~taichi_hh.hhd.grid.GridResult`: the shapes are theirs);
+    keyword-only."""
+    curl_free: np.ndarray      # d = grad phi
+    div_free: np.ndarray       # r = J grad psi
+    harmonic: np.ndarray       # h = v - d - r
+    phi: np.ndarray
+    psi: np.ndarray
+    divergence: np.ndarray     # SPH div v at the points (the right-hand side of Eq. 5)
+    curl: np.ndarray
+
 
 #: h with mean |div h| or |curl h| above this fraction of the field's mean
 #: sqrt(div v^2 + curl v^2) is not harmonic: flagged.  Measured (docs/notes/hhd.md):

@@ -63,8 +63,8 @@ from .boundary import far_from
 from .inputs import (Data, check_data_near_boundary, check_point_count, prepare_data,
                      refuse_too_few, validate_input)
 from .auto import choose_boundary_condition, window_split
-from .component_checks import (ENERGY_LIMIT, HARMONIC_LIMIT, check_energy, check_harmonic,
-                               flag_harmonic)
+from .component_checks import (ENERGY_LIMIT, HARMONIC_LIMIT, Components, check_energy,
+                               check_harmonic, flag_harmonic)
 from .natural import natural_decomposition
 from .operator_split import OperatorSplit
 from .options import (BOUNDARY_CONDITIONS, BOUNDARY_METHODS, METHODS, PRECONDITIONERS,
@@ -74,7 +74,7 @@ from .rotation import J
 from .units import Frame
 
 # re-exported: importers of the options, the input checks and J from here
-__all__ = ["decompose", "poisson_problems", "PoissonProblems", "HHDResult", "ENERGY_LIMIT",
+__all__ = ["decompose", "poisson_problems", "PoissonProblems", "Components", "HHDResult", "ENERGY_LIMIT",
            "HARMONIC_LIMIT", "flag_harmonic", "check_energy", "check_harmonic", "decompose_unit",
            "in_caller_units", "resolved_options",
            "HHDOptions", "METHODS", "BOUNDARY_METHODS", "BOUNDARY_CONDITIONS", "PRECONDITIONERS",
@@ -83,7 +83,7 @@ __all__ = ["decompose", "poisson_problems", "PoissonProblems", "HHDResult", "ENE
 
 
 @dataclass
-class HHDResult:
+class HHDResult(Components):
     """A decomposition, in the caller's units and row order.
 
     ``curl_free`` (d), ``div_free`` (r), ``harmonic`` (h): (N, 2); ``phi``,
@@ -93,13 +93,6 @@ class HHDResult:
     decomposition of the valid rows in that frame) are there for diagnostics."""
     points: np.ndarray
     vectors: np.ndarray
-    curl_free: np.ndarray      # d = grad phi
-    div_free: np.ndarray       # r = J grad psi
-    harmonic: np.ndarray       # h = v - d - r
-    phi: np.ndarray
-    psi: np.ndarray
-    divergence: np.ndarray     # SPH div v at the points (the right-hand side of Eq. 5)
-    curl: np.ndarray
     stats: dict
     options: HHDOptions
     pointset: PointSet = field(repr=False, default=None)
@@ -345,6 +338,11 @@ class _LazyPointSet:
 
     def __init__(self, make):
         self._make, self._ps = make, None
+
+    @property
+    def built(self) -> bool:
+        """Whether the point set has been made (read, or asked for) yet."""
+        return self._ps is not None
 
     def __getattr__(self, name):
         if name.startswith("__"):

@@ -55,6 +55,7 @@ import numpy as np
 from .. import runtime
 from ..errors import InputError
 from .auto import flux_band
+from .component_checks import Components
 from .decompose import (HHDResult, check_natural_reach, decompose, decompose_unit,
                         in_caller_units, natural_at_nodes, resolved_options, unit_spacing)
 from .inputs import field_on, prepare_data
@@ -78,7 +79,7 @@ NATURAL_BATCH = 4
 
 
 @dataclass
-class SeriesResult:
+class SeriesResult(Components):
     """The decompositions of T snapshots on the same points, stacked:
     ``vectors``, ``curl_free`` (d), ``div_free`` (r), ``harmonic`` (h):
     (T, N, 2); ``phi``, ``psi``, ``divergence``, ``curl``: (T, N), in the
@@ -88,13 +89,6 @@ class SeriesResult:
     figures)."""
     points: np.ndarray
     vectors: np.ndarray
-    curl_free: np.ndarray
-    div_free: np.ndarray
-    harmonic: np.ndarray
-    phi: np.ndarray
-    psi: np.ndarray
-    divergence: np.ndarray
-    curl: np.ndarray
     stats: list
     # per snapshot: its options, frame, valid rows, point set and domain (HHDResult's)
     meta: list = field(repr=False, default_factory=list)

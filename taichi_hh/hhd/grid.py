@@ -37,6 +37,7 @@ from ..errors import AccuracyWarning, InputError
 from ..geometry.polygon import Polygon
 from ..geometry.raster import cell_outlines, check_axis
 from .auto import ORTHOGONAL_CONDITION, energy_closer, natural_cancels
+from .component_checks import Components
 from .recent import Recent
 
 __all__ = ["decompose_grid", "GridResult", "GridLayout", "grid_components", "forget_layouts",
@@ -54,7 +55,7 @@ GRID_NATIVE_OPTIONS = frozenset({"boundary_condition", "natural_evaluation"})
 
 
 @dataclass
-class GridResult:
+class GridResult(Components):
     """A decomposition of gridded data: arrays on the input's grid.
 
     ``curl_free`` (d), ``div_free`` (r), ``harmonic`` (h): (ny, nx, 2);
@@ -67,13 +68,6 @@ class GridResult:
     grid-native path ran)."""
     x: np.ndarray
     y: np.ndarray
-    curl_free: np.ndarray
-    div_free: np.ndarray
-    harmonic: np.ndarray
-    phi: np.ndarray
-    psi: np.ndarray
-    divergence: np.ndarray
-    curl: np.ndarray
     used: np.ndarray
     inside: np.ndarray
     domain: Polygon

@@ -231,7 +231,9 @@ class PairRows(NamedTuple):
     a border unknown is not among them).  Where the rows live: the particles'
     ``positions``, the kernel ``support`` (the largest) and per-particle
     ``supports`` (None: fixed), and ``grid``, the pair list's neighbour grid
-    when the particles are sorted by its cells (else None)."""
+    when the particles are sorted by its cells (else None).  ``bordered``: the
+    matrix has a border unknown (its corner entry ``border_c``), which the
+    preconditioner leaves to Jacobi."""
     n: int
     offsets: object
     neighbours: object
@@ -241,6 +243,8 @@ class PairRows(NamedTuple):
     support: float
     supports: object
     grid: object
+    bordered: bool
+    border_c: float
 
 
 class PoissonMatrix:
@@ -317,6 +321,8 @@ class PoissonMatrix:
         self._reused = reuse
         if reuse is not None:
             reuse._reused = None            # no chain of past matrices
+        self._multilevel = None             # (options, MultilevelPreconditioner): multilevel()
+        self._host_rows = None              # host_apply's float64 rows, made on first use
         if reuse is not None:
             self.K = reuse.K
         elif overwrite_laplacian and self.lap.C.shape[0] >= npairs:
@@ -435,20 +441,20 @@ class PoissonMatrix:
         """The particle rows as arrays (:class:`PairRows`)."""
         ops, pr = self.ops, self.ops.pairs
         return PairRows(self.n_particles, pr.offsets, pr.neighbours, self.K, self.D,
-                        ops.particles.position, ops.support, getattr(ops, "supports", None),
-                        getattr(pr, "grid", None))
+                        ops.particles.position, ops.support, ops.supports, pr.grid,
+                        self.bordered, self.border_c)
 
     # ---- solve ---------------------------------------------------------------------
     def multilevel(self, **options):
         """The :class:`~taichi_hh.poisson.multilevel.MultilevelPreconditioner` of this
         matrix (built on first use, then cached; new ``options`` rebuild it)."""
         from .multilevel import MultilevelPreconditioner
-        cached = getattr(self, "_multilevel", None)
+        cached = self._multilevel
         if cached is None or cached[0] != options:
             # the matrix this one reuses (no longer needed) hands on its cycle's arrays
             previous = None
             if self._reused is not None:
-                previous = getattr(self._reused, "_multilevel", None)
+                previous = self._reused._multilevel
                 self._reused._multilevel = None
                 self._reused = None
             self._multilevel = (dict(options), MultilevelPreconditioner(
@@ -500,7 +506,7 @@ class PoissonMatrix:
                 failure = SolverError(res.message, reason=res.reason,
                                       iteration=res.iterations, residual=res.relative_residual)
                 try:                # a small system at the default cap: as solve() does
-                    results[c] = self._direct_instead(B[:, c], tol, failure, "bicgstab",
+                    results[c] = self.solve_densely_instead(B[:, c], tol, failure, "bicgstab",
                                                       kwargs)
                 except SolverError:
                     if raise_on_failure:
@@ -511,8 +517,8 @@ class PoissonMatrix:
                 res.x = res.x[: self.n_particles]
         return results
 
-    def _direct_instead(self, b: np.ndarray, tol: float, failure: SolverError, method: str,
-                        kwargs: dict):
+    def solve_densely_instead(self, b: np.ndarray, tol: float, failure: SolverError, method: str,
+                              kwargs: dict):
         """The small system BiCGSTAB failed on (at its default cap or stagnating)
         solved by dense LU in double precision (:data:`DIRECT_MAX`); ``failure``
         raised again where that does not apply or does not reach ``tol``."""
@@ -544,7 +550,7 @@ class PoissonMatrix:
         """``A X`` in double precision on the host (columns of ``X``, shape ``(n,
         cols)``): the matrix's stored coefficients, exactly as the kernels read
         them, in float64 arithmetic."""
-        cached = getattr(self, "_host_rows", None)
+        cached = self._host_rows
         if cached is None:
             off, nb = self.ops.pairs.to_numpy()
             n = self.n_particles
@@ -676,7 +682,7 @@ class PoissonMatrix:
             else:
                 res = solve[method](self, b, x0, tol=tol, **kwargs)
         except SolverError as exc:
-            res = self._direct_instead(b, tol, exc, method, kwargs)
+            res = self.solve_densely_instead(b, tol, exc, method, kwargs)
         res.border = float(res.x[-1]) if self.bordered else 0.0
         if self.bordered:
             res.x = res.x[: self.n_particles]

@@ -43,7 +43,10 @@ class Level(NamedTuple):
 class MultilevelPreconditioner:
     """Aggregation-multigrid cycle approximating ``A^-1`` (module doc).
 
-    A: a :class:`~taichi_hh.poisson.matrix.PoissonMatrix` (rows assembled).
+    A: a :class:`~taichi_hh.poisson.matrix.PoissonMatrix` (rows assembled), read
+    through two methods only: ``pair_rows()`` (:class:`~taichi_hh.poisson.matrix.PairRows`:
+    the rows, where they live, the border) and ``apply_transpose`` (the
+    column sums of a ridge system's constant mode).
     cycle: ``"W"`` (default) or ``"V"``.  The W-cycle visits every structured
     level below the first cell level twice per visit of its parent (the
     particle level and the first cell level, which carry almost all the
@@ -110,8 +113,8 @@ class MultilevelPreconditioner:
         # below SERIAL_MAX_N particles the cycle's loops run on one thread
         # (on the CPU: a GPU's one thread is far slower)
         self.serial = n < SERIAL_MAX_N and not runtime.on_gpu()
-        self._bordered = bool(getattr(A, "bordered", False))
-        self._border_c = float(getattr(A, "border_c", 1.0)) if self._bordered else 1.0
+        self._bordered = bool(rows.bordered)
+        self._border_c = float(rows.border_c) if self._bordered else 1.0
         self.pool = ArrayPool(reuse.pool if reuse is not None else None)
         self._columns_scratch = {}
         self._shapes = {}                    # the cycle kernel's CycleShape by columns
@@ -146,7 +149,7 @@ class MultilevelPreconditioner:
         # coarsest level: pseudo-inverse (singular for a Neumann problem)
         U, sv, Vt = np.linalg.svd(coarsest)
         keep = sv > noise
-        if (self._bordered or self._constant_mode) and len(sv):
+        if (self._bordered or self.constant_mode) and len(sv):
             # the constant is fixed elsewhere: by the border unknown of a
             # bordered system, or by the exact rank-one correction below; the
             # coarse level must not invert its round-off-level image (inverting a
@@ -181,8 +184,8 @@ class MultilevelPreconditioner:
         n = self.n
         self.colsum = self.pool.vector("colsum", None, size=n)
         self._constant_c = 1.0
-        self._constant_mode = False
-        if self._bordered or not callable(getattr(A, "apply_transpose", None)):
+        self.constant_mode = False
+        if self._bordered:
             return
         ones = runtime.array(runtime.real_dtype(), A.n)
         ones.fill(1.0)
@@ -197,7 +200,7 @@ class MultilevelPreconditioner:
         eps = float(np.finfo(runtime.np_real()).eps)
         noise = 100.0 * eps * math.sqrt(n) * float(row_abs.max())
         if abs(total) > noise:
-            self._constant_mode = True
+            self.constant_mode = True
             self._constant_c = total
 
     # ---- the hierarchy on the host (inspection and tests) ------------------------
@@ -272,6 +275,6 @@ class MultilevelPreconditioner:
         if shape is None:
             shape = self._shapes[cols] = CycleShape(
                 cols, self.serial, self._by_cell, self.schedule, self.post, self.omega,
-                self.correction, self._bordered, self.gamma, self._constant_mode)
+                self.correction, self._bordered, self.gamma, self.constant_mode)
         run_cycle(shape, self.n, self.fine_level, self.cell_levels, self._work(cols), self._border_c,
                   self.colsum, self._constant_c, r, z)
