@@ -10,11 +10,14 @@ Decomposition (:func:`decomposition_figures`):
 ``arrows.png``      2x2 quiver panels of v, d, r, h on a spatially even
                     subsample (one point per cell of a coarse grid, ~400-900
                     arrows), one arrow scale for all four panels.
-``magnitude.png``   2x2 panels: |v|, |d|, |r|, |h| by ``tripcolor`` on the
-                    Delaunay triangulation of the points (triangles outside the
-                    domain masked, so holes and concave parts stay empty), one
-                    colour scale, and streamlines of each component (linear
-                    interpolation on a regular grid, masked outside the domain).
+``magnitude.png``   2x2 panels: |v|, |d|, |r|, |h| interpolated linearly on
+                    the Delaunay triangulation of the points (triangles outside
+                    the domain masked, so holes and concave parts stay empty)
+                    onto an image of :data:`IMAGE_PIXELS` pixels across, one
+                    colour scale, and streamlets of each component
+                    (:mod:`taichi_hh.app.streamlets`: short streamlines from
+                    evenly spaced seeds, on a regular grid masked outside the
+                    domain).
 
 Critical points are marked on the d and r panels of both figures in
 Petronetto et al.'s colours (2010, Fig. 15): sources green, sinks purple,
@@ -55,6 +58,10 @@ COMPONENT_TITLES = {
     "h": "h (harmonic)",
 }
 DPI = 110
+#: the magnitude panels' image, pixels along the domain's longer side (an
+#: image, not Gouraud-shaded triangles: 4k points' triangles took 0.25 s a
+#: panel to render)
+IMAGE_PIXELS = 240
 #: arrow and colour scales stop at this percentile of the magnitudes shown
 SCALE_PERCENTILE = 99.0
 
@@ -98,7 +105,7 @@ def _panels_figure(domain, width: float = 11.0):
 
 def _save(fig, path):
     try:
-        atomic_savefig(fig, path, dpi=DPI)
+        atomic_savefig(fig, path, dpi=DPI, pil_kwargs={"compress_level": 1})
     finally:
         fig.clear()
 
@@ -152,6 +159,7 @@ def setup_axes(ax, domain, title, units=None):
     ax.set_aspect("equal")
     ax.set_title(title, fontsize=10)
     ax.tick_params(labelsize=8)
+    ax.locator_params(nbins=4)         # each tick is costly to draw: a few suffice
     suffix = f" [{units}]" if units else ""
     ax.set_xlabel(f"x{suffix}", fontsize=8)
     ax.set_ylabel(f"y{suffix}", fontsize=8)
@@ -263,15 +271,19 @@ def _grid(domain, n: int = 90):
 
 
 def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
-    """2x2 panels of |v|, |d|, |r|, |h| (tripcolor, one colour scale) with
-    streamlines; returns ``path``."""
+    """2x2 panels of |v|, |d|, |r|, |h| (one colour scale) with streamlets;
+    returns ``path``."""
     from matplotlib.tri import LinearTriInterpolator
+    from . import streamlets
     pts = result.points
     domain = _domain_of(pts, domain)
     tri = masked_triangulation(pts, domain)
     gx, gy = _grid(domain)
     X, Y = np.meshgrid(gx, gy)
     outside = ~domain.contains(np.c_[X.ravel(), Y.ravel()]).reshape(X.shape)
+    ix, iy = _grid(domain, IMAGE_PIXELS)
+    IX, IY = np.meshgrid(ix, iy)
+    image_outside = ~domain.contains(np.c_[IX.ravel(), IY.ravel()]).reshape(IX.shape)
     comps = _components(result)
     mags = {k: np.hypot(v[:, 0], v[:, 1]) for k, v in comps.items()}
     vmax = robust_top(np.concatenate(list(mags.values()))) or 1.0
@@ -279,20 +291,22 @@ def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
     axes = fig.subplots(2, 2).ravel()
     image = None
     titles = component_titles(result)
+    (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=np.float64)
     for ax, (name, vec) in zip(axes, comps.items()):
         setup_axes(ax, domain, f"|{name}|, {titles[name]}", units)
-        image = ax.tripcolor(tri, mags[name], shading="gouraud", cmap="viridis", vmin=0.0,
-                             vmax=vmax, zorder=1)
-        # streamlines need directions only: in units of vmax, nothing squares
-        # a field of 1e200 into overflow inside matplotlib
+        mag = LinearTriInterpolator(tri, mags[name])(IX, IY)
+        mag = np.ma.masked_array(mag, mask=np.ma.getmaskarray(mag) | image_outside)
+        image = ax.imshow(mag, origin="lower", extent=(x0, x1, y0, y1), cmap="viridis",
+                          vmin=0.0, vmax=vmax, interpolation="bilinear", zorder=1,
+                          aspect="auto")
+        ax.set_aspect("equal")
+        # streamlets need directions only: in units of vmax, nothing squares
+        # a field of 1e200 into overflow
         U = LinearTriInterpolator(tri, vec[:, 0] / vmax)(X, Y)
         V = LinearTriInterpolator(tri, vec[:, 1] / vmax)(X, Y)
         U = np.ma.masked_array(U, mask=np.ma.getmaskarray(U) | outside)
         V = np.ma.masked_array(V, mask=np.ma.getmaskarray(V) | outside)
-        speed = np.ma.masked_array(np.hypot(np.ma.getdata(U), np.ma.getdata(V)), mask=np.ma.getmaskarray(U))
-        if speed.count() and float(speed.max()) > 1e-12:
-            ax.streamplot(gx, gy, U, V, density=1.0, color="white", linewidth=0.6,
-                          arrowsize=0.7, broken_streamlines=True, zorder=2)
+        streamlets.draw(ax, gx, gy, U, V, color="white", linewidth=0.6, zorder=2)
         if name == "d":
             _mark_critical(ax, critical, ("source", "sink"))
         elif name == "r":
@@ -301,7 +315,7 @@ def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
     cax = fig.add_axes([0.9, 0.2, 0.02, 0.6])
     fig.colorbar(image, cax=cax, extend="max",
                  label=f"magnitude (clipped at the {SCALE_PERCENTILE:g}th percentile)")
-    fig.suptitle("Magnitudes and streamlines", fontsize=11)
+    fig.suptitle("Magnitudes and streamlets", fontsize=11)
     _critical_legend(fig, critical)
     _save(fig, path)
     return path
