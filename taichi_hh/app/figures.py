@@ -221,7 +221,7 @@ def arrows_figure(result, domain, path, critical=(), target: int = 600, units=No
     comps = _components(result)
     scale = _arrow_scale([c[idx] for c in comps.values()], domain, len(idx))
     fig = _panels_figure(domain)
-    axes = fig.subplots(2, 2).ravel()
+    axes = fig.subplots(2, 2, sharex=True, sharey=True).ravel()
     titles = component_titles(result)
     for ax, (name, vec) in zip(axes, comps.items()):
         setup_axes(ax, domain, titles[name], units)
@@ -288,7 +288,7 @@ def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
     mags = {k: np.hypot(v[:, 0], v[:, 1]) for k, v in comps.items()}
     vmax = robust_top(np.concatenate(list(mags.values()))) or 1.0
     fig = _panels_figure(domain)
-    axes = fig.subplots(2, 2).ravel()
+    axes = fig.subplots(2, 2, sharex=True, sharey=True).ravel()
     image = None
     titles = component_titles(result)
     (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=np.float64)
