@@ -52,11 +52,17 @@ def test_calls_through_the_worker_equal_the_command_line_in_its_own_process(tmp_
     assert started.returncode == 0, started.stderr
     assert "started" in started.stdout and _calls(env) == 0
     common = ["--no-figures", "--no-vtk"]
-    own = _run(["decompose", "f.npz", "-o", "own", "--no-worker", *common], env, tmp_path)
-    first = _run(["decompose", "f.npz", "-o", "w1", *common], env, tmp_path)
+    own = _run(["decompose", "f.npz", "-o", "own", "--no-worker"], env, tmp_path)
+    first = _run(["decompose", "f.npz", "-o", "w1"], env, tmp_path)
     second = _run(["decompose", field, "-o", str(tmp_path / "w2"), *common], env, "/")
     assert own.returncode == first.returncode == second.returncode == 0, first.stderr
     assert _calls(env) == 2                               # both went to the worker
+    # every file the same, byte for byte (arrows.png drawn by the worker's figure helper)
+    names = sorted(os.listdir(tmp_path / "own"))
+    assert names == sorted(os.listdir(tmp_path / "w1"))
+    assert {"arrows.png", "magnitude.png", "components.npz", "components.vtu"} <= set(names)
+    for name in names:
+        assert (tmp_path / "own" / name).read_bytes() == (tmp_path / "w1" / name).read_bytes(), name
     ref = np.load(tmp_path / "own" / "components.npz")
     for out in ("w1", "w2"):
         got = np.load(tmp_path / out / "components.npz")

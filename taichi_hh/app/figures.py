@@ -39,6 +39,8 @@ from __future__ import annotations
 
 import math
 import os
+from collections import namedtuple
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -64,6 +66,21 @@ DPI = 110
 IMAGE_PIXELS = 240
 #: arrow and colour scales stop at this percentile of the magnitudes shown
 SCALE_PERCENTILE = 99.0
+#: a critical point as the figures draw it (picklable without the numerical core)
+Marker = namedtuple("Marker", "x y kind strength")
+#: see :func:`draw_beside`
+_beside = None
+
+
+def draw_beside(helper) -> None:
+    """Draw ``arrows.png`` in another process while this one draws
+    ``magnitude.png`` (the persistent worker's figure helper,
+    :class:`taichi_hh.app.worker.FigureHelper`; None: both here).
+    ``helper(job)`` takes :func:`arrows_figure`'s arguments as a dict (plain
+    arrays, an absolute path) and returns a function that waits for the file
+    and raises its error, or None where it cannot take the job."""
+    global _beside
+    _beside = helper
 
 
 def robust_top(values) -> float:
@@ -104,10 +121,9 @@ def _panels_figure(domain, width: float = 11.0):
 
 
 def _save(fig, path):
-    try:
-        atomic_savefig(fig, path, dpi=DPI, pil_kwargs={"compress_level": 1})
-    finally:
-        fig.clear()
+    # compress level 1: 0.1-0.2 s less a figure than the default 6, files 0-7% larger
+    # (no fig.clear() after: it took 0.1-0.2 s; the figure is freed with its last reference)
+    atomic_savefig(fig, path, dpi=DPI, pil_kwargs={"compress_level": 1})
 
 
 def _domain_of(points, domain):
@@ -330,10 +346,30 @@ def decomposition_figures(result, domain, out_dir, critical=None,
         critical = result.critical_points(threshold=threshold)
     if hasattr(result, "valid_rows"):
         result = result.valid_rows()          # missing rows (NaN) are not drawn
-    return [arrows_figure(result, domain, os.path.join(out_dir, "arrows.png"), critical,
-                          units=units),
-            magnitude_figure(result, domain, os.path.join(out_dir, "magnitude.png"), critical,
-                             units=units)]
+    arrows = os.path.join(out_dir, "arrows.png")
+    wait = None if _beside is None else _beside(dict(
+        result=SimpleNamespace(points=result.points, vectors=result.vectors,
+                               curl_free=result.curl_free, div_free=result.div_free,
+                               harmonic=result.harmonic,
+                               stats={"flags": list((result.stats or {}).get("flags", []))}),
+        domain=domain, path=os.path.abspath(arrows), units=units, umask=_umask(),
+        critical=[Marker(c[0], c[1], c[2], getattr(c, "strength", float("nan")))
+                  for c in critical]))
+    if wait is None:
+        arrows_figure(result, domain, arrows, critical, units=units)
+    try:
+        magnitude = magnitude_figure(result, domain, os.path.join(out_dir, "magnitude.png"),
+                                     critical, units=units)
+    finally:
+        if wait is not None:
+            wait()
+    return [arrows, magnitude]
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def projection_figures(result, domain, out_dir, target: int = 600) -> list[str]:

@@ -60,6 +60,82 @@ class _Frames:
         return "utf-8"
 
 
+class FigureHelper:
+    """A process beside the worker (spawned: numpy and matplotlib, no Taichi)
+    that draws ``arrows.png`` while the worker draws ``magnitude.png``
+    (:func:`taichi_hh.app.figures.draw_beside`): on two cores a call's
+    figures take the longer one's time, not both."""
+
+    def __init__(self):
+        import multiprocessing
+        ctx = multiprocessing.get_context("spawn")
+        self.conn, child = ctx.Pipe()
+        self.process = ctx.Process(target=_draw_arrows, args=(child,), daemon=True,
+                                   name="taichi-hh figure helper")
+        self.process.start()
+        child.close()
+        self.jobs = 0
+
+    def __call__(self, job):
+        if not self.process.is_alive():
+            return None                  # draw both in the worker
+        self.jobs += 1
+        number = self.jobs
+        try:
+            self.conn.send((number, job))
+        except OSError:
+            return None
+
+        def wait():
+            interrupted, error = False, None
+            while True:
+                try:                     # a Ctrl-C waits for the file (no file after the call)
+                    if not self.conn.poll(120.0):
+                        raise OSError("the figure helper did not answer in 120 s")
+                    got, error = self.conn.recv()
+                except KeyboardInterrupt:
+                    interrupted = True
+                    continue
+                except EOFError:
+                    raise OSError("the figure helper stopped while drawing arrows.png") from None
+                if got == number:
+                    break
+            if interrupted:
+                raise KeyboardInterrupt
+            if error:
+                raise OSError(error)
+        return wait
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.conn.send(None)
+        self.process.join(5.0)
+        if self.process.is_alive():
+            self.process.terminate()
+
+
+def _draw_arrows(conn) -> None:
+    """The figure helper's loop: :func:`~taichi_hh.app.figures.arrows_figure` per job."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from . import figures
+    while True:
+        try:
+            got = conn.recv()
+        except (EOFError, OSError):
+            return
+        if got is None:
+            return
+        number, job = got
+        os.umask(job["umask"])
+        try:
+            figures.arrows_figure(job["result"], job["domain"], job["path"], job["critical"],
+                                  units=job["units"])
+            error = None
+        except Exception as exc:         # noqa: BLE001 (sent back as the call's error)
+            error = f"{type(exc).__name__}: {exc}"
+        conn.send((number, error))
+
+
 class _NewCall(Warning):
     """Never raised: setting a filter for it makes Python forget the warnings
     already shown, so each call warns as a fresh process would."""
@@ -121,7 +197,11 @@ class Worker:
 
     def serve(self, warm_up: bool = True) -> None:
         server = self.listen()
+        helper = None
         try:
+            from . import figures
+            helper = FigureHelper()
+            figures.draw_beside(helper)
             if warm_up:
                 self.warm_up()
             else:
@@ -143,6 +223,8 @@ class Worker:
             server.close()
             with contextlib.suppress(FileNotFoundError):
                 os.remove(self.path)
+            if helper is not None:
+                helper.close()
 
     def status(self) -> dict:
         from .. import runtime
