@@ -136,6 +136,16 @@ def _draw_arrows(conn) -> None:
         conn.send((number, error))
 
 
+def _helper_cpu(helper) -> float:
+    """The figure helper's CPU seconds so far (Linux's /proc; 0 elsewhere)."""
+    try:
+        with open(f"/proc/{helper.process.pid}/stat") as fh:
+            fields = fh.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (AttributeError, OSError, ValueError, IndexError):
+        return 0.0
+
+
 class _NewCall(Warning):
     """Never raised: setting a filter for it makes Python forget the warnings
     already shown, so each call warns as a fresh process would."""
@@ -149,6 +159,7 @@ class Worker:
         self.stamp = client.source_stamp()
         self.env = client.environment()
         self.running = True
+        self.helper = None
 
     # ------------------------------------------------------------------ life
     def listen(self):
@@ -200,7 +211,7 @@ class Worker:
         helper = None
         try:
             from . import figures
-            helper = FigureHelper()
+            helper = self.helper = FigureHelper()
             figures.draw_beside(helper)
             if warm_up:
                 self.warm_up()
@@ -232,7 +243,7 @@ class Worker:
         return dict(pid=os.getpid(), arch=st.arch or self.arch or "cpu",
                     precision=st.precision or self.precision, uptime=time.time() - self.started,
                     calls=self.calls, idle_timeout=self.idle_timeout, socket=self.path,
-                    cpu_seconds=time.process_time())
+                    cpu_seconds=time.process_time() + _helper_cpu(self.helper))
 
     # ------------------------------------------------------------------ a call
     def handle(self, conn) -> None:
