@@ -48,3 +48,27 @@ def test_masked_nodes_and_calm_regions_stop_the_lines():
     assert len(lines) > 0 and lines[..., 0].max() <= 0.0 + 1e-12
     calm = streamlets.trace(gx, gy, np.ma.masked_array(0 * X), np.ma.masked_array(0 * X))
     assert len(calm[0]) == 0 and len(calm[1]) == 0
+
+
+def test_linear_on_equals_matplotlibs_linear_interpolator():
+    from matplotlib.tri import LinearTriInterpolator
+
+    from taichi_hh.app import figures
+    from taichi_hh.geometry.domain import Polygon
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(0.0, 1.0, (400, 2))
+    domain = Polygon([(0, 0), (1, 0), (1, 1), (0.5, 0.4), (0, 1)])   # concave: masked triangles
+    pts = pts[domain.contains(pts)]
+    tri = figures.masked_triangulation(pts, domain)
+    g = np.linspace(-0.05, 1.05, 57)
+    X, Y = np.meshgrid(g, g)
+    values = np.sin(3 * pts[:, 0]) * pts[:, 1] + 2.0
+    got = figures.linear_on(tri, X, Y)(values)
+    ref = LinearTriInterpolator(tri, values)(X, Y)
+    assert np.array_equal(np.ma.getmaskarray(got), np.ma.getmaskarray(ref))
+    assert np.ma.getmaskarray(got).sum() > 0 and (~np.ma.getmaskarray(got)).sum() > 1000
+    assert np.abs(got - ref).max() < 1e-12
+    # exact on linear fields
+    lin = figures.linear_on(tri, X, Y)(3 * pts[:, 0] - 2 * pts[:, 1])
+    ok = ~np.ma.getmaskarray(lin)
+    assert np.allclose(lin[ok], (3 * X - 2 * Y)[ok], atol=1e-12)

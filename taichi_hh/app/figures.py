@@ -278,6 +278,28 @@ def masked_triangulation(points, domain):
     return tri
 
 
+def linear_on(tri, X, Y):
+    """A function taking values at ``tri``'s points to their linear
+    interpolant at the points (X, Y), masked outside the (unmasked)
+    triangles: matplotlib's ``LinearTriInterpolator`` with the triangles
+    found once for all the fields."""
+    where = tri.get_trifinder()(X, Y)
+    inside = where >= 0
+    corners = tri.triangles[where[inside]]
+    x, y = tri.x[corners], tri.y[corners]                     # (M, 3)
+    px, py = np.asarray(X, dtype=np.float64)[inside], np.asarray(Y, dtype=np.float64)[inside]
+    det = (y[:, 1] - y[:, 2]) * (x[:, 0] - x[:, 2]) + (x[:, 2] - x[:, 1]) * (y[:, 0] - y[:, 2])
+    l0 = ((y[:, 1] - y[:, 2]) * (px - x[:, 2]) + (x[:, 2] - x[:, 1]) * (py - y[:, 2])) / det
+    l1 = ((y[:, 2] - y[:, 0]) * (px - x[:, 2]) + (x[:, 0] - x[:, 2]) * (py - y[:, 2])) / det
+    weights = np.stack([l0, l1, 1.0 - l0 - l1], axis=1)
+
+    def at(values):
+        out = np.zeros(np.shape(X))
+        out[inside] = (weights * np.asarray(values, dtype=np.float64)[corners]).sum(axis=1)
+        return np.ma.masked_array(out, mask=~inside)
+    return at
+
+
 def _grid(domain, n: int = 90):
     (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=np.float64)
     span = max(x1 - x0, y1 - y0)
@@ -289,7 +311,6 @@ def _grid(domain, n: int = 90):
 def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
     """2x2 panels of |v|, |d|, |r|, |h| (one colour scale) with streamlets;
     returns ``path``."""
-    from matplotlib.tri import LinearTriInterpolator
     from . import streamlets
     pts = result.points
     domain = _domain_of(pts, domain)
@@ -300,6 +321,7 @@ def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
     ix, iy = _grid(domain, IMAGE_PIXELS)
     IX, IY = np.meshgrid(ix, iy)
     image_outside = ~domain.contains(np.c_[IX.ravel(), IY.ravel()]).reshape(IX.shape)
+    on_image, on_grid = linear_on(tri, IX, IY), linear_on(tri, X, Y)
     comps = _components(result)
     mags = {k: np.hypot(v[:, 0], v[:, 1]) for k, v in comps.items()}
     vmax = robust_top(np.concatenate(list(mags.values()))) or 1.0
@@ -310,7 +332,7 @@ def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
     (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=np.float64)
     for ax, (name, vec) in zip(axes, comps.items()):
         setup_axes(ax, domain, f"|{name}|, {titles[name]}", units)
-        mag = LinearTriInterpolator(tri, mags[name])(IX, IY)
+        mag = on_image(mags[name])
         mag = np.ma.masked_array(mag, mask=np.ma.getmaskarray(mag) | image_outside)
         image = ax.imshow(mag, origin="lower", extent=(x0, x1, y0, y1), cmap="viridis",
                           vmin=0.0, vmax=vmax, interpolation="bilinear", zorder=1,
@@ -318,8 +340,7 @@ def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
         ax.set_aspect("equal")
         # streamlets need directions only: in units of vmax, nothing squares
         # a field of 1e200 into overflow
-        U = LinearTriInterpolator(tri, vec[:, 0] / vmax)(X, Y)
-        V = LinearTriInterpolator(tri, vec[:, 1] / vmax)(X, Y)
+        U, V = on_grid(vec[:, 0] / vmax), on_grid(vec[:, 1] / vmax)
         U = np.ma.masked_array(U, mask=np.ma.getmaskarray(U) | outside)
         V = np.ma.masked_array(V, mask=np.ma.getmaskarray(V) | outside)
         streamlets.draw(ax, gx, gy, U, V, color="white", linewidth=0.6, zorder=2)
