@@ -172,6 +172,7 @@ class Worker:
         finally:
             os.umask(old)
         sock.listen(16)
+        self.inode = os.stat(self.path).st_ino
         return sock
 
     def warm_up(self) -> None:
@@ -232,8 +233,9 @@ class Worker:
                         pass             # an interrupt that came as its call ended
         finally:
             server.close()
-            with contextlib.suppress(FileNotFoundError):
-                os.remove(self.path)
+            with contextlib.suppress(OSError):
+                if os.stat(self.path).st_ino == self.inode:    # still this worker's socket
+                    os.remove(self.path)
             if helper is not None:
                 helper.close()
 

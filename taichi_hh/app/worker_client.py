@@ -212,13 +212,21 @@ def log_path() -> str:
 
 # --------------------------------------------------------------------------- taichi-hh worker
 def request(op: str, timeout: float = 10.0):
-    """One request to this user's worker: its reply, or None where none answers."""
+    """One request to this user's worker: its reply; ``{"busy": True}`` where
+    one listens but is still in a call after ``timeout`` seconds; None where
+    none listens."""
     try:
-        with connect(socket_path(), timeout) as sock:
-            send_frame(sock, dict(op=op))
-            return recv_frame(sock)
+        sock = connect(socket_path(), timeout)
     except OSError:
         return None
+    with sock:
+        try:
+            send_frame(sock, dict(op=op))
+            return recv_frame(sock)
+        except socket.timeout:
+            return {"busy": True}
+        except OSError:
+            return None
 
 
 def start(idle_timeout: float = IDLE_TIMEOUT, arch: str | None = None,
@@ -228,6 +236,8 @@ def start(idle_timeout: float = IDLE_TIMEOUT, arch: str | None = None,
     kernels loaded, matplotlib imported)."""
     got = request("status")
     if got:
+        if got.get("busy"):
+            raise OSError("a worker is running and busy with a call; try again when it is done")
         return dict(got, already=True)
     path = socket_path()
     if os.path.exists(path):
@@ -253,7 +263,7 @@ def start(idle_timeout: float = IDLE_TIMEOUT, arch: str | None = None,
                           f"its log: {log}")
         if os.path.exists(path):
             got = request("status", timeout=wait)
-            if got:
+            if got and not got.get("busy"):
                 return dict(got, already=False, start_seconds=time.monotonic() - t0)
         time.sleep(0.05)
     child.terminate()
@@ -291,7 +301,7 @@ def worker_command(argv: list) -> int:
                   f"{got['socket']})")
             return 0
         if args.action == "stop":
-            got = request("stop")
+            got = request("stop", timeout=None)        # after the call it is in
             print("taichi-hh worker: " + (f"stopped (pid {got['pid']}, {got['calls']} calls)"
                                           if got else "none running"))
             return 0
@@ -299,6 +309,9 @@ def worker_command(argv: list) -> int:
         if not got:
             print("taichi-hh worker: none running")
             return 3
+        if got.get("busy"):
+            print("taichi-hh worker: running, busy with a call")
+            return 0
         print(f"taichi-hh worker: running (pid {got['pid']}, {got['arch']}/{got['precision']}, "
               f"up {got['uptime']:.0f} s, {got['calls']} calls, idle timeout "
               f"{got['idle_timeout']:g} s, socket {got['socket']})")
