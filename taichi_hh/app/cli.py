@@ -7,6 +7,10 @@ only parses arguments, calls the library and writes files.
 ``project FIELD``    null-divergence projection    -> DIR/projected.npz, measures.csv + figures
 ``info``             version and Taichi arch
 ``scene NAME ...``   a two-phase scene (rising-droplet, rayleigh-taylor) -> frames, particles
+``worker start|stop|status``  a persistent worker that runs ``decompose`` and
+                     ``project`` with Taichi's kernels kept loaded
+                     (:mod:`taichi_hh.app.worker`; :func:`main` hands a call to it
+                     when one runs, unless ``--no-worker``)
 
 Errors in the input or in the numerics (:class:`~taichi_hh.errors.InputError`,
 :class:`~taichi_hh.errors.SolverError`, :class:`~taichi_hh.errors.NeighbourError`,
