@@ -332,65 +332,72 @@ def main() -> int:
         for v in versions:               # only "this, worker" may find a worker
             versions[v].setdefault("TAICHI_HH_WORKER_DIR", str(tmp / f"none_{len(v)}"))
         env = versions["this"]
-        for field in [f.strip() for f in args.fields.split(",") if f.strip()]:
-            one = write_fields(tmp, field, 1)
-            cases = {"1 file": ()}
-            if args.without_figures:
-                cases["1 file, --no-figures"] = ("--no-figures",)
-            for case, extra in cases.items():
-                cmds = {v: cli_command(one, tmp / f"out_{field}_{v}", extra) for v in versions}
-                runs = {v: [] for v in versions}
-                cold = {}
-                for v in versions:
-                    if v.endswith("worker"):
-                        start_worker(versions[v], walls)
-                        continue
-                    if not extra:
-                        # the cold start: a fresh, empty offline cache of its own
-                        fresh = dict(versions[v], TAICHI_HH_CACHE=str(tmp / f"cold_{field}_{v}"))
-                        cold[v] = timed_run(cmds[v], fresh)
-                    timed_run(cmds[v], versions[v])              # fills the offline cache
-                for _ in range(args.repeats):
-                    for v in versions:                           # interleaved
-                        runs[v].append(timed_run(cmds[v], versions[v], v.endswith("worker")))
-                for v in versions:
-                    if v in cold:
-                        walls.append(wall_row(f"{field}: {case}, cold cache", 1, v, [cold[v]],
-                                              float("nan")))
-                    walls.append(wall_row(f"{field}: {case}", 1, v, runs[v], 1.5))
-                    w = walls[-1]
-                    said = f"cold cache {cold[v][0]:.2f} s wall {cold[v][1]:.2f} s CPU; " \
-                        if v in cold else ""
-                    print(f"{field}: {case} ({v}), {said}warm median {w['median_s']:.2f} s "
-                          f"wall, {w['cpu_median_s']:.2f} s CPU", flush=True)
-            if not args.no_breakdown:
-                got = breakdown(one, tmp / f"probe_{field}", env)
-                stages += stage_rows(field, got)
-                for name, v in sorted(got["kernels"].items(),
-                                      key=lambda kv: -(kv[1]["materialize"] + kv[1]["first_launch"])
-                                      )[:args.kernels]:
-                    kernel_rows.append(dict(field=field, kernel=name, module=v["module"],
-                                            transform_s=v["materialize"],
-                                            first_launch_s=v["first_launch"],
-                                            launches=v["launches"], launch_s=v["launch_s"]))
-            if args.series:
-                many = write_fields(tmp, field, args.series)
-                cmds = {v: cli_command(many, tmp / f"series_{field}_{v}") for v in versions}
-                runs = {v: [] for v in versions}
-                for v in versions:      # the series path's own kernels into the cache, untimed
-                    if not v.endswith("worker"):    # (the worker's warm-up has a series)
-                        timed_run(cli_command(many[:2], tmp / f"fill_{field}_{v}"), versions[v])
-                for _ in range(args.series_repeats):
+        try:
+            for field in [f.strip() for f in args.fields.split(",") if f.strip()]:
+                one = write_fields(tmp, field, 1)
+                cases = {"1 file": ()}
+                if args.without_figures:
+                    cases["1 file, --no-figures"] = ("--no-figures",)
+                for case, extra in cases.items():
+                    cmds = {v: cli_command(one, tmp / f"out_{field}_{v}", extra) for v in versions}
+                    runs = {v: [] for v in versions}
+                    cold = {}
                     for v in versions:
-                        runs[v].append(timed_run(cmds[v], versions[v], v.endswith("worker")))
-                for v in versions:
-                    walls.append(wall_row(f"{field}: {args.series} files", args.series, v,
-                                          runs[v], 15.0))
-                    w = walls[-1]
-                    print(f"{field}: {args.series} files ({v}), median {w['median_s']:.2f} s "
-                          f"wall, {w['cpu_median_s']:.2f} s CPU", flush=True)
-                for p in many[1:]:
-                    p.unlink()
+                        if v.endswith("worker"):
+                            start_worker(versions[v], walls)
+                            continue
+                        if not extra:
+                            # the cold start: a fresh, empty offline cache of its own
+                            fresh = dict(versions[v], TAICHI_HH_CACHE=str(tmp / f"cold_{field}_{v}"))
+                            cold[v] = timed_run(cmds[v], fresh)
+                        timed_run(cmds[v], versions[v])              # fills the offline cache
+                    for _ in range(args.repeats):
+                        for v in versions:                           # interleaved
+                            runs[v].append(timed_run(cmds[v], versions[v], v.endswith("worker")))
+                    for v in versions:
+                        if v in cold:
+                            walls.append(wall_row(f"{field}: {case}, cold cache", 1, v, [cold[v]],
+                                                  float("nan")))
+                        walls.append(wall_row(f"{field}: {case}", 1, v, runs[v], 1.5))
+                        w = walls[-1]
+                        said = f"cold cache {cold[v][0]:.2f} s wall {cold[v][1]:.2f} s CPU; " \
+                            if v in cold else ""
+                        print(f"{field}: {case} ({v}), {said}warm median {w['median_s']:.2f} s "
+                              f"wall, {w['cpu_median_s']:.2f} s CPU", flush=True)
+                if not args.no_breakdown:
+                    got = breakdown(one, tmp / f"probe_{field}", env)
+                    stages += stage_rows(field, got)
+                    for name, v in sorted(got["kernels"].items(),
+                                          key=lambda kv: -(kv[1]["materialize"] + kv[1]["first_launch"])
+                                          )[:args.kernels]:
+                        kernel_rows.append(dict(field=field, kernel=name, module=v["module"],
+                                                transform_s=v["materialize"],
+                                                first_launch_s=v["first_launch"],
+                                                launches=v["launches"], launch_s=v["launch_s"]))
+                if args.series:
+                    many = write_fields(tmp, field, args.series)
+                    cmds = {v: cli_command(many, tmp / f"series_{field}_{v}") for v in versions}
+                    runs = {v: [] for v in versions}
+                    for v in versions:      # the series path's own kernels into the cache, untimed
+                        if not v.endswith("worker"):    # (the worker's warm-up has a series)
+                            timed_run(cli_command(many[:2], tmp / f"fill_{field}_{v}"), versions[v])
+                    for _ in range(args.series_repeats):
+                        for v in versions:
+                            runs[v].append(timed_run(cmds[v], versions[v], v.endswith("worker")))
+                    for v in versions:
+                        walls.append(wall_row(f"{field}: {args.series} files", args.series, v,
+                                              runs[v], 15.0))
+                        w = walls[-1]
+                        print(f"{field}: {args.series} files ({v}), median {w['median_s']:.2f} s "
+                              f"wall, {w['cpu_median_s']:.2f} s CPU", flush=True)
+                    for p in many[1:]:
+                        p.unlink()
+        finally:            # the worker's socket is in tmp: stop it before tmp goes
+            for v, venv in versions.items():
+                if v.endswith("worker"):
+                    subprocess.run([sys.executable, "-m", "taichi_hh", "worker", "stop"],
+                                   env=venv, stdout=subprocess.PIPE)
+
     print()
     print(format_table(["case", "version", "median s", "min s", "max s", "CPU s", "runs",
                         "target s"],
@@ -413,10 +420,6 @@ def main() -> int:
                          [dict(field=r["field"], stage=f"kernel {r['kernel']} first launch",
                                seconds=r["first_launch_s"]) for r in kernel_rows],
                          ["field", "stage", "seconds"])
-    for v, env in versions.items():
-        if v.endswith("worker"):
-            subprocess.run([sys.executable, "-m", "taichi_hh", "worker", "stop"], env=env,
-                           stdout=subprocess.PIPE)
     write_csv_atomic(out / "cli_startup.csv", walls, list(walls[0]))
     print(f"\nwrote {out / 'cli_startup.csv'}" +
           ("" if not stages else f" and {out / 'cli_startup_breakdown.csv'}"))
