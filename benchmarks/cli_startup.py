@@ -19,6 +19,11 @@ Two measurements, each in fresh processes (the CLI as users run it):
   its first launch (the cache's load, or a compile), and with
   ``python -X importtime`` the imports of the heavy packages.
 
+With ``--worker``, the same calls also through a persistent worker
+(``taichi-hh worker start``, app/worker.py): its start-up (with its warm-up)
+once, then each call's wall time from the outside and its CPU seconds (the
+client's and the worker's together, from the worker's status).
+
 Fields: ``scattered`` (4000 uniformly random points in the unit square: the
 scattered path) and ``grid`` (64 x 64 nodes: the grid path).  Writes
 ``outputs/benchmarks/cli_startup.csv`` (wall times), ``outputs/benchmarks/cli_startup_breakdown.csv``
@@ -26,6 +31,7 @@ scattered path) and ``grid`` (64 x 64 nodes: the grid path).  Writes
 
     python benchmarks/cli_startup.py                      # both fields, 5 repeats, 100-file series
     python benchmarks/cli_startup.py --fields scattered --repeats 3 --series 0
+    python benchmarks/cli_startup.py --fields scattered --worker --no-breakdown
 """
 from __future__ import annotations
 
@@ -91,8 +97,19 @@ def child_env(cache: Path, root: Path = REPO_ROOT) -> dict:
     return env
 
 
-def timed_run(cmd, env) -> tuple:
-    """(wall seconds, CPU seconds) of one run of ``cmd``."""
+def worker_cpu(env) -> float:
+    """The running worker's CPU seconds so far (0 where none runs)."""
+    done = subprocess.run([sys.executable, "-c", "import json; from taichi_hh.app import "
+                           "worker_client as w; print(json.dumps(w.request('status')))"],
+                          env=env, stdout=subprocess.PIPE, text=True)
+    got = json.loads(done.stdout or "null")
+    return got["cpu_seconds"] if got else 0.0
+
+
+def timed_run(cmd, env, through_worker: bool = False) -> tuple:
+    """(wall seconds, CPU seconds) of one run of ``cmd`` (and of the worker's
+    share where it ran there)."""
+    cpu0 = worker_cpu(env) if through_worker else 0.0
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     done = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -101,7 +118,10 @@ def timed_run(cmd, env) -> tuple:
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stderr[-3000:]}")
-    return dt, (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    if through_worker:
+        cpu += worker_cpu(env) - cpu0
+    return dt, cpu
 
 
 # --------------------------------------------------------------------------- probe
@@ -252,6 +272,21 @@ def stage_rows(field: str, got: dict) -> list[dict]:
     return rows
 
 
+def start_worker(env, walls) -> None:
+    """``taichi-hh worker start`` (kept when already running): its wall time
+    with the warm-up, as a row."""
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "taichi_hh", "worker", "start"], env=env,
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"worker start failed:\n{done.stderr[-3000:]}")
+    if "already" not in done.stdout:
+        dt = time.perf_counter() - t0
+        walls.append(wall_row("worker start (with its warm-up), once", 0, "this, worker",
+                              [(dt, worker_cpu(env))], float("nan")))
+        print(f"worker start: {dt:.2f} s", flush=True)
+
+
 def wall_row(case, files, version, runs, target) -> dict:
     walls = [w for w, _ in runs]
     cpus = [c for _, c in runs]
@@ -277,6 +312,8 @@ def main() -> int:
                     help="a checkout of the reference version (e.g. a git worktree of main): "
                          "its CLI timed in the same run, runs interleaved with this one's")
     ap.add_argument("--no-breakdown", action="store_true", help="wall times only")
+    ap.add_argument("--worker", action="store_true",
+                    help="also time the calls through a persistent worker (taichi-hh worker)")
     ap.add_argument("--without-figures", action="store_true",
                     help="also time the call with --no-figures (what the figures cost)")
     ap.add_argument("--out", default=str(REPO_ROOT / "outputs" / "benchmarks"))
@@ -289,60 +326,78 @@ def main() -> int:
         versions = {"this": child_env(tmp / "cache", REPO_ROOT)}
         if args.baseline:
             versions["baseline"] = child_env(tmp / "cache_baseline", Path(args.baseline).resolve())
+        if args.worker:                  # its own socket directory, the same kernel cache
+            versions["this, worker"] = dict(versions["this"],
+                                            TAICHI_HH_WORKER_DIR=str(tmp / "worker"))
+        for v in versions:               # only "this, worker" may find a worker
+            versions[v].setdefault("TAICHI_HH_WORKER_DIR", str(tmp / f"none_{len(v)}"))
         env = versions["this"]
-        for field in [f.strip() for f in args.fields.split(",") if f.strip()]:
-            one = write_fields(tmp, field, 1)
-            cases = {"1 file": ()}
-            if args.without_figures:
-                cases["1 file, --no-figures"] = ("--no-figures",)
-            for case, extra in cases.items():
-                cmds = {v: cli_command(one, tmp / f"out_{field}_{v}", extra) for v in versions}
-                runs = {v: [] for v in versions}
-                cold = {}
-                for v in versions:
-                    if not extra:
-                        # the cold start: a fresh, empty offline cache of its own
-                        fresh = dict(versions[v], TAICHI_HH_CACHE=str(tmp / f"cold_{field}_{v}"))
-                        cold[v] = timed_run(cmds[v], fresh)
-                    timed_run(cmds[v], versions[v])              # fills the offline cache
-                for _ in range(args.repeats):
-                    for v in versions:                           # interleaved
-                        runs[v].append(timed_run(cmds[v], versions[v]))
-                for v in versions:
-                    if not extra:
-                        walls.append(wall_row(f"{field}: {case}, cold cache", 1, v, [cold[v]],
-                                              float("nan")))
-                    walls.append(wall_row(f"{field}: {case}", 1, v, runs[v], 1.5))
-                    w = walls[-1]
-                    said = f"cold cache {cold[v][0]:.2f} s wall {cold[v][1]:.2f} s CPU; " \
-                        if v in cold else ""
-                    print(f"{field}: {case} ({v}), {said}warm median {w['median_s']:.2f} s "
-                          f"wall, {w['cpu_median_s']:.2f} s CPU", flush=True)
-            if not args.no_breakdown:
-                got = breakdown(one, tmp / f"probe_{field}", env)
-                stages += stage_rows(field, got)
-                for name, v in sorted(got["kernels"].items(),
-                                      key=lambda kv: -(kv[1]["materialize"] + kv[1]["first_launch"])
-                                      )[:args.kernels]:
-                    kernel_rows.append(dict(field=field, kernel=name, module=v["module"],
-                                            transform_s=v["materialize"],
-                                            first_launch_s=v["first_launch"],
-                                            launches=v["launches"], launch_s=v["launch_s"]))
-            if args.series:
-                many = write_fields(tmp, field, args.series)
-                cmds = {v: cli_command(many, tmp / f"series_{field}_{v}") for v in versions}
-                runs = {v: [] for v in versions}
-                for _ in range(args.series_repeats):
+        try:
+            for field in [f.strip() for f in args.fields.split(",") if f.strip()]:
+                one = write_fields(tmp, field, 1)
+                cases = {"1 file": ()}
+                if args.without_figures:
+                    cases["1 file, --no-figures"] = ("--no-figures",)
+                for case, extra in cases.items():
+                    cmds = {v: cli_command(one, tmp / f"out_{field}_{v}", extra) for v in versions}
+                    runs = {v: [] for v in versions}
+                    cold = {}
                     for v in versions:
-                        runs[v].append(timed_run(cmds[v], versions[v]))
-                for v in versions:
-                    walls.append(wall_row(f"{field}: {args.series} files", args.series, v,
-                                          runs[v], 15.0))
-                    w = walls[-1]
-                    print(f"{field}: {args.series} files ({v}), median {w['median_s']:.2f} s "
-                          f"wall, {w['cpu_median_s']:.2f} s CPU", flush=True)
-                for p in many[1:]:
-                    p.unlink()
+                        if v.endswith("worker"):
+                            start_worker(versions[v], walls)
+                            continue
+                        if not extra:
+                            # the cold start: a fresh, empty offline cache of its own
+                            fresh = dict(versions[v], TAICHI_HH_CACHE=str(tmp / f"cold_{field}_{v}"))
+                            cold[v] = timed_run(cmds[v], fresh)
+                        timed_run(cmds[v], versions[v])              # fills the offline cache
+                    for _ in range(args.repeats):
+                        for v in versions:                           # interleaved
+                            runs[v].append(timed_run(cmds[v], versions[v], v.endswith("worker")))
+                    for v in versions:
+                        if v in cold:
+                            walls.append(wall_row(f"{field}: {case}, cold cache", 1, v, [cold[v]],
+                                                  float("nan")))
+                        walls.append(wall_row(f"{field}: {case}", 1, v, runs[v], 1.5))
+                        w = walls[-1]
+                        said = f"cold cache {cold[v][0]:.2f} s wall {cold[v][1]:.2f} s CPU; " \
+                            if v in cold else ""
+                        print(f"{field}: {case} ({v}), {said}warm median {w['median_s']:.2f} s "
+                              f"wall, {w['cpu_median_s']:.2f} s CPU", flush=True)
+                if not args.no_breakdown:
+                    got = breakdown(one, tmp / f"probe_{field}", env)
+                    stages += stage_rows(field, got)
+                    for name, v in sorted(got["kernels"].items(),
+                                          key=lambda kv: -(kv[1]["materialize"] + kv[1]["first_launch"])
+                                          )[:args.kernels]:
+                        kernel_rows.append(dict(field=field, kernel=name, module=v["module"],
+                                                transform_s=v["materialize"],
+                                                first_launch_s=v["first_launch"],
+                                                launches=v["launches"], launch_s=v["launch_s"]))
+                if args.series:
+                    many = write_fields(tmp, field, args.series)
+                    cmds = {v: cli_command(many, tmp / f"series_{field}_{v}") for v in versions}
+                    runs = {v: [] for v in versions}
+                    for v in versions:      # the series path's own kernels into the cache, untimed
+                        if not v.endswith("worker"):    # (the worker's warm-up has a series)
+                            timed_run(cli_command(many[:2], tmp / f"fill_{field}_{v}"), versions[v])
+                    for _ in range(args.series_repeats):
+                        for v in versions:
+                            runs[v].append(timed_run(cmds[v], versions[v], v.endswith("worker")))
+                    for v in versions:
+                        walls.append(wall_row(f"{field}: {args.series} files", args.series, v,
+                                              runs[v], 15.0))
+                        w = walls[-1]
+                        print(f"{field}: {args.series} files ({v}), median {w['median_s']:.2f} s "
+                              f"wall, {w['cpu_median_s']:.2f} s CPU", flush=True)
+                    for p in many[1:]:
+                        p.unlink()
+        finally:            # the worker's socket is in tmp: stop it before tmp goes
+            for v, venv in versions.items():
+                if v.endswith("worker"):
+                    subprocess.run([sys.executable, "-m", "taichi_hh", "worker", "stop"],
+                                   env=venv, stdout=subprocess.PIPE)
+
     print()
     print(format_table(["case", "version", "median s", "min s", "max s", "CPU s", "runs",
                         "target s"],

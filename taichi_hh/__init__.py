@@ -4,17 +4,21 @@ Importing this package does not initialise Taichi; the first call that needs
 it does (CPU, f64), unless :func:`init` chose otherwise.
 """
 from .errors import AccuracyWarning, InputError, NeighbourError, SolverError, TaichiHHError
-from .geometry.domain import Box, Polygon, as_domain
-from .runtime import init
 
 __version__ = "0.1.0"
 
 
 def __getattr__(name):
-    # Heavy submodules (they import taichi) load on first use; the name is then
-    # kept in the module, as an eager import would have (tools that read the
-    # module's namespace, like pdoc, see it).
-    if name == "PointSet":
+    # Submodules load on first use (those with taichi or numpy too: the command
+    # line's client imports this package with the standard library only); the
+    # name is then kept in the module, as an eager import would have (tools
+    # that read the module's namespace, like pdoc, see it).
+    if name in ("Box", "Polygon", "as_domain"):
+        from .geometry import domain
+        value = getattr(domain, name)
+    elif name == "init":
+        from .runtime import init as value
+    elif name == "PointSet":
         from .sph.pointset import PointSet as value
     elif name in ("decompose", "HHDResult", "METHODS"):
         from .hhd import decompose as hhd

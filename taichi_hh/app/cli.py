@@ -7,6 +7,10 @@ only parses arguments, calls the library and writes files.
 ``project FIELD``    null-divergence projection    -> DIR/projected.npz, measures.csv + figures
 ``info``             version and Taichi arch
 ``scene NAME ...``   a two-phase scene (rising-droplet, rayleigh-taylor) -> frames, particles
+``worker start|stop|status``  a persistent worker that runs ``decompose`` and
+                     ``project`` with Taichi's kernels kept loaded
+                     (:mod:`taichi_hh.app.worker`; :func:`main` hands a call to it
+                     when one runs, unless ``--no-worker``)
 
 Errors in the input or in the numerics (:class:`~taichi_hh.errors.InputError`,
 :class:`~taichi_hh.errors.SolverError`, :class:`~taichi_hh.errors.NeighbourError`,
@@ -26,10 +30,8 @@ import sys
 import textwrap
 import time
 
-from .. import __version__
-from ..runtime import ARCHES, default_arch
-from ..checks import (OFF, at_least_one_or_off, nonnegative_float, nonnegative_int,
-                      positive_float, positive_int)
+# numpy, Taichi and the rest load in the functions that need them: a call that
+# a persistent worker runs (app/worker_client.py) imports the standard library only
 
 #: HHDOptions fields not on the command line: the multilevel cycle's tuning
 #: (a library option: ``decompose(..., multilevel_options={...})``)
@@ -108,6 +110,9 @@ def _method_defaults(name, methods):
 
 # --------------------------------------------------------------------------- parser
 def _add_common(p, command):
+    from ..checks import (at_least_one_or_off, nonnegative_float, nonnegative_int,
+                          positive_float, positive_int)
+    from ..runtime import ARCHES, default_arch
     from ..hhd.decompose import BOUNDARY_METHODS, METHODS, PRECONDITIONERS, HHDOptions
     from ..hhd.options import BOUNDARY_CONDITIONS, NATURAL_EVALUATIONS
     from ..sph.kernels import KERNELS
@@ -206,12 +211,17 @@ def _add_common(p, command):
                     help="Taichi arch: cpu, cuda, vulkan, gpu (any GPU backend; an error "
                          "where none starts) or auto (a GPU when present) (default: "
                          "$TAICHI_HH_ARCH, else cpu)")
+    rt.add_argument("--no-worker", action="store_true",
+                    help="run in this process even where a 'taichi-hh worker' runs")
     rt.add_argument("--precision", default="f64", choices=("f32", "f64"),
                     help="floating-point precision of every Taichi kernel; with f32 use a "
                          "looser --tol such as 1e-5 (default: f64)")
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .. import __version__
+    from ..checks import nonnegative_float, positive_int
+    from ..runtime import ARCHES
     ap = argparse.ArgumentParser(prog="taichi-hh", description=(
         "Meshless Helmholtz-Hodge decomposition and null-divergence SPH on Taichi."),
         epilog="Run 'taichi-hh COMMAND --help' for the options of a command. "
@@ -284,6 +294,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="floating-point precision (default: f64)")
     info.set_defaults(func=_cmd_info)
 
+    sub.add_parser("worker", add_help=False,
+                   help="start|stop|status a persistent worker that keeps Taichi's kernels "
+                        "loaded between decompose and project calls ('taichi-hh worker "
+                        "--help')")
     from .scenes import SCENES
     scene = sub.add_parser(
         "scene", help="run a two-phase scene (the same as the scripts in scenes/)",
@@ -321,6 +335,7 @@ class _Progress:
 def option_overrides(args) -> dict:
     """The decomposition options the command line gave (the others stay the
     method's), by :class:`~taichi_hh.hhd.decompose.HHDOptions` field name."""
+    from ..checks import OFF
     from ..hhd.decompose import HHDOptions
     return {f.name: None if getattr(args, f.name) is OFF else getattr(args, f.name)
             for f in dataclasses.fields(HHDOptions) if getattr(args, f.name, None) is not None}
@@ -438,55 +453,10 @@ def _cmd_scene(args) -> int:
     return 0
 
 
-def _prepare_out(out: str) -> None:
-    """Refuse an --out that is a file or cannot be created or written, before
-    any work; remove temporary files a killed earlier run left there."""
-    from ..errors import InputError
-    from .io import remove_stale_temp_files
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise InputError(f"--out {out}: is a file, not a directory")
-    try:
-        os.makedirs(out, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"--out {out}: cannot create the directory "
-                         f"({exc.strerror or exc})") from None
-    if not os.access(out, os.W_OK | os.X_OK):
-        raise InputError(f"--out {out}: the directory is not writable")
-    remove_stale_temp_files(out)
-
-
-class _WrittenOnSuccess:
-    """Files in ``out`` written (or rewritten) inside the block are removed if
-    the block raises: a command that exits with an error leaves no result
-    files of its own behind (e.g. components.npz when a figure fails)."""
-
-    def __init__(self, out: str):
-        self.out = out
-
-    def _files(self) -> dict:
-        try:
-            return {e.name: e.stat().st_mtime_ns for e in os.scandir(self.out) if e.is_file()}
-        except OSError:
-            return {}
-
-    def __enter__(self):
-        self.before = self._files()
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is not None:
-            for name, mtime in self._files().items():
-                if self.before.get(name) != mtime:
-                    try:
-                        os.remove(os.path.join(self.out, name))
-                    except OSError:
-                        pass
-        return False
-
-
 def _cmd_decompose(args) -> int:
     import numpy as np
     from . import io
+    from .out_dir import WrittenOnSuccess, prepare_out_dir
     from .series import decompose_field
     from ..hhd.decompose import options_for
     files = list(args.field)
@@ -497,7 +467,7 @@ def _cmd_decompose(args) -> int:
     if len(files) == 1 and (args.lonlat or _netcdf_on_lonlat(files[0])):
         from .xarray_lonlat import decompose_lonlat_file
         out = output_dir(args)
-        _prepare_out(out)
+        prepare_out_dir(out)
         _init(args, say)
         print(_paragraph(decompose_lonlat_file(files[0], out, figures=not args.no_figures,
                                                method=args.method, **overrides)[1]))
@@ -505,7 +475,7 @@ def _cmd_decompose(args) -> int:
     if len(files) > 1:
         return _decompose_series(args, files, say, overrides)
     out = output_dir(args)
-    _prepare_out(out)
+    prepare_out_dir(out)
     points, vectors, domain = _read_inputs(args, say, domain_kind_as_name=True)
     st = _init(args, say)
     # a field listed node by node on a rectilinear grid (PIV, model output):
@@ -517,7 +487,7 @@ def _cmd_decompose(args) -> int:
     critical = res.critical_points(threshold=args.critical_threshold)
     written = [os.path.join(out, "components.npz")]
     say(f"writing {written[0]}")
-    with _WrittenOnSuccess(out):
+    with WrittenOnSuccess(out):
         io.write_components(written[0], res, critical_points=critical)
         if args.vtk:
             from .particle_files import write_vtu
@@ -579,10 +549,11 @@ def _netcdf_on_lonlat(path) -> bool:
 
 def _decompose_series(args, files, say, overrides) -> int:
     """``decompose`` of several files: :mod:`taichi_hh.app.series`."""
+    from .out_dir import WrittenOnSuccess, prepare_out_dir
     from .series import FieldSeries, decompose_series, figure_indices
     figure_indices(args.figures, len(files))          # a bad --figures fails before any work
     out = output_dir(args)
-    _prepare_out(out)
+    prepare_out_dir(out)
     st = _init(args, say)
     quiet = _Progress("decompose", True)
 
@@ -602,7 +573,7 @@ def _decompose_series(args, files, say, overrides) -> int:
         return decomposition_figures(res, res.domain, directory, critical=critical,
                                      units=args.units)
 
-    with _WrittenOnSuccess(out):
+    with WrittenOnSuccess(out):
         written, done, interrupted = decompose_series(files, read, decompose_one, draw, out,
                                                       say, args.figures)
     print(_paragraph(
@@ -635,13 +606,14 @@ def _condition_said(stats: dict) -> str:
 
 def _cmd_project(args) -> int:
     from . import io
+    from .out_dir import WrittenOnSuccess, prepare_out_dir
     from ..hhd.decompose import options_for
     from ..hhd.project import project
     say = _Progress("project", args.quiet)
     overrides = option_overrides(args)
     options_for(args.method, **overrides)
     out = output_dir(args)
-    _prepare_out(out)
+    prepare_out_dir(out)
     points, vectors, domain = _read_inputs(args, say)
     st = _init(args, say)
     say("setup")
@@ -650,7 +622,7 @@ def _cmd_project(args) -> int:
     written = [os.path.join(out, "projected.npz"), os.path.join(out, "measures.csv")]
     say(f"writing {written[0]}")
     iters = list(res.stats.get("iterations", []))
-    with _WrittenOnSuccess(out):
+    with WrittenOnSuccess(out):
         io.write_projection(written[0], res)
         if args.vtk:
             from .particle_files import write_vtu
@@ -683,7 +655,18 @@ def _solver_hint(exc):
     return None
 
 
-def main(argv=None) -> int:
+def main(argv=None, worker: bool = True) -> int:
+    """The command line; ``worker``: a running ``taichi-hh worker`` may run
+    the call (:mod:`taichi_hh.app.worker_client`; False inside the worker)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["worker"]:
+        from .worker_client import worker_command
+        return worker_command(argv[1:])
+    if worker:
+        from .worker_client import run_in_worker
+        code = run_in_worker(argv)
+        if code is not None:
+            return code
     # importing taichi (for the option choices) prints a banner on stdout; keep
     # stdout for results unless the user asked for the banner
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")

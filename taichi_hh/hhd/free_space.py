@@ -305,9 +305,20 @@ def fast_length(n: int) -> int:
     return best
 
 
-def _fft():
-    """``(module, keywords)``: scipy.fft on every core where scipy is installed
-    (a test and benchmark dependency, not a core one), numpy.fft otherwise."""
+#: padded grids of at least this many cells are transformed by scipy.fft on
+#: every core; smaller ones by numpy.fft: on 2 cores numpy's was 2-4x faster
+#: up to 256 x 256 and scipy's 2x faster from 400 x 400, and importing
+#: scipy.fft (scipy.special and the array API layer with it) took 0.4-1.4 s
+#: of a fresh 4k-point command line (docs/notes/series.md)
+THREADED_FFT_CELLS = 1 << 17
+
+
+def _fft(cells: int):
+    """``(module, keywords)`` for a padded grid of ``cells``: scipy.fft on
+    every core where scipy is installed (a test and benchmark dependency, not
+    a core one) and the grid is large, numpy.fft otherwise."""
+    if cells < THREADED_FFT_CELLS:
+        return np.fft, {}
     try:
         import scipy.fft as sfft
     except ImportError:
@@ -343,8 +354,8 @@ def convolve_fft(grid: Grid, density: np.ndarray) -> np.ndarray:
     d = np.asarray(density, dtype=np.float64)
     one = d.ndim == 2
     d = d[None] if one else d
-    fft, kw = _fft()
     L1, L2 = fast_length(2 * nx - 1), fast_length(2 * ny - 1)
+    fft, kw = _fft(L1 * L2)
     K = _kernel_spectrum(grid, (L1, L2), fft, kw)
     A = fft.rfft(d, n=L2, axis=2, **kw)
     A = fft.fft(A, n=L1, axis=1, **kw)
