@@ -45,6 +45,11 @@ NOTCH_DEPTH = 1.0
 #: neighbours' chord, in local spacings), and a circumradius or a hole's area
 #: as on its threshold (relative; such ties are decided the same way always)
 DEGENERATE_TOL = 1e-4
+#: a Delaunay edge longer than this many times the lower quartile of either
+#: end's edges spans a gap (a bay, a hole, the rim of the data) and is left out
+#: of the local spacing; inside uniformly random points such edges are rare
+#: (their ends' spacings change by under 1%)
+GAP_EDGE = 3.0
 # the refusal of point sets that span no area lives with the other input
 # checks (every layer runs it); re-exported here, where it was first written
 from ..checks import LINE_ROWS, NEEDS_AREA as _NEEDS_AREA, check_spread  # noqa: E402,F401
@@ -195,16 +200,25 @@ def _cocircular_groups(t: int, across: np.ndarray, cocircular: np.ndarray):
 
 def _local_spacing(n: int, pts: np.ndarray, edges: np.ndarray, across: np.ndarray,
                    firm: np.ndarray) -> np.ndarray:
-    """Per point, the median length of its firm Delaunay edges (robust to the
-    few long edges a point on the rim of a gap has across it; ``firm``, from
-    :func:`_firm_edges`: the edges no rounding makes or unmakes), averaged with
-    its firm neighbours'.  A point without firm edges (none on lattices and in
-    general position) takes all its edges."""
+    """Per point, the median length of its firm Delaunay edges that do not
+    span a gap, averaged with its neighbours' along those edges.  ``firm``
+    (from :func:`_firm_edges`): the edges no rounding makes or unmakes.  An
+    edge spans a gap when it is longer than :data:`GAP_EDGE` times the lower
+    quartile of both ends' firm edges (of either: a tight cluster's points would lose
+    their edges to the rest): a point on the coast of a bay or a
+    hole has as many long edges across it as short ones into the data (a
+    median of all its edges read 1.4-2.5 spacings there, and triangles across
+    a bay 12 spacings wide passed a radius of 3 spacings).  A point left
+    without such edges (none on lattices and in general position) takes all
+    its edges."""
     once = (across < 0) | (edges[:, 0] < edges[:, 1])
     pick = edges[once & firm]
-    vertex = pick.T.ravel()
     length = np.hypot(*(pts[pick[:, 0]] - pts[pick[:, 1]]).T)
-    median = _median_by(n, np.concatenate([length, length]), vertex)
+    low = _quantile_by(n, np.concatenate([length, length]), pick.T.ravel(), 0.25)
+    short = length <= GAP_EDGE * np.maximum(low[pick[:, 0]], low[pick[:, 1]])
+    pick, length = pick[short], length[short]
+    vertex = pick.T.ravel()
+    median = _quantile_by(n, np.concatenate([length, length]), vertex)
     count = np.bincount(vertex, minlength=n)
     bare = count == 0
     if bare.any():
@@ -212,15 +226,17 @@ def _local_spacing(n: int, pts: np.ndarray, edges: np.ndarray, across: np.ndarra
         every = every[bare[every].any(axis=1)]
         owner = every.T.ravel()
         length = np.hypot(*(pts[every[:, 0]] - pts[every[:, 1]]).T)
-        median[bare] = _median_by(n, np.concatenate([length, length]), owner)[bare]
-    # averaged over the point and its firm neighbours: a few close pairs in
+        median[bare] = _quantile_by(n, np.concatenate([length, length]), owner)[bare]
+    # averaged over the point and its neighbours: a few close pairs in
     # random data would otherwise read as a small spacing
     total = median + np.bincount(vertex, weights=median[np.roll(vertex, len(pick))], minlength=n)
     return total / (1 + count)
 
 
-def _median_by(n: int, values: np.ndarray, owner: np.ndarray) -> np.ndarray:
-    """Per point, the median of the ``values`` whose ``owner`` it is."""
+def _quantile_by(n: int, values: np.ndarray, owner: np.ndarray,
+                 fraction: float = 0.5) -> np.ndarray:
+    """Per point, the ``fraction`` quantile (0.5: the median, the upper of two
+    middle values) of the ``values`` whose ``owner`` it is."""
     # sorted by owner, then value: one integer key (owner, rank of the value),
     # a quarter of lexsort's time
     m = len(values)
@@ -229,7 +245,8 @@ def _median_by(n: int, values: np.ndarray, owner: np.ndarray) -> np.ndarray:
     order = np.argsort(owner.astype(np.int64) * m + rank)
     count = np.bincount(owner, minlength=n)
     start = np.concatenate([[0], np.cumsum(count)[:-1]])
-    return values[order][np.minimum(start + count // 2, len(values) - 1)]
+    at = start + np.floor(count * fraction).astype(np.int64)
+    return values[order][np.minimum(at, len(values) - 1)]
 
 
 def _rings(edges: np.ndarray):
@@ -251,17 +268,25 @@ def _rings(edges: np.ndarray):
 def _fill_notches(ring: np.ndarray, pts: np.ndarray, spacing: np.ndarray,
                   depth: float) -> np.ndarray:
     """``ring`` (vertex indices, region on the left) without its shallow
-    notches: a vertex where the boundary turns right, less than ``depth``
-    local spacings below the chord of its neighbours, between which at least
-    one neighbour turns left (a zigzag, not a curve: a hole's rim turns right
-    all along and stays), is dropped.  Dropping a vertex only adds to the
-    region, so every point stays inside; along an edge of the data the
-    boundary becomes as straight as the hull, whose normals the boundary rows
-    use."""
-    for _ in range(len(ring)):
-        if len(ring) <= 4:
+    notches: a vertex where the boundary turns right, between which and its
+    neighbours at least one neighbour turns left (a zigzag, not a curve: a
+    hole's rim turns right all along and stays), is dropped while every vertex
+    of ``ring`` its neighbours' chord passes over lies less than ``depth``
+    local spacings below it.  Passes repeat while vertices drop, but the
+    depth is measured from the given ring, not from the last pass's chords:
+    measured from those the filling crept into the corners of land bays
+    (a coast of 244 vertices fell to 39, the sea's area growing by a band
+    several spacings wide).  Dropping a vertex only adds to the region, so
+    every point stays inside; along an edge of the data the boundary becomes
+    as straight as the hull, whose normals the boundary rows use."""
+    m = len(ring)
+    at = np.arange(m)                      # the current ring's places in the given one
+    p0 = pts[ring]
+    limit = depth * spacing[ring]
+    for _ in range(m):
+        if len(at) <= 4:
             break
-        p = pts[ring]
+        p = p0[at]
         prev, nxt = np.roll(p, 1, axis=0), np.roll(p, -1, axis=0)
         cross = (p[:, 0] - prev[:, 0]) * (nxt[:, 1] - prev[:, 1]) \
             - (p[:, 1] - prev[:, 1]) * (nxt[:, 0] - prev[:, 0])
@@ -269,14 +294,33 @@ def _fill_notches(ring: np.ndarray, pts: np.ndarray, spacing: np.ndarray,
         below = -cross / np.maximum(chord, 1e-300)      # > 0: v is right of prev -> next
         # a straight vertex (a lattice's rim point: on its neighbours' chord but
         # for rounding) is no notch, nor part of a zigzag
-        reflex = below > DEGENERATE_TOL * spacing[ring]
+        reflex = below > DEGENERATE_TOL * spacing[ring[at]]
         zigzag = ~np.roll(reflex, 1) | ~np.roll(reflex, -1)
-        drop = reflex & zigzag & (below < depth * spacing[ring])
+        candidate = np.flatnonzero(reflex & zigzag & (below < limit[at]))
+        if candidate.size:
+            # every given vertex from the candidate's previous to its next one
+            # (dropped earlier, or the candidate) against the chord that would
+            # replace them
+            k = len(at)
+            first = at[(candidate - 1) % k] + 1
+            count = (at[(candidate + 1) % k] - first) % m
+            group = np.repeat(np.arange(candidate.size), count)
+            offset = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+            under = (first[group] + offset) % m
+            a_, b_ = prev[candidate][group], nxt[candidate][group]
+            d = b_ - a_
+            deep = -((p0[under, 0] - a_[:, 0]) * d[:, 1] - (p0[under, 1] - a_[:, 1]) * d[:, 0]) \
+                / np.maximum(np.hypot(*d.T), 1e-300)
+            too_deep = np.zeros(candidate.size, dtype=bool)
+            np.logical_or.at(too_deep, group, deep >= limit[under])
+            candidate = candidate[~too_deep]
+        drop = np.zeros(len(at), dtype=bool)
+        drop[candidate] = True
         drop &= ~np.roll(drop, 1)                         # no two neighbours in one pass
         if not drop.any():
             break
-        ring = ring[~drop]
-    return ring
+        at = at[~drop]
+    return ring[at]
 
 
 def offset_ring(ring: np.ndarray, distance) -> np.ndarray:
@@ -375,7 +419,7 @@ def _alpha_shape(points, alpha: float, margin: float, radius_advice, to_caller=N
     group_spacing[group[alone]] = np.median(spacing[tri[alone]], axis=1)
     if shared.size:
         larger = np.unique(shared // n)
-        group_spacing[larger] = _median_by(n_groups, spacing[shared % n], shared // n)[larger]
+        group_spacing[larger] = _quantile_by(n_groups, spacing[shared % n], shared // n)[larger]
     # a circumradius on the threshold (a lattice's triangles have radii like
     # 3 spacings exactly) is kept, however rounding leaves it
     group_kept = group_radius < alpha * group_spacing * (1.0 + DEGENERATE_TOL)
@@ -434,7 +478,7 @@ def _alpha_shape(points, alpha: float, margin: float, radius_advice, to_caller=N
     # (each group kept around a vertex counted once, however many of its
     # triangles the vertex has)
     kept = group_kept[member_group]
-    inside = _median_by(n, group_spacing[member_group[kept]], member_vertex[kept])
+    inside = _quantile_by(n, group_spacing[member_group[kept]], member_vertex[kept])
     return _moved_out([pts[r] for r in chosen], [margin * inside[r] for r in chosen],
                       lambda rs: Polygon(rs[0], rs[1:]))
 
