@@ -296,6 +296,27 @@ def test_alpha_shape_of_a_lattice_does_not_depend_on_rounding(name):
         assert abs(got.area - ref.area) <= 1e-9 * ref.area + 4.0 * ref.perimeter * moved_by
 
 
+@pytest.mark.parametrize("name", sorted(LATTICES))
+def test_alpha_shape_of_a_lattice_on_qhulls_triangulation_is_the_sweeps(name, monkeypatch):
+    """On a GPU the triangulation is Qhull's (the sweep is one serial kernel,
+    one GPU thread): the same rings and area as on the sweep's, the lattice
+    as given, jiggled by rounding or written with 6 decimals.  Qhull merged
+    the facets of a rim moved by an ulp and fanned them into flat triangles,
+    one spanning a rim point's edges: its spacing, the margin and the area
+    changed (16x12 at 0.1 x 0.05: 1.1e-3 of the area)."""
+    from taichi_hh.runtime import GPU_SCHEDULE_VARIABLE
+    pts = LATTICES[name]
+    ref = alpha_shape(pts)                                   # the sweep's
+    jiggle = np.random.default_rng(1).uniform(-1, 1, pts.shape) * 2.2e-16 \
+        * np.maximum(1.0, np.abs(pts))
+    monkeypatch.setenv(GPU_SCHEDULE_VARIABLE, "1")
+    for moved in (pts, pts + jiggle, np.round(pts, 6)):
+        got = alpha_shape(moved)
+        assert [len(r) for r in got.rings] == [len(r) for r in ref.rings]
+        moved_by = np.abs(moved - pts).max()
+        assert abs(got.area - ref.area) <= 1e-9 * ref.area + 4.0 * ref.perimeter * moved_by
+
+
 def test_alpha_shape_of_a_full_lattice_is_its_box_moved_out_by_the_margin():
     """Every lattice point's spacing is the step (the squares' diagonals and the
     rim's slivers are left out of it): the shape is the lattice's box moved out

@@ -50,6 +50,11 @@ DEGENERATE_TOL = 1e-4
 #: of the local spacing; inside uniformly random points such edges are rare
 #: (their ends' spacings change by under 1%)
 GAP_EDGE = 3.0
+#: where Qhull fans points on a line into flat triangles, the points are moved
+#: by up to this much of their extent and triangulated again: far above the
+#: rounding Qhull merges facets for (1e-13 of the extent at a million points),
+#: far below what the alpha shape tells apart (DEGENERATE_TOL of a spacing)
+JOGGLE = 1e-9
 # the refusal of point sets that span no area lives with the other input
 # checks (every layer runs it); re-exported here, where it was first written
 from ..checks import LINE_ROWS, NEEDS_AREA as _NEEDS_AREA, check_spread  # noqa: E402,F401
@@ -107,14 +112,33 @@ def delaunay_triangulation(points: np.ndarray):
     k, k + 1) of triangle t, the triangle across it at ``across[k * T + t]``
     (-1 on the hull).  By the sweep-hull of :mod:`~taichi_hh.geometry.delaunay`
     (a Taichi kernel: 9 ms at 13k points, 1.6 s at 1M), checked; where it fails
-    (all points on a line, or floating-point trouble on degenerate input) by
-    Qhull as matplotlib (a dependency) ships it (30 ms, 6.7 s): scipy is not a
-    run-time dependency."""
+    (all points on a line, or floating-point trouble on degenerate input), and
+    on a GPU (:func:`taichi_hh.runtime.on_gpu`: the sweep is serial, one GPU
+    thread), by Qhull as matplotlib (a dependency) ships it (30 ms, 6.7 s):
+    scipy is not a run-time dependency.  Qhull merges the facets of points on
+    one line up to rounding (a lattice's rim moved by an ulp) and fans them
+    into flat triangles, some of them spanning points that a real triangle's
+    circle holds: then the points moved by :data:`JOGGLE` are triangulated
+    (what Qhull's own option QJ does, which matplotlib does not pass)."""
+    from .. import runtime
     from . import delaunay
     pts = np.asarray(points, dtype=np.float64)
-    made = delaunay.sweep_hull(pts)
-    if made is not None:
-        return made
+    if not runtime.on_gpu():
+        made = delaunay.sweep_hull(pts)
+        if made is not None:
+            return made
+    tri, nbr = _qhull(pts)
+    if _flat(pts, tri).any():
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        moved = (pts - 0.5 * (lo + hi)) + JOGGLE * float(np.max(hi - lo)) \
+            * np.random.default_rng(0).uniform(-1.0, 1.0, pts.shape)
+        tri, nbr = _qhull(moved)
+    return tri, nbr
+
+
+def _qhull(pts: np.ndarray):
+    """``(triangles, across)`` of :func:`delaunay_triangulation` by Qhull,
+    counter-clockwise in ``pts``."""
     from matplotlib.tri import Triangulation
     try:
         qhull = Triangulation(pts[:, 0], pts[:, 1])
@@ -130,6 +154,17 @@ def delaunay_triangulation(points: np.ndarray):
     tri[cw] = tri[cw][:, [0, 2, 1]]
     nbr[cw] = nbr[cw][:, [2, 1, 0]]
     return tri, nbr.T.ravel()
+
+
+def _flat(pts: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Per triangle, whether it is flat within :data:`DEGENERATE_TOL` (twice
+    its area against its longest edge squared)."""
+    a, b, c = (pts[tri[:, k]] for k in range(3))
+    ab, bc, ca = b - a, c - b, a - c
+    area2 = np.abs(ab[:, 0] * bc[:, 1] - ab[:, 1] * bc[:, 0])
+    longest2 = np.maximum.reduce([(ab ** 2).sum(axis=1), (bc ** 2).sum(axis=1),
+                                  (ca ** 2).sum(axis=1)])
+    return area2 <= DEGENERATE_TOL * longest2
 
 
 def _circumradii(pts: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -161,9 +196,7 @@ def _firm_edges(pts: np.ndarray, tri: np.ndarray, edges: np.ndarray, across: np.
     angle = np.concatenate([np.arctan2(area2, -(ca * bc).sum(axis=1)),      # at c
                             np.arctan2(area2, -(ab * ca).sum(axis=1)),      # at a
                             np.arctan2(area2, -(bc * ab).sum(axis=1))])     # at b
-    longest2 = np.maximum.reduce([(ab ** 2).sum(axis=1), (bc ** 2).sum(axis=1),
-                                  (ca ** 2).sum(axis=1)])
-    flat = area2 <= DEGENERATE_TOL * longest2
+    flat = _flat(pts, tri)
     owner = np.arange(3 * t) % t
     inner = across >= 0
     other = np.where(inner, across, 0)
