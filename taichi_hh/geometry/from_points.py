@@ -45,10 +45,9 @@ NOTCH_DEPTH = 1.0
 #: neighbours' chord, in local spacings), and a circumradius or a hole's area
 #: as on its threshold (relative; such ties are decided the same way always)
 DEGENERATE_TOL = 1e-4
-#: a Delaunay edge longer than this many times the lower quartile of either
-#: end's edges spans a gap (a bay, a hole, the rim of the data) and is left out
-#: of the local spacing; inside uniformly random points such edges are rare
-#: (their ends' spacings change by under 1%)
+#: a Delaunay edge longer than this many times the scale of both its ends (the
+#: largest lower quartile of edge lengths around each) spans a gap (a bay, a
+#: hole, the rim of the data) and is left out of the local spacing
 GAP_EDGE = 3.0
 #: where Qhull fans points on a line into flat triangles, the points are moved
 #: by up to this much of their extent and triangulated again: far above the
@@ -233,22 +232,33 @@ def _cocircular_groups(t: int, across: np.ndarray, cocircular: np.ndarray):
 
 def _local_spacing(n: int, pts: np.ndarray, edges: np.ndarray, across: np.ndarray,
                    firm: np.ndarray) -> np.ndarray:
-    """Per point, the median length of its firm Delaunay edges that do not
-    span a gap, averaged with its neighbours' along those edges.  ``firm``
-    (from :func:`_firm_edges`): the edges no rounding makes or unmakes.  An
-    edge spans a gap when it is longer than :data:`GAP_EDGE` times the lower
-    quartile of both ends' firm edges (of either: a tight cluster's points would lose
-    their edges to the rest): a point on the coast of a bay or a
-    hole has as many long edges across it as short ones into the data (a
-    median of all its edges read 1.4-2.5 spacings there, and triangles across
-    a bay 12 spacings wide passed a radius of 3 spacings).  A point left
-    without such edges (none on lattices and in general position) takes all
-    its edges."""
+    """Per point, the median length of its firm Delaunay edges that span no
+    gap, averaged with its neighbours' along those edges.  ``firm`` (from
+    :func:`_firm_edges`): the edges no rounding makes or unmakes.  An edge
+    spans a gap when it is longer than :data:`GAP_EDGE` times the scale of
+    both its ends, a point's scale the largest lower quartile of edge lengths
+    over it and its neighbours.  A point on the coast of a bay has about as
+    many long edges across it as short ones into the data: with all of them
+    its median read 1.4-2.5 spacings (1.15 inside), and triangles across a bay
+    12 spacings wide passed a radius of 3 spacings.  A quartile, not the
+    median: the coast point's own median counts the long edges.  Over the
+    neighbours too: a point of a cluster's or a dense region's rim has short
+    edges into it and long ones out, but its neighbours outside have long
+    edges only (with the point's own quartile the largest interior ratio of
+    the 1:10 gradient went from 1.58 to 2.44).  A point left without firm
+    edges (none on lattices and in general position) takes all its edges."""
     once = (across < 0) | (edges[:, 0] < edges[:, 1])
     pick = edges[once & firm]
     length = np.hypot(*(pts[pick[:, 0]] - pts[pick[:, 1]]).T)
-    low = _quantile_by(n, np.concatenate([length, length]), pick.T.ravel(), 0.25)
-    short = length <= GAP_EDGE * np.maximum(low[pick[:, 0]], low[pick[:, 1]])
+    vertex = pick.T.ravel()
+    both = np.concatenate([length, length])
+    # the scale of a point's neighbourhood: the largest lower quartile of its
+    # edges' lengths over it and its neighbours (a sparser neighbour's: an
+    # edge from a cluster or a denser region into a sparser one is no gap)
+    near = _quantile_by(n, both, vertex, 0.25)
+    scale = near.copy()
+    np.maximum.at(scale, vertex, near[np.roll(vertex, len(pick))])
+    short = length <= GAP_EDGE * np.maximum(scale[pick[:, 0]], scale[pick[:, 1]])
     pick, length = pick[short], length[short]
     vertex = pick.T.ravel()
     median = _quantile_by(n, np.concatenate([length, length]), vertex)
@@ -307,9 +317,9 @@ def _fill_notches(ring: np.ndarray, pts: np.ndarray, spacing: np.ndarray,
     of ``ring`` its neighbours' chord passes over lies less than ``depth``
     local spacings below it.  Passes repeat while vertices drop, but the
     depth is measured from the given ring, not from the last pass's chords:
-    measured from those the filling crept into the corners of land bays
-    (a coast of 244 vertices fell to 39, the sea's area growing by a band
-    several spacings wide).  Dropping a vertex only adds to the region, so
+    measured from those the filling crept into the corners of land (50k
+    random points over a sea with land: 152 squared spacings of land covered
+    against 53, the boundary up to 4.5 spacings from a point against 3.0).  Dropping a vertex only adds to the region, so
     every point stays inside; along an edge of the data the boundary becomes
     as straight as the hull, whose normals the boundary rows use."""
     m = len(ring)
