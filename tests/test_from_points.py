@@ -298,10 +298,12 @@ def test_alpha_shape_of_a_lattice_does_not_depend_on_rounding(name):
 def test_alpha_shape_of_a_lattice_on_qhulls_triangulation_is_the_sweeps(name, monkeypatch):
     """On a GPU the triangulation is Qhull's (the sweep is one serial kernel,
     one GPU thread): the same rings and area as on the sweep's, the lattice
-    as given, jiggled by rounding or written with 6 decimals.  Qhull merged
-    the facets of a rim moved by an ulp and fanned them into flat triangles,
-    one spanning a rim point's edges: its spacing, the margin and the area
-    changed (16x12 at 0.1 x 0.05: 1.1e-3 of the area)."""
+    as given, jiggled by rounding or written with 6 decimals.  Qhull fans a
+    rim moved by an ulp into flat triangles, which were turned
+    counter-clockwise one by one by the sign of their area (rounding):
+    against their neighbours, a rim point's edges went uncounted, and its
+    spacing, the margin and the area changed (16x12 at 0.1 x 0.05: 1.1e-3
+    of the area)."""
     from taichi_hh.runtime import GPU_SCHEDULE_VARIABLE
     pts = LATTICES[name]
     ref = alpha_shape(pts)                                   # the sweep's

@@ -49,11 +49,6 @@ DEGENERATE_TOL = 1e-4
 #: largest lower quartile of edge lengths around each) spans a gap (a bay, a
 #: hole, the rim of the data) and is left out of the local spacing
 GAP_EDGE = 3.0
-#: where Qhull fans points on a line into flat triangles, the points are moved
-#: by up to this much of their extent and triangulated again: far above the
-#: rounding Qhull merges facets for (1e-13 of the extent at a million points),
-#: far below what the alpha shape tells apart (DEGENERATE_TOL of a spacing)
-JOGGLE = 1e-9
 # the refusal of point sets that span no area lives with the other input
 # checks (every layer runs it); re-exported here, where it was first written
 from ..checks import LINE_ROWS, NEEDS_AREA as _NEEDS_AREA, check_spread  # noqa: E402,F401
@@ -114,11 +109,7 @@ def delaunay_triangulation(points: np.ndarray):
     (all points on a line, or floating-point trouble on degenerate input), and
     on a GPU (:func:`taichi_hh.runtime.on_gpu`: the sweep is serial, one GPU
     thread), by Qhull as matplotlib (a dependency) ships it (30 ms, 6.7 s):
-    scipy is not a run-time dependency.  Qhull merges the facets of points on
-    one line up to rounding (a lattice's rim moved by an ulp) and fans them
-    into flat triangles, some of them spanning points that a real triangle's
-    circle holds: then the points moved by :data:`JOGGLE` are triangulated
-    (what Qhull's own option QJ does, which matplotlib does not pass)."""
+    scipy is not a run-time dependency."""
     from .. import runtime
     from . import delaunay
     pts = np.asarray(points, dtype=np.float64)
@@ -126,18 +117,6 @@ def delaunay_triangulation(points: np.ndarray):
         made = delaunay.sweep_hull(pts)
         if made is not None:
             return made
-    tri, nbr = _qhull(pts)
-    if _flat(pts, tri).any():
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        moved = (pts - 0.5 * (lo + hi)) + JOGGLE * float(np.max(hi - lo)) \
-            * np.random.default_rng(0).uniform(-1.0, 1.0, pts.shape)
-        tri, nbr = _qhull(moved)
-    return tri, nbr
-
-
-def _qhull(pts: np.ndarray):
-    """``(triangles, across)`` of :func:`delaunay_triangulation` by Qhull,
-    counter-clockwise in ``pts``."""
     from matplotlib.tri import Triangulation
     try:
         qhull = Triangulation(pts[:, 0], pts[:, 1])
@@ -147,11 +126,18 @@ def _qhull(pts: np.ndarray):
     except (ValueError, RuntimeError) as exc:
         raise InputError(f"the points cannot be triangulated ({exc}): they span no area, or "
                          f"nearly none; {_NEEDS_AREA}") from None
+    # Qhull orients its triangles alike, by their facets' topology: turned as
+    # one, by the sign of their total area.  Turned one by one, by the sign of
+    # each one's area, the flat triangles that Qhull fans a rim moved by an
+    # ulp into (a lattice's) came out turned by rounding, against their
+    # neighbours: a rim point's edge was then one direction's twice and
+    # neither once, and its spacing, the margin and the area changed (1.1e-3
+    # of the area of a 16 x 12 lattice of 0.1 x 0.05)
     a, b, c = (pts[tri[:, k]] for k in range(3))
-    cw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
-    # (a, c, b): its edges (a, c), (c, b), (b, a) are the old edges 2, 1, 0
-    tri[cw] = tri[cw][:, [0, 2, 1]]
-    nbr[cw] = nbr[cw][:, [2, 1, 0]]
+    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    if area2.sum() < 0:
+        # (a, c, b): its edges (a, c), (c, b), (b, a) are the old edges 2, 1, 0
+        tri, nbr = tri[:, [0, 2, 1]], nbr[:, [2, 1, 0]]
     return tri, nbr.T.ravel()
 
 
