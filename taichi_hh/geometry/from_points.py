@@ -241,13 +241,19 @@ def _local_spacing(n: int, pts: np.ndarray, edges: np.ndarray, across: np.ndarra
     # the scale of a point's neighbourhood: the largest lower quartile of its
     # edges' lengths over it and its neighbours (a sparser neighbour's: an
     # edge from a cluster or a denser region into a sparser one is no gap)
-    near = _quantile_by(n, both, vertex, 0.25)
+    near, median = _quantile_by(n, both, vertex, (0.25, 0.5))
     scale = near.copy()
     np.maximum.at(scale, vertex, near[np.roll(vertex, len(pick))])
     short = length <= GAP_EDGE * np.maximum(scale[pick[:, 0]], scale[pick[:, 1]])
-    pick, length = pick[short], length[short]
-    vertex = pick.T.ravel()
-    median = _quantile_by(n, np.concatenate([length, length]), vertex)
+    if not short.all():
+        # the medians again, of the points that lost edges
+        lost = np.zeros(n, dtype=bool)
+        lost[pick[~short].ravel()] = True
+        pick, length = pick[short], length[short]
+        near_lost = lost[pick].any(axis=1)
+        again = _quantile_by(n, np.tile(length[near_lost], 2), pick[near_lost].T.ravel())
+        median[lost] = again[lost]
+        vertex = pick.T.ravel()
     count = np.bincount(vertex, minlength=n)
     bare = count == 0
     if bare.any():
@@ -262,20 +268,21 @@ def _local_spacing(n: int, pts: np.ndarray, edges: np.ndarray, across: np.ndarra
     return total / (1 + count)
 
 
-def _quantile_by(n: int, values: np.ndarray, owner: np.ndarray,
-                 fraction: float = 0.5) -> np.ndarray:
+def _quantile_by(n: int, values: np.ndarray, owner: np.ndarray, fraction=0.5):
     """Per point, the ``fraction`` quantile (0.5: the median, the upper of two
-    middle values) of the ``values`` whose ``owner`` it is."""
+    middle values) of the ``values`` whose ``owner`` it is; a tuple of
+    fractions gives a list, one array each (one sort for all)."""
     # sorted by owner, then value: one integer key (owner, rank of the value),
     # a quarter of lexsort's time
     m = len(values)
     rank = np.empty(m, dtype=np.int64)
     rank[np.argsort(values)] = np.arange(m)
-    order = np.argsort(owner.astype(np.int64) * m + rank)
+    ordered = values[np.argsort(owner.astype(np.int64) * m + rank)]
     count = np.bincount(owner, minlength=n)
     start = np.concatenate([[0], np.cumsum(count)[:-1]])
-    at = start + np.floor(count * fraction).astype(np.int64)
-    return values[order][np.minimum(at, len(values) - 1)]
+    picked = [ordered[np.minimum(start + np.floor(count * f).astype(np.int64), m - 1)]
+              for f in np.atleast_1d(fraction)]
+    return picked if isinstance(fraction, tuple) else picked[0]
 
 
 def _rings(edges: np.ndarray):
