@@ -344,6 +344,35 @@ def test_the_triangulation_of_an_l_shaped_lattice_covers_its_hull_once():
     assert area.sum() == pytest.approx(_ring_area(convex_hull(pts)), rel=1e-12)
 
 
+@pytest.mark.parametrize("name", sorted(LATTICES))
+def test_qhulls_triangles_of_a_jiggled_lattice_are_turned_alike(name, monkeypatch):
+    """Qhull's triangulation (the GPU's) of a lattice jiggled by rounding: each
+    edge inside runs one way in one triangle and the other way in the other,
+    the flat triangles of the rim's fans too, and every triangle with area is
+    counter-clockwise (turned one by one by the sign of their area, 54 edges
+    of the 16 x 12 lattice ran one way in both)."""
+    from taichi_hh.geometry import delaunay
+    from taichi_hh.geometry.from_points import delaunay_triangulation
+    monkeypatch.setattr(delaunay, "sweep_hull", lambda p: None)
+    pts = LATTICES[name]
+    jiggle = np.random.default_rng(1).uniform(-1, 1, pts.shape) * 2.2e-16 \
+        * np.maximum(1.0, np.abs(pts))
+    pts = unique_points(pts + jiggle)
+    tri, across = delaunay_triangulation(pts)
+    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    inner = np.flatnonzero(across >= 0)
+    other = tri[across[inner]]
+    reversed_there = np.zeros(inner.size, dtype=bool)
+    for k in range(3):
+        reversed_there |= (other[:, k] == edges[inner, 1]) & (other[:, (k + 1) % 3] == edges[inner, 0])
+    assert reversed_there.all()
+    a, b, c = (pts[tri[:, k]] for k in range(3))
+    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    longest2 = np.maximum.reduce([((b - a) ** 2).sum(1), ((c - b) ** 2).sum(1),
+                                  ((a - c) ** 2).sum(1)])
+    assert (area2[np.abs(area2) > 1e-4 * longest2] > 0).all()
+
+
 @pytest.mark.filterwarnings("ignore::taichi_hh.errors.AccuracyWarning")   # h: net curl
 def test_decompose_on_the_alpha_shape_of_a_lattice_does_not_depend_on_rounding():
     """The whole chain: a 20 x 15 PIV-like grid and the same grid moved by up to
