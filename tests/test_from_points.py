@@ -364,7 +364,8 @@ def test_qhulls_triangles_of_a_jiggled_lattice_are_turned_alike(name, monkeypatc
     other = tri[across[inner]]
     reversed_there = np.zeros(inner.size, dtype=bool)
     for k in range(3):
-        reversed_there |= (other[:, k] == edges[inner, 1]) & (other[:, (k + 1) % 3] == edges[inner, 0])
+        reversed_there |= (other[:, k] == edges[inner, 1]) \
+            & (other[:, (k + 1) % 3] == edges[inner, 0])
     assert reversed_there.all()
     a, b, c = (pts[tri[:, k]] for k in range(3))
     area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])

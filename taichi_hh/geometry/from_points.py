@@ -312,9 +312,10 @@ def _fill_notches(ring: np.ndarray, pts: np.ndarray, spacing: np.ndarray,
     depth is measured from the given ring, not from the last pass's chords:
     measured from those the filling crept into the corners of land (50k
     random points over a sea with land: 152 squared spacings of land covered
-    against 53, the boundary up to 4.5 spacings from a point against 3.0).  Dropping a vertex only adds to the region, so
-    every point stays inside; along an edge of the data the boundary becomes
-    as straight as the hull, whose normals the boundary rows use."""
+    against 53, the boundary up to 4.5 spacings from a point against 3.0).
+    Dropping a vertex only adds to the region, so every point stays inside;
+    along an edge of the data the boundary becomes as straight as the hull,
+    whose normals the boundary rows use."""
     m = len(ring)
     at = np.arange(m)                      # the current ring's places in the given one
     p0 = pts[ring]
