@@ -11,7 +11,7 @@ boundary condition; taichi_hh/validation/sphere.py), sampled
 * at 15 000 scattered points (uniform on the sphere's area): without land
   (the points' box is the domain), and with the grid's land blobs (the
   points over them dropped; the domain the coast given as rings in degrees,
-  or the points' alpha shape at 2 local spacings).
+  or the points' alpha shape at 2 and 3 (the default) local spacings).
 
 The bumps' radii are 0.28-0.4 of the region's smaller side, at most 8
 degrees, more bumps in larger regions (each 0.7-1 times that): a 10 x 10
@@ -230,7 +230,8 @@ def run_region(size, args, rows):
     lw = field.evaluate(plon[sea], plat[sea])
     lscale = np.hypot(lw["u"], lw["v"]).mean()
     for label, dom in (("default, land, the coast given", [outer, *holes]),
-                       ("default, land, alpha shape (2 spacings)", ("alpha", 2.0))):
+                       ("default, land, alpha shape (2 spacings)", ("alpha", 2.0)),
+                       ("default, land, alpha shape (3 spacings, the default)", "alpha")):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             t = time.perf_counter()
