@@ -177,6 +177,7 @@ def _relay(sock, command: str) -> int:
     """Print the worker's output until its exit status; Ctrl-C is passed on
     (the worker stops the call as the command line does: status 130)."""
     interrupted = False
+    lost = None                          # the connection's error, if it broke
     while True:
         try:
             frame = recv_frame(sock)
@@ -193,8 +194,9 @@ def _relay(sock, command: str) -> int:
         except OSError as exc:
             frame, lost = None, exc
         if frame is None:
-            print(f"taichi-hh {command}: internal error: the worker stopped during the call "
-                  f"(its log: {log_path()}; please report it)", file=sys.stderr)
+            why = f": {lost}" if lost is not None else ""
+            print(f"taichi-hh {command}: internal error: the worker stopped during the call"
+                  f"{why} (its log: {log_path()}; please report it)", file=sys.stderr)
             return 1
         if "out" in frame:
             sys.stdout.write(frame["out"])
