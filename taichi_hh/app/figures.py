@@ -241,6 +241,7 @@ def arrows_figure(result, domain, path, critical=(), target: int = 600, units=No
     titles = component_titles(result)
     for ax, (name, vec) in zip(axes, comps.items()):
         setup_axes(ax, domain, titles[name], units)
+        ax.label_outer()                 # shared axes: labels on the outer panels only
         _quiver(ax, pts[idx], vec[idx], scale)
         if name == "d":
             _mark_critical(ax, critical, ("source", "sink"))
@@ -332,6 +333,7 @@ def magnitude_figure(result, domain, path, critical=(), units=None) -> str:
     (x0, y0), (x1, y1) = np.asarray(domain.bounds, dtype=np.float64)
     for ax, (name, vec) in zip(axes, comps.items()):
         setup_axes(ax, domain, f"|{name}|, {titles[name]}", units)
+        ax.label_outer()                 # shared axes: labels on the outer panels only
         mag = on_image(mags[name])
         mag = np.ma.masked_array(mag, mask=np.ma.getmaskarray(mag) | image_outside)
         image = ax.imshow(mag, origin="lower", extent=(x0, x1, y0, y1), cmap="viridis",
