@@ -335,3 +335,15 @@ def test_kept_geometry_changes_nothing():
         win = critical_grid.window(j, i, geo.Ry, geo.Rx, ny, nx)
         mine = geo.discs[:, win[2][0], win[2][1]] & lat.used[win[0]][None]
         np.testing.assert_allclose(spreads[k], rows.mean_row_norms(mine, win), rtol=1e-12)
+
+
+def test_linear_percentile_is_numpys():
+    """critical.linear_percentile (one partition) gives np.percentile's
+    default, linear interpolation, bit for bit: sizes 1 to 5000, percentiles
+    at the ends, the median, the scale's 99th and one between nodes."""
+    rng = np.random.default_rng(0)
+    for m in list(range(1, 40)) + [101, 660, 4977]:
+        for q in (0.0, 37.3, 50.0, critical.SCALE_PERCENTILE, 100.0):
+            a = rng.standard_normal((2, m)) * 10.0 ** rng.uniform(-5, 5)
+            np.testing.assert_array_equal(critical.linear_percentile(a, q),
+                                          np.percentile(a, q, axis=1))

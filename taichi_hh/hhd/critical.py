@@ -299,8 +299,25 @@ def strength_scale(res, edge_distance=None) -> float:
     # the largest speed by the squares (np.hypot's guard costs five times as
     # much; a speed near 1e154 in any units is not data)
     speed = float(np.sqrt(np.nanmax(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]))) if len(v) else 0.0
-    both = np.percentile(np.stack([div[ok], curl[ok]]), SCALE_PERCENTILE, axis=1)
+    both = linear_percentile(np.stack([div[ok], curl[ok]]), SCALE_PERCENTILE)
     return max(float(both[0]), float(both[1]), NOISE_FLOOR * speed / float(res.stats["spacing"]))
+
+
+def linear_percentile(values: np.ndarray, q: float) -> np.ndarray:
+    """``np.percentile(values, q, axis=-1)`` (its default, linear
+    interpolation: the same arithmetic, the same result) by one partition,
+    without the general function's per-call cost (a tenth of a millisecond,
+    half the strength scale's time on a small grid)."""
+    m = values.shape[-1]
+    virtual = (m - 1) * (q / 100.0)
+    lo = int(math.floor(virtual))
+    hi = min(lo + 1, m - 1)
+    gamma = virtual - lo
+    part = np.partition(values, (lo, hi), axis=-1)
+    below, above = part[..., lo], part[..., hi]
+    diff = above - below
+    # numpy's _lerp: from the nearer end
+    return np.where(gamma >= 0.5, above - diff * (1.0 - gamma), below + diff * gamma)
 
 
 def noise_sigma(points, vectors, samples: int = NOISE_SAMPLES) -> float:

@@ -70,76 +70,78 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     Ry, Rx, oy, ox, r_off = geo.Ry, geo.Rx, geo.oy, geo.ox, geo.r_off
     ny, nx = used.shape
     in_rad = (r_off < rad) & (r_off > 0)                  # the others within radius
-    sigma = None
     found = []              # (refined place, node, kind, strength, significance, coherence)
-    for pot, fld, comp, kinds, signs in (
-            (pots[0], lat.curl_free, comps[0], ("source", "sink"), (1, -1)),
-            (pots[1], lat.div_free, comps[1], ("cw_vortex", "ccw_vortex"), (-1, 1))):
-        pot = np.where(used, pot, np.nan)
-        comp = np.where(used, comp, np.nan)
-        with np.errstate(invalid="ignore"):
-            strength = np.abs(comp) / scale
-            # by the squares: np.hypot's guard costs five times as much
-            speed = np.sqrt(fld[..., 0] * fld[..., 0] + fld[..., 1] * fld[..., 1])
-            cand = used & (strength >= threshold) & (speed <= np.abs(comp) * rad)
-            if edge is not None and edge > 0:
-                cand &= dist >= edge * ell
-            cand &= (comp * signs[0] > 0) | (comp * signs[1] > 0)
-        if not cand.any():
-            continue
-        # a strict extremum among the 8 neighbours (necessary: shifted views
-        # of the whole grid), then among the used nodes within the radius
-        # (gathers over the candidates left).  fmin/fmax skip NaN (off the
-        # used nodes) as nanmin/nanmax do; none but NaN: no extremum
-        padded = _padded(pot, Ry, Rx, np.nan)
-        lo8 = hi8 = None
+    # both components at once, stacked: d's sources and sinks (phi's minima
+    # and maxima), then r's clockwise and counter-clockwise vortices (psi's)
+    kinds = (("source", "sink"), ("cw_vortex", "ccw_vortex"))
+    low_sign = np.array([1.0, -1.0])        # the sign of div d or curl r at a minimum
+    pot = np.where(used, pots, np.nan)                           # (2, ny, nx)
+    comp = np.where(used, comps, np.nan)
+    fld = np.stack([lat.curl_free, lat.div_free])                # (2, ny, nx, 2)
+    with np.errstate(invalid="ignore"):
+        strength = np.abs(comp) / scale
+        # by the squares: np.hypot's guard costs five times as much
+        speed = np.sqrt(fld[..., 0] * fld[..., 0] + fld[..., 1] * fld[..., 1])
+        cand = used & (strength >= threshold) & (speed <= np.abs(comp) * rad)
+        if edge is not None and edge > 0:
+            cand &= dist >= edge * ell
+        cand &= (comp > 0) | (-comp > 0)
+    # a strict extremum among the 8 neighbours (necessary: shifted views of
+    # the whole grid), then among the used nodes within the radius (gathers
+    # over the candidates left).  fmin/fmax skip NaN (off the used nodes) as
+    # nanmin/nanmax do; none but NaN: no extremum
+    padded = _padded(pot, Ry, Rx, np.nan)
+    lo8 = hi8 = None
+    if cand.any():
         for dy in range(-min(Ry, 1), min(Ry, 1) + 1):
             for dx in range(-min(Rx, 1), min(Rx, 1) + 1):
                 if dy or dx:
-                    view = padded[Ry + dy:Ry + dy + ny, Rx + dx:Rx + dx + nx]
+                    view = padded[:, Ry + dy:Ry + dy + ny, Rx + dx:Rx + dx + nx]
                     lo8 = view if lo8 is None else np.fmin(lo8, view)
                     hi8 = view if hi8 is None else np.fmax(hi8, view)
-        if lo8 is None:
-            continue
+    if lo8 is not None:
         with np.errstate(invalid="ignore"):
             low8, high8 = pot < lo8, pot > hi8
             cand &= (low8 | high8) & geo.two_of_eight      # pot is finite on the used nodes
-            jj, ii = np.nonzero(cand)
-            low, high = low8[jj, ii], high8[jj, ii]
-            nb = padded[jj[:, None] + Ry + oy[in_rad][None, :],
+            cc, jj, ii = np.nonzero(cand)
+            low, high = low8[cc, jj, ii], high8[cc, jj, ii]
+            nb = padded[cc[:, None], jj[:, None] + Ry + oy[in_rad][None, :],
                         ii[:, None] + Rx + ox[in_rad][None, :]]
-            here = pot[jj, ii]
-            c_here = comp[jj, ii]
-            low &= (here < np.fmin.reduce(nb, axis=1)) & (c_here * signs[0] > 0)
-            high &= (here > np.fmax.reduce(nb, axis=1)) & (c_here * signs[1] > 0)
+            here = pot[cc, jj, ii]
+            c_here = comp[cc, jj, ii]
+            sign_low = low_sign[cc]
+            low &= (here < np.fmin.reduce(nb, axis=1)) & (c_here * sign_low > 0)
+            high &= (here > np.fmax.reduce(nb, axis=1)) & (c_here * -sign_low > 0)
             keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
-        jj, ii, low = jj[keep], ii[keep], low[keep]
+        cc, jj, ii, low = cc[keep], jj[keep], ii[keep], low[keep]
         cpad = _padded(comp, Ry, Rx, np.nan)
         c_all = np.full(jj.size, math.nan)
         if coherence is not None and jj.size:            # one sign over the disc
             sel = (r_off <= COHERENCE_RADIUS * ell)
-            disc_c = cpad[jj[:, None] + Ry + oy[sel][None, :], ii[:, None] + Rx + ox[sel][None, :]]
-            sign = np.sign(comp[jj, ii])
+            disc_c = cpad[cc[:, None], jj[:, None] + Ry + oy[sel][None, :],
+                          ii[:, None] + Rx + ox[sel][None, :]]
+            sign = np.sign(comp[cc, jj, ii])
             total = np.nansum(np.abs(disc_c), axis=1)
             c_all = np.where(total > 0, sign * np.nansum(disc_c, axis=1) /
                              np.maximum(total, 1e-300), 1.0)
             keep = c_all >= coherence
-            jj, ii, low, c_all = jj[keep], ii[keep], low[keep], c_all[keep]
-        order = np.argsort(-strength[jj, ii], kind="stable")
-        jj, ii, low, c_all = jj[order], ii[order], low[order], c_all[order]
+            cc, jj, ii, low, c_all = cc[keep], jj[keep], ii[keep], low[keep], c_all[keep]
+        # by component, then by strength (stable: ties in the grid's order)
+        order = np.lexsort((-strength[cc, jj, ii], cc))
+        cc, jj, ii, low, c_all = cc[order], jj[order], ii[order], low[order], c_all[order]
         z_all = np.full(jj.size, math.nan)
         if significance is not None and jj.size:
-            if sigma is None:
-                sigma = grid_noise_sigma(lat, geometry=geo)
-            z_all = _grid_significance(geo, comp, cpad, jj, ii, sigma)
+            sigma = grid_noise_sigma(lat, geometry=geo)
+            z_all = _grid_significance(geo, comp, cpad, cc, jj, ii, sigma)
             keep = z_all >= significance
-            jj, ii, low, c_all, z_all = jj[keep], ii[keep], low[keep], c_all[keep], z_all[keep]
-        places = _grid_refine(lat, geo, padded, jj, ii, rad)
+            cc, jj, ii, low, c_all, z_all = (cc[keep], jj[keep], ii[keep], low[keep],
+                                             c_all[keep], z_all[keep])
+        places = _grid_refine(lat, geo, padded, cc, jj, ii, rad)
         for k in range(jj.size):
-            j, i = int(jj[k]), int(ii[k])
+            c, j, i = int(cc[k]), int(jj[k]), int(ii[k])
             found.append((places[k], (float(lat.x[i]), float(lat.y[j])),
-                          kinds[0] if low[k] else kinds[1], strength[j, i], float(z_all[k]),
-                          float(c_all[k])))
+                          kinds[c][0] if low[k] else kinds[c][1], strength[c, j, i],
+                          float(z_all[k]), float(c_all[k])))
     if found and lat.domain is not None:
         # a refined place outside the outline falls back to its node (one
         # vectorised test for all)
@@ -196,27 +198,29 @@ def window(j, i, Ry, Rx, ny, nx):
 
 
 def _padded(values, Ry, Rx, fill):
-    """``values`` (ny, nx) with Ry rows and Rx columns of ``fill`` around
-    (np.pad's work without its per-call overhead, a tenth of a millisecond)."""
-    ny, nx = values.shape
-    out = np.full((ny + 2 * Ry, nx + 2 * Rx), fill, dtype=values.dtype)
-    out[Ry:Ry + ny, Rx:Rx + nx] = values
+    """``values`` (..., ny, nx) with Ry rows and Rx columns of ``fill``
+    around (np.pad's work without its per-call overhead, a tenth of a
+    millisecond)."""
+    *lead, ny, nx = values.shape
+    out = np.full(tuple(lead) + (ny + 2 * Ry, nx + 2 * Rx), fill, dtype=values.dtype)
+    out[..., Ry:Ry + ny, Rx:Rx + nx] = values
     return out
 
 
-def _grid_significance(geo, comp, padded_comp, jj, ii, sigma) -> np.ndarray:
+def _grid_significance(geo, comp, padded_comp, cc, jj, ii, sigma) -> np.ndarray:
     """Per candidate node (jj, ii) (K,), the significance of
     :func:`find_grid_critical_points`: the best over ``SIGNIFICANCE_RADII`` of
     the mean of ``comp`` over the used nodes of the disc (also within the
     radius), signed by the candidate's, over ``sigma`` times the disc mean's
     white-noise spread (:meth:`CriticalGeometry.spreads`).  The sums for all
-    candidates at once (``padded_comp``: ``comp`` padded by the window,
-    NaN off the used nodes)."""
+    candidates at once (``comp``: (2, ny, nx), the candidates' at cc;
+    ``padded_comp``: ``comp`` padded by the window, NaN off the used
+    nodes)."""
     g_used = geo.window_gather(geo.padded_used, jj, ii)                 # (K, wy * wx)
-    g_comp = np.where(g_used, geo.window_gather(padded_comp, jj, ii), 0.0)
+    g_comp = np.where(g_used, geo.window_gather(padded_comp, jj, ii, cc), 0.0)
     counts = g_used.astype(np.float64) @ geo.disc_weights.T              # (K, 4)
     sums = g_comp @ geo.disc_weights.T
-    sign = np.where(comp[jj, ii] > 0, 1.0, -1.0)
+    sign = np.where(comp[cc, jj, ii] > 0, 1.0, -1.0)
     means = sign[:, None] * sums / np.maximum(counts, 1)
     spread = sigma * geo.spreads(jj, ii)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -225,10 +229,11 @@ def _grid_significance(geo, comp, padded_comp, jj, ii, sigma) -> np.ndarray:
     return z.max(axis=1) if z.size else np.full(len(jj), -math.inf)
 
 
-def _grid_refine(lat, geo, padded_pot, jj, ii, rad) -> list:
+def _grid_refine(lat, geo, padded_pot, cc, jj, ii, rad) -> list:
     """Per candidate node (jj, ii), the stationary point of the quadratic
-    least-squares fit of the potential (``padded_pot``: padded by the window,
-    NaN off the used nodes) over the used nodes within ``rad`` of it (the
+    least-squares fit of its potential (``padded_pot``: the two potentials,
+    (2, ny, nx) padded by the window, NaN off the used nodes; the
+    candidates' at cc) over the used nodes within ``rad`` of it (the
     node kept where the fit has fewer than 6 nodes, is singular, or its
     stationary point falls farther than ``rad``; the caller keeps it where
     it falls outside the domain's outline): all fits at once."""
@@ -240,7 +245,7 @@ def _grid_refine(lat, geo, padded_pot, jj, ii, rad) -> list:
     m = geo.padded_used[rows, cols]                                     # (K, O)
     X = np.where(m, geo.padded_x[cols] - here[:, :1], 0.0)
     Y = np.where(m, geo.padded_y[rows] - here[:, 1:], 0.0)
-    P = np.where(m, padded_pot[rows, cols], 0.0)
+    P = np.where(m, padded_pot[cc[:, None], rows, cols], 0.0)
     A = np.stack([m.astype(np.float64), X, Y, X * X, X * Y, Y * Y], axis=-1)   # (K, O, 6)
     normal = np.einsum("koa,kob->kab", A, A)
     rhs = np.einsum("koa,ko->ka", A, P)
@@ -399,11 +404,13 @@ class CriticalGeometry:
         _GEOMETRIES.put(key, geo)
         return geo
 
-    def window_gather(self, padded, jj, ii) -> np.ndarray:
-        """(K, wy * wx): ``padded`` (a grid array padded by the window) over
-        the window of each node (jj, ii)."""
+    def window_gather(self, padded, jj, ii, cc=None) -> np.ndarray:
+        """(K, wy * wx): ``padded`` (a grid array padded by the window; with
+        ``cc``, a stack of them, the candidates' at cc) over the window of
+        each node (jj, ii)."""
         oy, ox = self.window_offsets
-        return padded[jj[:, None] + self.Ry + oy[None, :], ii[:, None] + self.Rx + ox[None, :]]
+        at = (jj[:, None] + self.Ry + oy[None, :], ii[:, None] + self.Rx + ox[None, :])
+        return padded[at] if cc is None else padded[(cc[:, None],) + at]
 
     def noise_filter(self, samples: int) -> tuple:
         """:func:`noise_filter` of these nodes (made once per ``samples``)."""
