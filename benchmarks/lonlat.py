@@ -74,6 +74,21 @@ def errors(got, exact, scale_v) -> tuple:
     return diff / np.linalg.norm(exact[ok], axis=-1).mean(), diff / scale_v
 
 
+def scattered_row(size, n: int, condition: str, s, seconds: float, exact, scale_v) -> dict:
+    """A scattered case's row (errors of the rotational and divergent winds
+    against ``exact``'s, over their own mean and over ``scale_v``), printed."""
+    row = dict(region=size, layout="scattered", n=n, condition=condition,
+               chosen=s.stats.get("boundary_condition"), seconds=seconds,
+               max_map_factor=s.stats["max_map_factor"])
+    row["rot_err"], row["rot_err_v"] = errors(s.div_free, np.c_[exact["u_psi"], exact["v_psi"]],
+                                              scale_v)
+    row["div_err"], row["div_err_v"] = errors(s.curl_free, np.c_[exact["u_chi"], exact["v_chi"]],
+                                              scale_v)
+    print(f"  {size} scattered {condition}: rot {row['rot_err']:.2e} "
+          f"div {row['div_err']:.2e} ({row['chosen']}, {seconds:.2f} s)")
+    return row
+
+
 def peer_split(field, step: float):
     """The peer's (rotational, divergent) winds on the global grid and the grid."""
     from skyborn.windspharm.standard import VectorWind
@@ -207,16 +222,7 @@ def run_region(size, args, rows):
             t = time.perf_counter()
             s = decompose_lonlat(plon, plat, pw["u"], pw["v"], **opts)
             seconds = time.perf_counter() - t
-        row = dict(region=size, layout="scattered", n=len(plon), condition=condition,
-                   chosen=s.stats.get("boundary_condition"), seconds=seconds,
-                   max_map_factor=s.stats["max_map_factor"])
-        row["rot_err"], row["rot_err_v"] = errors(s.div_free, np.c_[pw["u_psi"], pw["v_psi"]],
-                                                  pscale)
-        row["div_err"], row["div_err_v"] = errors(s.curl_free,
-                                                  np.c_[pw["u_chi"], pw["v_chi"]], pscale)
-        rows.append(row)
-        print(f"  {size} scattered {condition}: rot {row['rot_err']:.2e} "
-              f"div {row['div_err']:.2e} ({row['chosen']}, {seconds:.2f} s)")
+        rows.append(scattered_row(size, len(plon), condition, s, seconds, pw, pscale))
     # scattered with land: the points over the grid's land blobs dropped, the
     # domain the coast given (the sea nodes' outline in degrees, its land
     # holes) or left to the points' alpha shape
@@ -244,16 +250,7 @@ def run_region(size, args, rows):
                 print(f"  {size} scattered {label}: refused ({exc})")
                 continue
             seconds = time.perf_counter() - t
-        row = dict(region=size, layout="scattered", n=int(sea.sum()), condition=label,
-                   chosen=s.stats.get("boundary_condition"), seconds=seconds,
-                   max_map_factor=s.stats["max_map_factor"])
-        row["rot_err"], row["rot_err_v"] = errors(s.div_free, np.c_[lw["u_psi"], lw["v_psi"]],
-                                                  lscale)
-        row["div_err"], row["div_err_v"] = errors(s.curl_free,
-                                                  np.c_[lw["u_chi"], lw["v_chi"]], lscale)
-        rows.append(row)
-        print(f"  {size} scattered {label}: rot {row['rot_err']:.2e} "
-              f"div {row['div_err']:.2e} ({row['chosen']}, {seconds:.2f} s)")
+        rows.append(scattered_row(size, int(sea.sum()), label, s, seconds, lw, lscale))
     su, sv = harmonic_stream(plon, plat, CENTRE)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
