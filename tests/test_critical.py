@@ -347,3 +347,49 @@ def test_linear_percentile_is_numpys():
             a = rng.standard_normal((2, m)) * 10.0 ** rng.uniform(-5, 5)
             np.testing.assert_array_equal(critical.linear_percentile(a, q),
                                           np.percentile(a, q, axis=1))
+
+
+def test_median_is_numpys():
+    """critical_grid.median (one partition) is np.median bit for bit, odd
+    and even lengths, with ties."""
+    from taichi_hh.hhd.critical_grid import median
+    rng = np.random.default_rng(1)
+    for m in list(range(1, 40)) + [660, 1321, 4000]:
+        a = rng.standard_normal(m) * 10.0 ** rng.uniform(-5, 5)
+        assert median(a) == np.median(a)
+        ties = np.round(a * 3) / 3
+        assert median(ties) == np.median(ties)
+
+
+@pytest.mark.filterwarnings("ignore::taichi_hh.AccuracyWarning")
+def test_grid_strength_scale_is_the_general_one():
+    """The grid's strength scale (the geometry's far nodes, one gather) is
+    critical.strength_scale of the same smoothed derivatives, on a grid
+    with a masked block (nodes near the outline left out) and on a strip so
+    narrow that every node is near it (all nodes read)."""
+    from types import SimpleNamespace
+    from taichi_hh.hhd import critical_grid
+    from taichi_hh.hhd.natural_grid import smoothed
+    rng = np.random.default_rng(2)
+    for n, block in ((48, True), (4, False)):
+        x = np.linspace(0.0, 2.0, 48)
+        y = x[:n]
+        X, Y = np.meshgrid(x, y)
+        u = np.sin(2 * X) * np.cos(Y) + 0.05 * rng.standard_normal(X.shape)
+        v = -np.cos(2 * X) * np.sin(Y) + 0.05 * rng.standard_normal(X.shape)
+        if block:
+            u[20:28, 10:30] = np.nan
+        res = thh.decompose_grid(x, y, u, v)
+        lat = res.lattice
+        ell = float(lat.spacing)
+        rad = critical_grid.grid_support(lat.hx, lat.hy, lat.options.support_ratio)
+        geo = critical_grid.CriticalGeometry(lat, rad, max(critical.SCALE_EDGE,
+                                                           critical.EDGE) * ell)
+        sm = smoothed(np.stack([lat.divergence, lat.curl]), lat.inside, steps=geo.smoothing)
+        used = lat.used
+        general = critical.strength_scale(SimpleNamespace(
+            divergence=sm[0][used], curl=sm[1][used],
+            vectors=np.stack([lat.u[used], lat.v[used]], axis=1), stats={"spacing": ell}),
+            geo.edge_distance)
+        assert critical_grid.grid_strength_scale(lat, geo, sm, ell) == general
+        assert (geo.scale_nodes is None) == (not block)

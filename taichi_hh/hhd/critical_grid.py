@@ -10,9 +10,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from .critical import (COHERENCE, COHERENCE_RADIUS, EDGE, NOISE_SAMPLES, POT_PASSES, SCALE_EDGE,
-                       SIGNIFICANCE, SIGNIFICANCE_RADII, THRESHOLD, CriticalPoint, noise_sigma,
-                       strength_scale)
+from .critical import (COHERENCE, COHERENCE_RADIUS, EDGE, NOISE_FLOOR, NOISE_SAMPLES, POT_PASSES,
+                       SCALE_EDGE, SCALE_PERCENTILE, SIGNIFICANCE, SIGNIFICANCE_RADII, THRESHOLD,
+                       CriticalPoint, linear_percentile, noise_sigma, strength_scale)
 from .recent import Recent
 
 
@@ -61,10 +61,7 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     sm = smoothed(np.stack([lat.divergence, lat.curl, ddr[..., 0], ddr[..., 1], lat.phi, lat.psi]),
                   lat.inside, (1, 1, 1, 1, POT_PASSES, POT_PASSES), steps=geo.smoothing)
     comps, pots = sm[2:4], sm[4:6]
-    div_v, curl_v = sm[0][used], sm[1][used]
-    vec = np.stack([lat.u[used], lat.v[used]], axis=1)
-    scale = strength_scale(SimpleNamespace(divergence=div_v, curl=curl_v, vectors=vec,
-                                           stats={"spacing": ell}), geo.edge_distance)
+    scale = grid_strength_scale(lat, geo, sm[0:2], ell)
     if scale == 0.0 or not math.isfinite(scale):
         return []
     Ry, Rx, oy, ox, r_off = geo.Ry, geo.Rx, geo.oy, geo.ox, geo.r_off
@@ -92,7 +89,18 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     # nanmin/nanmax do; none but NaN: no extremum
     padded = _padded(pot, Ry, Rx, np.nan)
     lo8 = hi8 = None
-    if cand.any():
+    if cand.any() and Ry >= 1 and Rx >= 1:
+        # separably: the two row neighbours, the three nodes of the rows
+        # above and below (min and max are exact: the same values as eight
+        # shifted views, half the calls)
+        rows = padded[:, Ry - 1:Ry + ny + 1]
+        left, right = rows[:, :, Rx - 1:Rx - 1 + nx], rows[:, :, Rx + 1:Rx + 1 + nx]
+        lo_side, hi_side = np.fmin(left, right), np.fmax(left, right)
+        lo3 = np.fmin(lo_side, rows[:, :, Rx:Rx + nx])
+        hi3 = np.fmax(hi_side, rows[:, :, Rx:Rx + nx])
+        lo8 = np.fmin(np.fmin(lo3[:, :-2], lo3[:, 2:]), lo_side[:, 1:-1])
+        hi8 = np.fmax(np.fmax(hi3[:, :-2], hi3[:, 2:]), hi_side[:, 1:-1])
+    elif cand.any():
         for dy in range(-min(Ry, 1), min(Ry, 1) + 1):
             for dx in range(-min(Rx, 1), min(Rx, 1) + 1):
                 if dy or dx:
@@ -152,6 +160,24 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
            for p in found]
     out.sort(key=lambda p: -p.strength)
     return out
+
+
+def grid_strength_scale(lat, geo, div_curl, ell: float) -> float:
+    """:func:`~.critical.strength_scale` of the smoothed div v and curl v
+    ``div_curl`` (2, ny, nx) on the used nodes: where they are all finite (as
+    the decomposition leaves them) the nodes far enough from the outline are
+    the geometry's (:attr:`CriticalGeometry.scale_nodes`), one gather; else
+    the general function."""
+    both = div_curl.reshape(2, -1)[:, geo.used_flat]
+    uv = np.stack([lat.u, lat.v]).reshape(2, -1)[:, geo.used_flat]
+    if not np.isfinite(both).all():
+        return strength_scale(SimpleNamespace(divergence=both[0], curl=both[1], vectors=uv.T,
+                                              stats={"spacing": ell}), geo.edge_distance)
+    sel = both if geo.scale_nodes is None else both[:, geo.scale_nodes]
+    # the largest speed by the squares (as strength_scale)
+    speed = float(np.sqrt(np.nanmax(uv[0] * uv[0] + uv[1] * uv[1])))
+    q = linear_percentile(np.abs(sel), SCALE_PERCENTILE)
+    return max(float(q[0]), float(q[1]), NOISE_FLOOR * speed / ell)
 
 
 def _inside_outline(domain, points, segments=None) -> np.ndarray:
@@ -240,20 +266,29 @@ def _grid_refine(lat, geo, padded_pot, cc, jj, ii, rad) -> list:
     if len(jj) == 0:
         return []
     oy, ox = geo.near_offsets
-    here = np.stack([lat.x[ii], lat.y[jj]], axis=1)
+    here_x, here_y = lat.x[ii], lat.y[jj]
     rows, cols = jj[:, None] + geo.Ry + oy[None, :], ii[:, None] + geo.Rx + ox[None, :]
     m = geo.padded_used[rows, cols]                                     # (K, O)
-    X = np.where(m, geo.padded_x[cols] - here[:, :1], 0.0)
-    Y = np.where(m, geo.padded_y[rows] - here[:, 1:], 0.0)
+    A = np.empty(m.shape + (6,))                                        # (K, O, 6)
+    A[..., 0] = m
+    A[..., 1] = X = np.where(m, geo.padded_x[cols] - here_x[:, None], 0.0)
+    A[..., 2] = Y = np.where(m, geo.padded_y[rows] - here_y[:, None], 0.0)
+    np.multiply(X, X, out=A[..., 3])
+    np.multiply(X, Y, out=A[..., 4])
+    np.multiply(Y, Y, out=A[..., 5])
     P = np.where(m, padded_pot[cc[:, None], rows, cols], 0.0)
-    A = np.stack([m.astype(np.float64), X, Y, X * X, X * Y, Y * Y], axis=-1)   # (K, O, 6)
     normal = np.einsum("koa,kob->kab", A, A)
     rhs = np.einsum("koa,ko->ka", A, P)
     fit = m.sum(axis=1) >= 6
+    every = bool(fit.all())
     coef = np.full((len(jj), 6), np.nan)
     try:                                  # the normal equations: no LAPACK least squares
-        coef[fit] = np.linalg.solve(normal[fit], rhs[fit][..., None])[..., 0]
+        if every:
+            coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
+        else:
+            coef[fit] = np.linalg.solve(normal[fit], rhs[fit][..., None])[..., 0]
     except np.linalg.LinAlgError:         # one singular: each on its own
+        coef = np.full((len(jj), 6), np.nan)
         for k in np.flatnonzero(fit):
             try:
                 coef[k] = np.linalg.solve(normal[k], rhs[k])
@@ -262,14 +297,14 @@ def _grid_refine(lat, geo, padded_pot, cc, jj, ii, rad) -> list:
     a, b, c = 2 * coef[:, 3], coef[:, 4], 2 * coef[:, 5]
     with np.errstate(divide="ignore", invalid="ignore"):
         det = a * c - b * b
-        step = np.stack([-(c * coef[:, 1] - b * coef[:, 2]) / det,
-                         -(a * coef[:, 2] - b * coef[:, 1]) / det], axis=1)
-        ok = (det != 0) & np.isfinite(det) & np.isfinite(step).all(axis=1) & \
-            (np.hypot(step[:, 0], step[:, 1]) <= rad)
+        step_x = -(c * coef[:, 1] - b * coef[:, 2]) / det
+        step_y = -(a * coef[:, 2] - b * coef[:, 1]) / det
+        ok = (det != 0) & np.isfinite(det) & np.isfinite(step_x) & np.isfinite(step_y) & \
+            (np.hypot(step_x, step_y) <= rad)
     out = []
-    for k in range(len(jj)):
-        x, y = float(here[k, 0]), float(here[k, 1])
-        out.append((x + float(step[k, 0]), y + float(step[k, 1])) if ok[k] else (x, y))
+    for k, good in enumerate(ok.tolist()):
+        x, y = float(here_x[k]), float(here_y[k])
+        out.append((x + float(step_x[k]), y + float(step_y[k])) if good else (x, y))
     return out
 
 
@@ -288,11 +323,22 @@ def grid_noise_sigma(lat, samples: int = NOISE_SAMPLES, *, geometry=None) -> flo
         vec = np.stack([lat.u, lat.v], axis=-1).reshape(-1, 2)
         return noise_sigma(np.c_[lat.x[np.divmod(flat, nx)[1]], lat.y[np.divmod(flat, nx)[0]]],
                            vec[flat], samples)
-    out = []
-    for comp in (lat.u, lat.v):
-        padded = _padded(comp, NOISE_REACH, NOISE_REACH, 0.0).ravel()
-        out.append(padded[centre] - padded[rows] @ filt)
-    return 1.4826 * float(np.median(np.abs(np.stack(out, axis=1))))
+    # both components padded in one array, the deviations of both in one
+    deviations = np.empty((2, len(centre)))
+    padded = _padded(np.stack([lat.u, lat.v]), NOISE_REACH, NOISE_REACH, 0.0).reshape(2, -1)
+    for c in range(2):
+        np.subtract(padded[c, centre], padded[c, rows] @ filt, out=deviations[c])
+    return 1.4826 * float(median(np.abs(deviations, out=deviations).ravel()))
+
+
+def median(values: np.ndarray) -> float:
+    """``np.median(values)`` of a flat array without NaN (the same
+    arithmetic: the middle value, or the mean of the two middle ones), by one
+    partition without the general function's per-call cost."""
+    m = len(values)
+    lo, hi = (m - 1) // 2, m // 2
+    part = np.partition(values, (lo, hi))
+    return float(part[lo]) if lo == hi else float(np.mean(part[lo:hi + 1]))
 
 
 #: the noise filter's reach in nodes: its 20 nearest within 3 steps each way
@@ -356,6 +402,13 @@ class CriticalGeometry:
         dist[jj, ii] = best
         self.dist = dist
         self.edge_distance = dist[self.used] / ell
+        self.used_flat = np.flatnonzero(self.used.ravel())
+        # the used nodes the strength scale reads where its derivatives are
+        # all finite (strength_scale's rule: those SCALE_EDGE spacings from
+        # the outline where they are a quarter or more, else all)
+        far_nodes = self.edge_distance >= SCALE_EDGE
+        self.scale_nodes = None if far_nodes.sum() < 0.25 * len(far_nodes) else \
+            np.flatnonzero(far_nodes)
         self.smoothing = smoothing_steps(self.inside)
         self.Ry, self.Rx = int(rad // self.hy), int(rad // self.hx)
         self.oy, self.ox = np.mgrid[-self.Ry:self.Ry + 1, -self.Rx:self.Rx + 1]

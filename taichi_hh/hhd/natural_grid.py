@@ -120,9 +120,13 @@ def smoothed(F: np.ndarray, avail: np.ndarray, passes=1, steps: list | None = No
     Z = np.where(avail, F[None] if one else F, 0.0)
     if steps is None:
         steps = smoothing_steps(avail)
-    counts = np.broadcast_to(np.asarray(passes), Z.shape[:1])
-    for done in range(int(counts.max(initial=0))):
-        sel = np.flatnonzero(counts > done)
+    # per field, in plain ints (a handful of fields: numpy's per-call cost
+    # would outweigh the work on a small grid)
+    counts = [int(passes)] * len(Z) if np.ndim(passes) == 0 else [int(c) for c in passes]
+    if len(counts) != len(Z):
+        raise ValueError(f"passes: one count per field ({len(Z)}), got {len(counts)}")
+    for done in range(max(counts, default=0)):
+        sel = [f for f, c in enumerate(counts) if c > done]
         run = sel[-1] - sel[0] + 1 == len(sel)          # a range of fields: a view
         part = Z[sel[0]:sel[-1] + 1] if run else Z[sel]
         for lo, hi, scale in steps:
