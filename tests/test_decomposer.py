@@ -257,6 +257,7 @@ def test_natural_snapshots_split_together_as_one_by_one(reuse_fits):
     import math
 
     from taichi_hh.hhd import natural
+    from taichi_hh.hhd.rotation import J
     disk = thh.Polygon.circle((0.5, 0.5), 0.5, n=200)
     pts = disk.sample_interior(2000, kind="random", seed=5)
     sp = math.sqrt(disk.area / len(pts))
@@ -272,8 +273,11 @@ def test_natural_snapshots_split_together_as_one_by_one(reuse_fits):
             x, y = getattr(a, name), getattr(b, name)
             assert np.abs(x - y).max() <= 1e-12 * np.abs(y).max(), name
         assert a.mean_fit_points == b.mean_fit_points
-        h = v - a.d - a.grad_psi @ np.array([[0.0, 1.0], [-1.0, 0.0]])
-        assert np.allclose(a.harmonic_ratios(h), b.harmonic_ratios(h), rtol=1e-12, atol=0)
+        # h = v - d - r (r = J grad psi), and its check made with the batch
+        h = v - a.d - J(a.grad_psi)
+        assert np.abs(a.harmonic - h).max() <= 1e-12 * np.abs(h).max()
+        assert np.abs(b.harmonic - h).max() <= 1e-12 * np.abs(h).max()
+        assert np.allclose(a.harmonic_ratios(), b.harmonic_ratios(), rtol=1e-12, atol=0)
 
 
 def test_one_sided_fits_kept_as_weights_equal_the_fits():

@@ -244,8 +244,10 @@ def test_a_kept_natural_setup_splits_as_a_call():
         v = np.c_[np.sin(3 * pts[:, 0] + k) + pts[:, 1] ** 2, np.cos(2 * pts[:, 1] - k) * pts[:, 0]]
         a = setup.split(v)
         b = natural.natural_decomposition(pts, v, disk, sp)
-        for name in ("phi", "psi", "d", "grad_psi", "divergence", "curl"):
+        for name in ("phi", "psi", "d", "grad_psi", "divergence", "curl", "harmonic"):
             x, y = getattr(a, name), getattr(b, name)
             assert np.abs(x - y).max() < 1e-9 * np.abs(y).max(), name
-        h = v - a.d - a.grad_psi @ np.array([[0.0, 1.0], [-1.0, 0.0]])
-        assert np.allclose(a.harmonic_ratios(h), b.harmonic_ratios(h), rtol=1e-8, atol=1e-12)
+        # each split checks its own h, and the two h differ by the fits'
+        # rounding (1e-9 of |h| above): the ratios, in units of the field's
+        # derivative (about 1e-3 here), move by as much
+        assert np.allclose(a.harmonic_ratios(), b.harmonic_ratios(), rtol=0, atol=1e-9)

@@ -107,7 +107,8 @@ def check_energy(stats, v, d, r, h, vol, opts, *, stacklevel: int = 4) -> None:
     random points).  ``stats["energy_ratio"]``; above :data:`ENERGY_LIMIT`
     flagged."""
     def energy(x):
-        return float((vol * (x * x).sum(axis=1)).sum())
+        # |x|^2 per row by einsum: numpy's sum over an axis of two is slow
+        return float(np.dot(vol, np.einsum("ij,ij->i", x, x)))
 
     total = energy(v)
     ratio = (energy(d) + energy(r) + energy(h)) / total if total > 0 else 1.0

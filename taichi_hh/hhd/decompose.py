@@ -49,6 +49,7 @@ each bundle: docs/notes/hhd.md.
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -182,8 +183,16 @@ def resolved_options(opts: HHDOptions, data: Data, *, near=None) -> tuple:
     condition, flux, along = choose_boundary_condition(data.unit_points, data.unit_vectors,
                                                        data.unit_domain, unit_spacing(data),
                                                        opts.boundary, near=near)
-    return replace(opts, boundary_condition=condition), {
+    return with_condition(opts, condition), {
         "boundary_condition": condition, "boundary_flux": flux, "boundary_along": along}
+
+
+@functools.lru_cache(maxsize=32)
+def with_condition(opts: HHDOptions, condition: str) -> HHDOptions:
+    """``opts`` with ``boundary_condition`` set (made once per pair: the
+    options' checks cost a millisecond, paid per snapshot of a series
+    otherwise)."""
+    return replace(opts, boundary_condition=condition)
 
 
 def unit_spacing(data: Data) -> float:
@@ -406,10 +415,9 @@ def _natural_unit(data: Data, opts: HHDOptions, progress,
     stats["mean_neighbours"] = split.mean_fit_points
     say("checks")
     t = time.perf_counter()
-    d, r = split.d, J(split.grad_psi)
-    h = vec - d - r
+    d, r, h = split.d, J(split.grad_psi), split.harmonic        # h = v - d - r
     check_energy(stats, vec, d, r, h, split.volume, opts, stacklevel=6)
-    flag_harmonic(stats, dict(zip(("divergence", "curl"), split.harmonic_ratios(h))), opts,
+    flag_harmonic(stats, dict(zip(("divergence", "curl"), split.harmonic_ratios())), opts,
                   stacklevel=6)
     seconds["checks"] = time.perf_counter() - t
     seconds.update({f"natural_{k}": v for k, v in split.seconds.items()})

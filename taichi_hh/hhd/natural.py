@@ -43,6 +43,7 @@ from .grid_sampling import (ONE_SIDED_CELLS, at_points, lagrange_at, one_sided_g
                             one_sided_weights)
 from .node_fits import FitWeights, PointBins, fit_gradients, reconstruct_on_grid
 from .options import NATURAL_EVALUATIONS
+from .rotation import J
 
 #: subsamples per side of a cell the boundary may cross, for its inside fraction
 CUT_SUBSAMPLES = 16
@@ -211,21 +212,16 @@ class NaturalSplit:
     def __init__(self, **kw):
         self.__dict__.update(kw)
 
-    def harmonic_ratios(self, h) -> tuple:
-        """``(div, curl)``: mean |div h| and mean |curl h| over the mean of
-        sqrt(div v^2 + curl v^2), the same fit (of h, at the same nodes) as
-        div v's: the nodes with centres inside the domain, every k-th along
-        each axis for at most about :data:`CHECK_NODES` of them."""
-        t = time.perf_counter()
-        setup = self.setup
-        hs = np.asarray(h, dtype=np.float64)[setup.binned.order]
-        g = setup.gradients("check", hs)
-        div_h = np.abs(g[:, 0, 0] + g[:, 1, 1]).mean()
-        curl_h = np.abs(g[:, 1, 0] - g[:, 0, 1]).mean()
-        self.seconds["harmonic"] = time.perf_counter() - t
+    def harmonic_ratios(self) -> tuple:
+        """``(div, curl)``: mean |div h| and mean |curl h| of ``harmonic``
+        (h = v - d - r) over the mean of sqrt(div v^2 + curl v^2), the same
+        fit (of h, at the same nodes) as div v's: the nodes with centres
+        inside the domain, every k-th along each axis for at most about
+        :data:`CHECK_NODES` of them (made with the split: a batch's fields
+        in one gather, :meth:`NaturalSetup.split_many`)."""
         scale = self._check_scale
         return tuple(x / scale if scale > 0 else (0.0 if x == 0 else math.inf)
-                     for x in (div_h, curl_h))
+                     for x in self._harmonic_means)
 
 
 #: the node fits kept as weights (:class:`~.node_fits.FitWeights`) for a
@@ -359,11 +355,23 @@ class NaturalSetup:
                                divergence=dcs[s][:, 0].copy(), curl=dcs[s][:, 1].copy(),
                                volume=self.volume, grid=grid,
                                mean_fit_points=float(count.mean()) if count.size else 0.0,
-                               setup=self,
                                _check_scale=float(np.hypot(div[check, s],
                                                            curl[check, s]).mean()))
                   for s in range(k)]
         lap("gather")
+        # h = v - d - r of every field, and the harmonic check's fits of h at
+        # the check nodes for all of them in one gather
+        hs = np.empty((len(binned.order), 2 * k))
+        for s, split in enumerate(splits):
+            split.harmonic = np.asarray(snapshots[s], dtype=np.float64) - split.d \
+                - J(split.grad_psi)
+            hs[:, 2 * s:2 * s + 2] = split.harmonic[binned.order]
+        gh = self.gradients("check", hs).reshape(-1, k, 2, 2)
+        for s, split in enumerate(splits):
+            g = gh[:, s]
+            split._harmonic_means = (np.abs(g[:, 0, 0] + g[:, 1, 1]).mean(),
+                                     np.abs(g[:, 1, 0] - g[:, 0, 1]).mean())
+        lap("harmonic")
         for split in splits:
             split.seconds = {name: t / k for name, t in lap.seconds.items()}
         return splits
