@@ -168,8 +168,12 @@ def grid_strength_scale(lat, geo, div_curl, ell: float) -> float:
     the decomposition leaves them) the nodes far enough from the outline are
     the geometry's (:attr:`CriticalGeometry.scale_nodes`), one gather; else
     the general function."""
-    both = div_curl.reshape(2, -1)[:, geo.used_flat]
-    uv = np.stack([lat.u, lat.v]).reshape(2, -1)[:, geo.used_flat]
+    if geo.every_node_used:                 # views: no gathers
+        both = div_curl.reshape(2, -1)
+        uv = np.stack([lat.u, lat.v]).reshape(2, -1)
+    else:
+        both = div_curl.reshape(2, -1)[:, geo.used_flat]
+        uv = np.stack([lat.u, lat.v]).reshape(2, -1)[:, geo.used_flat]
     if not np.isfinite(both).all():
         return strength_scale(SimpleNamespace(divergence=both[0], curl=both[1], vectors=uv.T,
                                               stats={"spacing": ell}), geo.edge_distance)
@@ -324,10 +328,10 @@ def grid_noise_sigma(lat, samples: int = NOISE_SAMPLES, *, geometry=None) -> flo
         return noise_sigma(np.c_[lat.x[np.divmod(flat, nx)[1]], lat.y[np.divmod(flat, nx)[0]]],
                            vec[flat], samples)
     # both components padded in one array, the deviations of both in one
-    deviations = np.empty((2, len(centre)))
     padded = _padded(np.stack([lat.u, lat.v]), NOISE_REACH, NOISE_REACH, 0.0).reshape(2, -1)
-    for c in range(2):
-        np.subtract(padded[c, centre], padded[c, rows] @ filt, out=deviations[c])
+    # one matrix-vector product over both components' rows (2 S, 20)
+    fitted = (padded[:, rows].reshape(-1, rows.shape[1]) @ filt).reshape(2, -1)
+    deviations = padded[:, centre] - fitted                              # (2, S)
     return 1.4826 * float(median(np.abs(deviations, out=deviations).ravel()))
 
 
@@ -403,6 +407,7 @@ class CriticalGeometry:
         self.dist = dist
         self.edge_distance = dist[self.used] / ell
         self.used_flat = np.flatnonzero(self.used.ravel())
+        self.every_node_used = len(self.used_flat) == self.used.size
         # the used nodes the strength scale reads where its derivatives are
         # all finite (strength_scale's rule: those SCALE_EDGE spacings from
         # the outline where they are a quarter or more, else all)
