@@ -496,6 +496,25 @@ _NO_WEIGHTS = np.zeros((1, 2))
 #: the column widths :func:`_apply_weights` compiles (each once): a call's
 #: columns go through in blocks of the widest that fits, the rest narrower
 APPLY_WIDTHS = (8, 4, 2, 1)
+#: blocks at least this wide sum each column in slot order, narrower ones
+#: let LLVM's loop vectorizer split the sum over slots into partial sums
+#: (at 1-2 columns 1.5-2x faster that way, at 4-8 2-3x slower: it loads
+#: the values one at a time; docs/notes/series.md)
+APPLY_IN_ORDER = 4
+
+
+@ti.func
+def _add_slot(s, widx: ti.template(), wval: ti.template(), values: ti.template(), c0, ref,
+              gx, gy, width: ti.template()):
+    """One slot's terms: its weights times the block's values less ``ref``."""
+    k = widx[s]
+    ax = wval[s, 0]
+    ay = wval[s, 1]
+    for w in ti.static(range(width)):
+        v = values[k, c0 + w] - ref[w]
+        gx[w] += ax * v
+        gy[w] += ay * v
+    return k, gx, gy
 
 
 @ti.kernel
@@ -508,7 +527,7 @@ def _apply_weights(wstart: ti.types.ndarray(), widx: ti.types.ndarray(),
     point (as the fit subtracts it: the same rounding), for the ``blocks``
     blocks of ``width`` columns from ``col0``: one gather per target and
     block, a slot's index and weights read once for the block's columns
-    (adjacent in a row of ``values``), each column's sum in slot order."""
+    (adjacent in a row of ``values``)."""
     for t, blk in ti.ndrange(out.shape[0], blocks):
         c0 = col0 + blk * width
         gx = ti.Vector.zero(ti.f64, width)
@@ -517,21 +536,16 @@ def _apply_weights(wstart: ti.types.ndarray(), widx: ti.types.ndarray(),
         kref = wref[t]
         for w in ti.static(range(width)):
             ref[w] = values[kref, c0 + w]
-        s = wstart[t]
-        end = wstart[t + 1]
-        while s < end:
-            k = widx[s]
-            ax = wval[s, 0]
-            ay = wval[s, 1]
-            for w in ti.static(range(width)):
-                v = values[k, c0 + w] - ref[w]
-                gx[w] += ax * v
-                gy[w] += ay * v
-            # k >= 0: a step of 1 that LLVM's loop vectorizer cannot count.
-            # Counted, it vectorizes across slots (partial sums, one scalar
-            # load per value: 2-4x slower); uncounted, the block's columns
-            # are added together, each sum in slot order
-            s += 1 + (k >> 31)
+        if ti.static(width >= APPLY_IN_ORDER):
+            s = wstart[t]
+            end = wstart[t + 1]
+            while s < end:
+                k, gx, gy = _add_slot(s, widx, wval, values, c0, ref, gx, gy, width)
+                # k >= 0: a step of 1 that the loop vectorizer cannot count
+                s += 1 + (k >> 31)
+        else:
+            for s in range(wstart[t], wstart[t + 1]):
+                _, gx, gy = _add_slot(s, widx, wval, values, c0, ref, gx, gy, width)
         for w in ti.static(range(width)):
             out[t, c0 + w, 0] = gx[w]
             out[t, c0 + w, 1] = gy[w]
