@@ -60,6 +60,34 @@ def test_spline_prefilter_kernel_on_odd_lines_and_short_axes():
     assert abs(grid_sampling.SPLINE_POLE) ** grid_sampling.SPLINE_START_TERMS < 2.0 ** -56
 
 
+def test_lagrange_and_spline_gathers_take_any_columns():
+    """lagrange_at and spline_values take any number of columns (blocks of
+    SPLINE_COLUMNS read in place): the tensor cubic Lagrange interpolant is
+    exact on bicubics, each column as it is alone, and the rows go where
+    ``dest`` says."""
+    grid = free_space.Grid(RECT, 0.05)
+    nx, ny = grid.shape
+    x, y = np.meshgrid(grid.origin[0] + grid.hx * np.arange(nx),
+                       grid.origin[1] + grid.hy * np.arange(ny), indexing="ij")
+    polys = [lambda a, b, k=k: (a - 0.3 * k) ** 3 * (b + 0.1 * k) ** 2 - k * a * b + k
+             for k in range(9)]
+    u = np.stack([p(x, y) for p in polys], axis=-1)                       # (nx, ny, 9)
+    rng = np.random.default_rng(3)
+    pts = RECT.sample_interior(500, kind="random", seed=4)
+    dest = rng.permutation(len(pts))
+    got = grid_sampling.lagrange_at(grid, u, pts, dest)
+    exact = np.stack([p(pts[:, 0], pts[:, 1]) for p in polys], axis=-1)
+    assert np.abs(got[dest] - exact).max() < 1e-12 * np.abs(exact).max()
+    coef = grid_sampling.spline_coefficients(u)
+    many = grid_sampling.spline_values(grid, coef, pts, dest=dest)
+    # (to round-off: each width compiles, and rounds, its own way)
+    for c in range(u.shape[2]):
+        one = grid_sampling.lagrange_at(grid, u[..., c:c + 1], pts, dest)[:, 0]
+        assert np.abs(one - got[:, c]).max() < 1e-14 * np.abs(u[..., c]).max()
+        one = grid_sampling.at_points(grid, u[..., c], pts, dest=dest)
+        assert np.abs(one - many[:, c]).max() < 1e-14 * np.abs(u[..., c]).max()
+
+
 def _gradient_numpy(grid, u):
     """The grid gradient as numpy: np.gradient (second order, one-sided at
     the edges) with fourth-order central differences from 2 nodes in."""

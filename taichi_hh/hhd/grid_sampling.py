@@ -214,21 +214,28 @@ def spline_values(grid: Grid, coef: np.ndarray, points, *, dest=None) -> np.ndar
     :func:`prefilter`) at ``points``: the tensor product of the 4 x 4 knots
     around each point, one gather per point.  ``dest``: the row of the
     result each point's values go to (a permutation)."""
+    c3 = coef if coef.ndim == 3 else coef[..., None]
+    out = _tensor_at(grid, c3, points, SPLINE_PAD, _cubic_weights, dest)
+    return out if coef.ndim == 3 else out[:, 0]
+
+
+def _tensor_at(grid: Grid, c3: np.ndarray, points, pad, weights, dest) -> np.ndarray:
+    """(N, m) :func:`_tensor_gather` of the columns of ``c3`` (NX, NY, m),
+    SPLINE_COLUMNS a launch (the kernel compiles once per width; a series'
+    many columns go through in blocks of them, read in place)."""
     runtime.ensure_init()
-    c3 = np.ascontiguousarray(coef if coef.ndim == 3 else coef[..., None], dtype=np.float64)
+    c3 = np.ascontiguousarray(c3, dtype=np.float64)
     pts = np.ascontiguousarray(points, dtype=np.float64)
     m = c3.shape[2]
     out = np.zeros((len(pts), m))
     if len(pts):
         scatter = dest is not None
         rows = np.ascontiguousarray(dest, dtype=np.int64) if scatter else np.zeros(1, np.int64)
-        # at most SPLINE_COLUMNS columns a launch (the kernel's width compiles
-        # once per width; a series' many columns go through in blocks of them)
         for a in range(0, m, SPLINE_COLUMNS):
             b = min(a + SPLINE_COLUMNS, m)
             _tensor_gather(c3, pts, float(grid.origin[0]), float(grid.origin[1]), grid.hx,
-                           grid.hy, SPLINE_PAD, _cubic_weights, b - a, a, scatter, rows, out)
-    return out if coef.ndim == 3 else out[:, 0]
+                           grid.hy, pad, weights, b - a, a, scatter, rows, out)
+    return out
 
 
 #: points within this many cells of the boundary take their gradient from a
@@ -395,14 +402,7 @@ def _lagrange_weights(t):
 
 
 def lagrange_at(grid: Grid, u: np.ndarray, points, dest) -> np.ndarray:
-    """(N, 2): the tensor cubic Lagrange interpolant of the two columns of
-    ``u`` (nx, ny, 2) at ``points`` from the 4 x 4 nodes around each (indices
+    """(N, m): the tensor cubic Lagrange interpolant of the columns of ``u``
+    (nx, ny, m) at ``points`` from the 4 x 4 nodes around each (indices
     clamped; :func:`_tensor_gather`), point p's values in row ``dest[p]``."""
-    runtime.ensure_init()
-    pts = np.ascontiguousarray(points, dtype=np.float64)
-    out = np.zeros((len(pts), 2))
-    if len(pts):
-        _tensor_gather(np.ascontiguousarray(u, dtype=np.float64), pts, float(grid.origin[0]),
-                       float(grid.origin[1]), grid.hx, grid.hy, 0.0, _lagrange_weights, 2, 0,
-                       True, np.ascontiguousarray(dest, dtype=np.int64), out)
-    return out
+    return _tensor_at(grid, u, points, 0.0, _lagrange_weights, dest)
