@@ -8,7 +8,8 @@ over the cell centres of a :class:`Grid` covering the domain, by zero-padded
 FFT in O(M log M) for M cells (:func:`convolve_fft`) or by direct summation
 in a Taichi kernel (:func:`convolve_direct`, O(M^2), the exact reference of
 the same sum), the cell's own integral of G on the diagonal; the potentials'
-gradients by fourth-order differences on the grid (:func:`grid_gradient`).
+gradients by fourth-order differences on the grid (:func:`grid_gradient`; with
+the values, padded for the spline, in one kernel: :func:`values_and_gradients`).
 """
 import math
 import os
