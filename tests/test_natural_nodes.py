@@ -232,6 +232,33 @@ def test_fit_weights_are_the_fits():
     assert np.abs(four[:, 2:] - 2 * g[:, ::-1]).max() < 1e-9 * np.abs(g).max()
 
 
+def test_fit_weights_gather_is_the_sum_over_slots():
+    """FitWeights.gradients (a kernel taking the columns in blocks of 8, 4, 2
+    and 1) is the plain sum over each target's slots of the weights times
+    the values less the reference's, for any number of columns: numpy in
+    slot order agrees to round-off, and each column with that column alone
+    (no block mixes columns)."""
+    pts = np.random.default_rng(5).random((2000, 2))
+    grid, b = _binned(pts, math.sqrt(1.0 / len(pts)))
+    w = node_fits.FitWeights(grid, b, grid.centres()[::3])
+    rows = np.repeat(np.arange(w.n_targets), np.diff(w.start))
+    n = int(w.start[-1])
+    rng = np.random.default_rng(6)
+    for m in (1, 2, 3, 5, 7, 8, 13, 16):
+        vals = rng.standard_normal((len(pts), m)) * 10.0 ** rng.integers(-3, 4, m)
+        diff = vals[w.index[:n]] - vals[w.reference[rows]]                   # (S, m)
+        ref = np.zeros((w.n_targets, m, 2))
+        np.add.at(ref, rows, diff[:, :, None] * w.weights[:n, None, :])
+        got = w.gradients(vals)
+        assert got.shape == (w.n_targets, m, 2)
+        # round-off: a few ulps of the largest term, times the slots summed
+        scale = np.abs(diff).max(axis=0)[:, None] * np.abs(w.weights).max()
+        bound = 1e-13 * scale * np.diff(w.start).max()
+        assert (np.abs(got - ref) <= bound).all()
+        for c in range(m):
+            assert (np.abs(w.gradients(vals[:, c])[:, 0] - got[:, c]) <= bound[c]).all()
+
+
 def test_a_kept_natural_setup_splits_as_a_call():
     """NaturalSetup with the fits kept as weights (the Decomposer's) splits
     each field as natural_decomposition does, to rounding."""

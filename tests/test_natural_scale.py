@@ -46,6 +46,85 @@ def test_spline_prefilter_kernel_is_the_numpy_filter():
     assert np.abs(grid_sampling.spline_coefficients(u[..., 0]) - b[..., 0]).max() < 1e-13 * 10
 
 
+def test_spline_prefilter_kernel_on_odd_lines_and_short_axes():
+    """The prefilter's lanes (adjacent lines per thread, the last block
+    partly past the end) and its start sum cut after SPLINE_START_TERMS
+    terms (lines longer and shorter than that) give the numpy filter's
+    full sums to round-off."""
+    rng = np.random.default_rng(1)
+    for shape in ((5, 7), (40, 3, 1), (61, 29, 5), (3, 50, 7)):
+        u = rng.standard_normal(shape) * 10.0 ** rng.integers(-2, 3, shape)
+        a = grid_sampling.spline_coefficients(u)
+        b = grid_sampling.spline_coefficients_numpy(u)
+        assert np.abs(a - b).max() < 1e-14 * np.abs(b).max()
+    assert abs(grid_sampling.SPLINE_POLE) ** grid_sampling.SPLINE_START_TERMS < 2.0 ** -56
+
+
+def test_lagrange_and_spline_gathers_take_any_columns():
+    """lagrange_at and spline_values take any number of columns (blocks of
+    SPLINE_COLUMNS read in place): the tensor cubic Lagrange interpolant is
+    exact on bicubics, each column as it is alone, and the rows go where
+    ``dest`` says."""
+    grid = free_space.Grid(RECT, 0.05)
+    nx, ny = grid.shape
+    x, y = np.meshgrid(grid.origin[0] + grid.hx * np.arange(nx),
+                       grid.origin[1] + grid.hy * np.arange(ny), indexing="ij")
+    polys = [lambda a, b, k=k: (a - 0.3 * k) ** 3 * (b + 0.1 * k) ** 2 - k * a * b + k
+             for k in range(9)]
+    u = np.stack([p(x, y) for p in polys], axis=-1)                       # (nx, ny, 9)
+    rng = np.random.default_rng(3)
+    pts = RECT.sample_interior(500, kind="random", seed=4)
+    dest = rng.permutation(len(pts))
+    got = grid_sampling.lagrange_at(grid, u, pts, dest)
+    exact = np.stack([p(pts[:, 0], pts[:, 1]) for p in polys], axis=-1)
+    assert np.abs(got[dest] - exact).max() < 1e-12 * np.abs(exact).max()
+    coef = grid_sampling.spline_coefficients(u)
+    many = grid_sampling.spline_values(grid, coef, pts, dest=dest)
+    # (to round-off: each width compiles, and rounds, its own way)
+    for c in range(u.shape[2]):
+        one = grid_sampling.lagrange_at(grid, u[..., c:c + 1], pts, dest)[:, 0]
+        assert np.abs(one - got[:, c]).max() < 1e-14 * np.abs(u[..., c]).max()
+        one = grid_sampling.at_points(grid, u[..., c], pts, dest=dest)
+        assert np.abs(one - many[:, c]).max() < 1e-14 * np.abs(u[..., c]).max()
+
+
+def _gradient_numpy(grid, u):
+    """The grid gradient as numpy: np.gradient (second order, one-sided at
+    the edges) with fourth-order central differences from 2 nodes in."""
+    g = np.empty(u.shape + (2,))
+    for axis, h in ((0, grid.hx), (1, grid.hy)):
+        d = np.gradient(u, h, axis=axis, edge_order=2)
+        v = np.moveaxis(u, axis, 0)
+        inner = np.moveaxis(d, axis, 0)
+        inner[2:-2] = (-v[4:] + 8 * v[3:-1] - 8 * v[1:-3] + v[:-4]) / (12 * h)
+        g[..., axis] = d
+    return g
+
+
+def test_grid_gradient_kernel_is_the_numpy_differences():
+    """free_space.values_and_gradients (a kernel: the values and gradients of
+    several potentials, padded by repeated edge nodes for the spline) gives
+    numpy's differences, and is exact on a cubic inside (fourth order)."""
+    grid = free_space.Grid(RECT, 0.07)
+    nx, ny = grid.shape
+    x, y = np.meshgrid(grid.origin[0] + grid.hx * np.arange(nx),
+                       grid.origin[1] + grid.hy * np.arange(ny), indexing="ij")
+    u = np.stack([np.sin(3 * x) * np.cos(2 * y), x ** 3 - 2 * x * y ** 2 + y,
+                  np.random.default_rng(2).standard_normal(grid.shape)])
+    pad = 4
+    got = free_space.values_and_gradients(grid, u, pad)
+    assert got.shape == (nx + 2 * pad, ny + 2 * pad, 3, 3)
+    for k in range(3):
+        ref = np.concatenate([u[k][..., None], _gradient_numpy(grid, u[k])], axis=-1)
+        ref = np.pad(ref, [(pad, pad), (pad, pad), (0, 0)], mode="edge")
+        assert np.abs(got[:, :, k] - ref).max() <= 1e-14 * np.abs(ref).max()
+        assert np.abs(free_space.grid_gradient(grid, u[k]) - ref[pad:-pad, pad:-pad, 1:]).max() \
+            <= 1e-14 * np.abs(ref).max()
+    exact = np.stack([3 * x ** 2 - 2 * y ** 2, -4 * x * y + 1], axis=-1)
+    inner = got[pad + 2:-pad - 2, pad + 2:-pad - 2, 1, 1:]
+    assert np.abs(inner - exact[2:-2, 2:-2]).max() < 1e-12
+
+
 def test_batched_fft_convolution_is_each_single_one():
     grid = free_space.Grid(RECT, 0.04)
     d = np.random.default_rng(1).standard_normal((2,) + grid.shape)

@@ -8,7 +8,8 @@ over the cell centres of a :class:`Grid` covering the domain, by zero-padded
 FFT in O(M log M) for M cells (:func:`convolve_fft`) or by direct summation
 in a Taichi kernel (:func:`convolve_direct`, O(M^2), the exact reference of
 the same sum), the cell's own integral of G on the diagonal; the potentials'
-gradients by fourth-order differences on the grid (:func:`grid_gradient`).
+gradients by fourth-order differences on the grid (:func:`grid_gradient`; with
+the values, padded for the spline, in one kernel: :func:`values_and_gradients`).
 """
 import math
 import os
@@ -455,14 +456,63 @@ def convolve_direct(grid: Grid, density: np.ndarray, bitwise_log: bool | None = 
     return out.to_numpy().astype(np.float64).reshape(grid.shape)
 
 
+@ti.func
+def _difference(u: ti.template(), k, i, j, n, h, di: ti.template(), dj: ti.template()):
+    """The derivative of u[k] at node (i, j) along the axis (di, dj) of ``n``
+    nodes spaced ``h``: fourth-order central differences, second order on the
+    two outermost nodes (one-sided on the edge ones; numpy.gradient's
+    edge_order=2 formulas)."""
+    p = i * di + j * dj
+    d = ti.cast(0.0, ti.f64)
+    if p == 0:
+        d = (-1.5 / h) * u[k, i, j] + (2.0 / h) * u[k, i + di, j + dj] \
+            + (-0.5 / h) * u[k, i + 2 * di, j + 2 * dj]
+    elif p == n - 1:
+        d = (0.5 / h) * u[k, i - 2 * di, j - 2 * dj] + (-2.0 / h) * u[k, i - di, j - dj] \
+            + (1.5 / h) * u[k, i, j]
+    elif p >= 2 and p <= n - 3:
+        d = (-u[k, i + 2 * di, j + 2 * dj] + 8.0 * u[k, i + di, j + dj]
+             - 8.0 * u[k, i - di, j - dj] + u[k, i - 2 * di, j - 2 * dj]) / (12.0 * h)
+    else:
+        d = (u[k, i + di, j + dj] - u[k, i - di, j - dj]) / (2.0 * h)
+    return d
+
+
+@ti.kernel
+def _values_and_gradients(u: ti.types.ndarray(), hx: ti.f64, hy: ti.f64, pad: ti.i32,
+                          out: ti.types.ndarray()):
+    """out[I, J, k, :] = u[k] and its grid gradient (:func:`_difference`) at
+    the node (I - pad, J - pad) clamped into the grid (the edge nodes'
+    values repeated ``pad`` nodes beyond it)."""
+    m, nx, ny = u.shape[0], u.shape[1], u.shape[2]
+    for I, J in ti.ndrange(out.shape[0], out.shape[1]):
+        i = ti.math.clamp(I - pad, 0, nx - 1)
+        j = ti.math.clamp(J - pad, 0, ny - 1)
+        for k in range(m):
+            out[I, J, k, 0] = u[k, i, j]
+            out[I, J, k, 1] = _difference(u, k, i, j, nx, hx, 1, 0)
+            out[I, J, k, 2] = _difference(u, k, i, j, ny, hy, 0, 1)
+
+
+def values_and_gradients(grid: Grid, u: np.ndarray, pad: int = 0) -> np.ndarray:
+    """(nx + 2 pad, ny + 2 pad, m, 3) the potentials ``u`` (m, nx, ny) and their
+    gradients (:func:`grid_gradient`) side by side at each node, the edge
+    nodes' repeated ``pad`` nodes beyond the grid (numpy.pad's ``edge``): the
+    columns the spline through them all takes.  A Taichi kernel, one pass."""
+    runtime.ensure_init()
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    nx, ny = grid.shape
+    if u.ndim != 3 or u.shape[1:] != (nx, ny):
+        raise ValueError(f"potentials of shape (m, {nx}, {ny}) expected, got {u.shape}")
+    if min(nx, ny) < 3:
+        raise ValueError(f"the grid's differences need 3 nodes a side, got {nx} x {ny}")
+    out = np.empty((nx + 2 * pad, ny + 2 * pad, len(u), 3))
+    if len(u):
+        _values_and_gradients(u, grid.hx, grid.hy, int(pad), out)
+    return out
+
+
 def grid_gradient(grid: Grid, u: np.ndarray) -> np.ndarray:
     """(nx, ny, 2) fourth-order central differences (second order on the two
-    outermost cells)."""
-    g = np.empty(u.shape + (2,))
-    for axis, h in ((0, grid.hx), (1, grid.hy)):
-        d = np.gradient(u, h, axis=axis, edge_order=2)
-        v = np.moveaxis(u, axis, 0)
-        inner = np.moveaxis(d, axis, 0)
-        inner[2:-2] = (-v[4:] + 8 * v[3:-1] - 8 * v[1:-3] + v[:-4]) / (12 * h)
-        g[..., axis] = d
-    return g
+    outermost cells; :func:`values_and_gradients`)."""
+    return values_and_gradients(grid, np.asarray(u)[None])[:, :, 0, 1:].copy()

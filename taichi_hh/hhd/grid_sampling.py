@@ -24,34 +24,69 @@ SPLINE_POLE = math.sqrt(3.0) - 2.0
 SPLINE_PAD = 12
 
 
+#: the terms of the causal filter's mirrored start sum taken: z^i beyond
+#: them is below 2^-56 (the rest of the sum is under the round-off of its
+#: first terms)
+SPLINE_START_TERMS = math.ceil(math.log(2.0 ** -56) / math.log(abs(SPLINE_POLE)))
+#: adjacent grid lines one thread of :func:`_spline_filter` filters together
+#: (their values share cache lines)
+SPLINE_LANES = 3
+
+
 @ti.kernel
-def _spline_filter(c: ti.types.ndarray(), z: ti.f64, zn: ti.f64):
+def _spline_filter(c: ti.types.ndarray(), A: ti.i32, n: ti.i32, B: ti.i32, z: ti.f64,
+                   zn: ti.f64, terms: ti.i32, lanes: ti.template()):
     """The cubic B-spline prefilter in place along the middle axis of ``c``
-    (A, n, B), every line (a, :, b) in parallel: the gain, the causal filter
-    started exactly for the half-sample symmetric extension, the anticausal
-    filter (as :func:`spline_coefficients_numpy`).  ``zn`` is z ** n, from
-    the host: SPIR-V (Vulkan) has no f64 pow."""
-    A, n, B = c.shape[0], c.shape[1], c.shape[2]
+    (A, n, B, flat), the lines (a, :, b) in parallel, ``lanes`` adjacent ones
+    per thread (their values share cache lines): the gain, the causal filter
+    started exactly for the half-sample symmetric extension (its sum over the
+    mirrored line cut after ``terms`` terms), the anticausal filter (as
+    :func:`spline_coefficients_numpy`); the running value of each recursion
+    kept in a register, the offsets stepped (no 3-d index arithmetic).
+    ``zn`` is z ** n, from the host: SPIR-V (Vulkan) has no f64 pow."""
     gain = (1.0 - z) * (1.0 - 1.0 / z)
-    for t in range(A * B):
-        a = t // B
-        b = t - a * B
-        for i in range(n):
-            c[a, i, b] *= gain
+    blocks = (B + lanes - 1) // lanes
+    for t in range(A * blocks):
+        a = t // blocks
+        b0 = (t - a * blocks) * lanes
+        # a lane past the last line reads it again and writes nothing
+        base = ti.Vector.zero(ti.i64, lanes)
+        for w in ti.static(range(lanes)):
+            base[w] = ti.cast(a, ti.i64) * n * B + ti.min(b0 + w, B - 1)
         # causal start: sum_i z^i c_i over the mirrored sequence, in closed form
-        mirror = ti.f64(0.0)
+        mirror = ti.Vector.zero(ti.f64, lanes)
         zi = ti.f64(1.0)
-        for i in range(1, n):
+        for i in range(1, ti.min(n, terms)):
             zi *= z
-            mirror += zi * (c[a, i, b] + zn * c[a, n - 1 - i, b])
-        c0 = c[a, 0, b]
-        c[a, 0, b] = c0 + z / (1.0 - zn * zn) * (c0 + zn * c[a, n - 1, b] + mirror)
+            up = ti.cast(i, ti.i64) * B
+            down = ti.cast(n - 1 - i, ti.i64) * B
+            for w in ti.static(range(lanes)):
+                mirror[w] += zi * (gain * c[base[w] + up] + zn * (gain * c[base[w] + down]))
+        last = ti.cast(n - 1, ti.i64) * B
+        prev = ti.Vector.zero(ti.f64, lanes)
+        for w in ti.static(range(lanes)):
+            c0 = gain * c[base[w]]
+            prev[w] = c0 + z / (1.0 - zn * zn) * (c0 + zn * (gain * c[base[w] + last])
+                                                 + mirror[w])
+            if b0 + w < B:
+                c[base[w]] = prev[w]
+        off = ti.cast(0, ti.i64)
         for i in range(1, n):
-            c[a, i, b] += z * c[a, i - 1, b]
-        c[a, n - 1, b] *= z / (z - 1.0)                  # anticausal start
+            off += B
+            for w in ti.static(range(lanes)):
+                prev[w] = gain * c[base[w] + off] + z * prev[w]
+                if b0 + w < B:
+                    c[base[w] + off] = prev[w]
+        prev *= z / (z - 1.0)                             # anticausal start
+        for w in ti.static(range(lanes)):
+            if b0 + w < B:
+                c[base[w] + off] = prev[w]
         for q in range(1, n):
-            i = n - 1 - q
-            c[a, i, b] = z * (c[a, i + 1, b] - c[a, i, b])
+            off -= B
+            for w in ti.static(range(lanes)):
+                prev[w] = z * (prev[w] - c[base[w] + off])
+                if b0 + w < B:
+                    c[base[w] + off] = prev[w]
 
 
 def spline_coefficients(u: np.ndarray) -> np.ndarray:
@@ -62,12 +97,23 @@ def spline_coefficients(u: np.ndarray) -> np.ndarray:
     runtime.ensure_init()
     pad = [(SPLINE_PAD, SPLINE_PAD)] * 2 + [(0, 0)] * (u.ndim - 2)
     c = np.pad(np.asarray(u, dtype=np.float64), pad, mode="edge")
-    c3 = c.reshape(c.shape[0], c.shape[1], -1)
-    if c3.size:
-        z = SPLINE_POLE
-        _spline_filter(c3.reshape(1, c3.shape[0], -1), z, z ** c3.shape[0])   # along x
-        _spline_filter(c3, z, z ** c3.shape[1])                               # along y
+    prefilter(c)
     return c
+
+
+def prefilter(c: np.ndarray) -> None:
+    """:func:`spline_coefficients`' filters in place on the padded grid ``c``
+    (NX, NY[, m], C-contiguous float64)."""
+    if not (c.flags.c_contiguous and c.dtype == np.float64):
+        raise ValueError("the spline prefilter takes a C-contiguous float64 array")
+    if c.size:
+        runtime.ensure_init()
+        z = SPLINE_POLE
+        nx, ny = c.shape[0], c.shape[1]
+        m = c.size // (nx * ny)
+        flat = c.reshape(-1)
+        _spline_filter(flat, 1, nx, ny * m, z, z ** nx, SPLINE_START_TERMS, SPLINE_LANES)
+        _spline_filter(flat, nx, ny, m, z, z ** ny, SPLINE_START_TERMS, SPLINE_LANES)
 
 
 def spline_coefficients_numpy(u: np.ndarray) -> np.ndarray:
@@ -113,10 +159,11 @@ def _cubic_weights(t):
 @ti.kernel
 def _tensor_gather(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64, y0: ti.f64,
                    hx: ti.f64, hy: ti.f64, pad: ti.template(), weights: ti.template(),
-                   m: ti.template(), scatter: ti.template(), dest: ti.types.ndarray(),
-                   out: ti.types.ndarray()):
-    """out[p, :] (with ``scatter``: out[dest[p], :]) = the tensor-product
-    4 x 4 interpolant of ``coef`` (NX, NY, m) at point p: ``weights(t)`` of
+                   m: ti.template(), col0: ti.i32, scatter: ti.template(),
+                   dest: ti.types.ndarray(), out: ti.types.ndarray()):
+    """out[p, col0:col0 + m] (with ``scatter``: row dest[p]) = the
+    tensor-product 4 x 4 interpolant of the columns col0 .. col0 + m - 1 of
+    ``coef`` (NX, NY, M) at point p: ``weights(t)`` of
     the fractional position along each axis, the knots offset by ``pad``
     cells (indices clamped: ``nearest``); the ``m`` columns of a knot read
     together.  The cubic B-spline (:func:`_cubic_weights`, SPLINE_PAD) and
@@ -139,13 +186,13 @@ def _tensor_gather(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64
             for b in ti.static(range(4)):
                 j = ti.math.clamp(iy + b - 1, 0, NY - 1)
                 for col in ti.static(range(m)):
-                    row[col] += wy[b] * coef[i, j, col]
+                    row[col] += wy[b] * coef[i, j, col0 + col]
             acc += wx[a] * row
         row_out = p
         if ti.static(scatter):
             row_out = ti.cast(dest[p], ti.i32)
         for col in ti.static(range(m)):
-            out[row_out, col] = acc[col]
+            out[row_out, col0 + col] = acc[col]
 
 
 
@@ -156,29 +203,39 @@ SPLINE_COLUMNS = 6
 
 def at_points(grid: Grid, u: np.ndarray, points, *, dest=None) -> np.ndarray:
     """Grid values ``u`` (nx, ny[, m]) interpolated at ``points`` by the cubic
-    B-spline through them (:func:`spline_coefficients`; the tensor product
-    of the 4 x 4 knots around each point, one gather per point).  ``dest``:
-    the row of the result each point's values go to (a permutation)."""
+    B-spline through them (:func:`spline_coefficients`, :func:`spline_values`).
+    ``dest``: the row of the result each point's values go to (a permutation)."""
+    return spline_values(grid, spline_coefficients(u), points, dest=dest)
+
+
+def spline_values(grid: Grid, coef: np.ndarray, points, *, dest=None) -> np.ndarray:
+    """The cubic B-spline of the coefficients ``coef`` (the grid padded by
+    SPLINE_PAD nodes a side, (NX, NY[, m]): :func:`spline_coefficients` or
+    :func:`prefilter`) at ``points``: the tensor product of the 4 x 4 knots
+    around each point, one gather per point.  ``dest``: the row of the
+    result each point's values go to (a permutation)."""
+    c3 = coef if coef.ndim == 3 else coef[..., None]
+    out = _tensor_at(grid, c3, points, SPLINE_PAD, _cubic_weights, dest)
+    return out if coef.ndim == 3 else out[:, 0]
+
+
+def _tensor_at(grid: Grid, c3: np.ndarray, points, pad, weights, dest) -> np.ndarray:
+    """(N, m) :func:`_tensor_gather` of the columns of ``c3`` (NX, NY, m),
+    SPLINE_COLUMNS a launch (the kernel compiles once per width; a series'
+    many columns go through in blocks of them, read in place)."""
     runtime.ensure_init()
-    c = spline_coefficients(u)
-    c3 = c if c.ndim == 3 else c[..., None]
+    c3 = np.ascontiguousarray(c3, dtype=np.float64)
     pts = np.ascontiguousarray(points, dtype=np.float64)
     m = c3.shape[2]
     out = np.zeros((len(pts), m))
     if len(pts):
         scatter = dest is not None
         rows = np.ascontiguousarray(dest, dtype=np.int64) if scatter else np.zeros(1, np.int64)
-        # at most SPLINE_COLUMNS columns a launch (the kernel's width compiles
-        # once per width; a series' many columns go through in slices)
         for a in range(0, m, SPLINE_COLUMNS):
             b = min(a + SPLINE_COLUMNS, m)
-            part = out if (a, b) == (0, m) else np.zeros((len(pts), b - a))
-            _tensor_gather(c3 if (a, b) == (0, m) else np.ascontiguousarray(c3[..., a:b]),
-                           pts, float(grid.origin[0]), float(grid.origin[1]), grid.hx, grid.hy,
-                           SPLINE_PAD, _cubic_weights, b - a, scatter, rows, part)
-            if part is not out:
-                out[:, a:b] = part
-    return out if c.ndim == 3 else out[:, 0]
+            _tensor_gather(c3, pts, float(grid.origin[0]), float(grid.origin[1]), grid.hx,
+                           grid.hy, pad, weights, b - a, a, scatter, rows, out)
+    return out
 
 
 #: points within this many cells of the boundary take their gradient from a
@@ -345,14 +402,7 @@ def _lagrange_weights(t):
 
 
 def lagrange_at(grid: Grid, u: np.ndarray, points, dest) -> np.ndarray:
-    """(N, 2): the tensor cubic Lagrange interpolant of the two columns of
-    ``u`` (nx, ny, 2) at ``points`` from the 4 x 4 nodes around each (indices
+    """(N, m): the tensor cubic Lagrange interpolant of the columns of ``u``
+    (nx, ny, m) at ``points`` from the 4 x 4 nodes around each (indices
     clamped; :func:`_tensor_gather`), point p's values in row ``dest[p]``."""
-    runtime.ensure_init()
-    pts = np.ascontiguousarray(points, dtype=np.float64)
-    out = np.zeros((len(pts), 2))
-    if len(pts):
-        _tensor_gather(np.ascontiguousarray(u, dtype=np.float64), pts, float(grid.origin[0]),
-                       float(grid.origin[1]), grid.hx, grid.hy, 0.0, _lagrange_weights, 2, True,
-                       np.ascontiguousarray(dest, dtype=np.int64), out)
-    return out
+    return _tensor_at(grid, u, points, 0.0, _lagrange_weights, dest)

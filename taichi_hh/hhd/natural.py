@@ -38,9 +38,10 @@ import numpy as np
 
 from .cut_cells import (MULTIPOLE_ORDER, cut_cells, multipole_density, multipole_patches,
                         near_field_correction, part_moments)
-from .free_space import Grid, axis_rectangle, convolve_direct, convolve_fft, grid_gradient
-from .grid_sampling import (ONE_SIDED_CELLS, at_points, lagrange_at, one_sided_gradient,
-                            one_sided_weights)
+from .free_space import (Grid, axis_rectangle, convolve_direct, convolve_fft,
+                         values_and_gradients)
+from .grid_sampling import (ONE_SIDED_CELLS, SPLINE_PAD, lagrange_at, one_sided_gradient,
+                            one_sided_weights, prefilter, spline_values)
 from .node_fits import FitWeights, PointBins, fit_gradients, reconstruct_on_grid
 from .options import NATURAL_EVALUATIONS
 from .rotation import J
@@ -142,13 +143,13 @@ def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap,
     :func:`~.grid_sampling.one_sided_weights`)."""
     grid = cells.grid
     m = len(u)
-    # every potential and its grid gradient, one spline through them all
-    cols = np.empty(grid.shape + (3 * m,))
-    for k in range(m):
-        cols[..., 3 * k] = u[k]
-        cols[..., 3 * k + 1:3 * k + 3] = grid_gradient(grid, u[k])
+    # every potential and its grid gradient, one spline through them all: the
+    # columns written padded for the prefilter, filtered in place
+    coef = values_and_gradients(grid, u, SPLINE_PAD).reshape(
+        grid.nx + 2 * SPLINE_PAD, grid.ny + 2 * SPLINE_PAD, 3 * m)
+    prefilter(coef)
     sp = binned.points
-    at = at_points(grid, cols, sp, dest=binned.order)           # in the input order
+    at = spline_values(grid, coef, sp, dest=binned.order)       # in the input order
     lap("interpolate")
     # the gradient within ONE_SIDED_CELLS of the boundary from the fit
     if one_sided is None:

@@ -493,24 +493,62 @@ _NO_INDEX = np.zeros(1, dtype=np.int32)
 _NO_WEIGHTS = np.zeros((1, 2))
 
 
+#: the column widths :func:`_apply_weights` compiles (each once): a call's
+#: columns go through in blocks of the widest that fits, the rest narrower
+APPLY_WIDTHS = (8, 4, 2, 1)
+#: blocks at least this wide sum each column in slot order, narrower ones
+#: let LLVM's loop vectorizer split the sum over slots into partial sums
+#: (at 1-2 columns 1.5-2x faster that way, at 4-8 2-3x slower: it loads
+#: the values one at a time; docs/notes/series.md)
+APPLY_IN_ORDER = 4
+
+
+@ti.func
+def _add_slot(s, widx: ti.template(), wval: ti.template(), values: ti.template(), c0, ref,
+              gx, gy, width: ti.template()):
+    """One slot's terms: its weights times the block's values less ``ref``."""
+    k = widx[s]
+    ax = wval[s, 0]
+    ay = wval[s, 1]
+    for w in ti.static(range(width)):
+        v = values[k, c0 + w] - ref[w]
+        gx[w] += ax * v
+        gy[w] += ay * v
+    return k, gx, gy
+
+
 @ti.kernel
 def _apply_weights(wstart: ti.types.ndarray(), widx: ti.types.ndarray(),
                    wval: ti.types.ndarray(), wref: ti.types.ndarray(),
-                   values: ti.types.ndarray(), out: ti.types.ndarray()):
+                   values: ti.types.ndarray(), out: ti.types.ndarray(), width: ti.template(),
+                   col0: ti.i32, blocks: ti.i32):
     """out[t, c, :] = the sum over target t's slots of the weights times
     column c of ``values`` (N, m) less its value at the fit's reference
-    point (as the fit subtracts it: the same rounding): one gather per
-    target."""
-    for t, c in ti.ndrange(out.shape[0], out.shape[1]):
-        gx = 0.0
-        gy = 0.0
-        ref = values[wref[t], c]
-        for s in range(wstart[t], wstart[t + 1]):
-            v = values[widx[s], c] - ref
-            gx += wval[s, 0] * v
-            gy += wval[s, 1] * v
-        out[t, c, 0] = gx
-        out[t, c, 1] = gy
+    point (as the fit subtracts it: the same rounding), for the ``blocks``
+    blocks of ``width`` columns from ``col0``: one gather per target and
+    block, a slot's index and weights read once for the block's columns
+    (adjacent in a row of ``values``)."""
+    for t, blk in ti.ndrange(out.shape[0], blocks):
+        c0 = col0 + blk * width
+        gx = ti.Vector.zero(ti.f64, width)
+        gy = ti.Vector.zero(ti.f64, width)
+        ref = ti.Vector.zero(ti.f64, width)
+        kref = wref[t]
+        for w in ti.static(range(width)):
+            ref[w] = values[kref, c0 + w]
+        if ti.static(width >= APPLY_IN_ORDER):
+            s = wstart[t]
+            end = wstart[t + 1]
+            while s < end:
+                k, gx, gy = _add_slot(s, widx, wval, values, c0, ref, gx, gy, width)
+                # k >= 0: a step of 1 that the loop vectorizer cannot count
+                s += 1 + (k >> 31)
+        else:
+            for s in range(wstart[t], wstart[t + 1]):
+                _, gx, gy = _add_slot(s, widx, wval, values, c0, ref, gx, gy, width)
+        for w in ti.static(range(width)):
+            out[t, c0 + w, 0] = gx[w]
+            out[t, c0 + w, 1] = gy[w]
 
 
 class FitWeights:
@@ -583,5 +621,11 @@ class FitWeights:
         v = v[:, None] if v.ndim == 1 else v
         out = np.zeros((self.n_targets, v.shape[1], 2))
         if self.n_targets and v.shape[1]:
-            _apply_weights(self.start, self.index, self.weights, self.reference, v, out)
+            col = 0
+            for width in APPLY_WIDTHS:
+                blocks = (v.shape[1] - col) // width
+                if blocks:
+                    _apply_weights(self.start, self.index, self.weights, self.reference, v,
+                                   out, width, col, blocks)
+                    col += blocks * width
         return out
