@@ -336,18 +336,17 @@ class NaturalSetup:
         at = _at_points(cells, u, binned, self.near, lap, self.one_sided)  # (N, 2k, 3)
         # div v and curl v at the points: the nodes' values inside, the fit at
         # the point near the boundary (the nodes around it partly outside)
-        dc_grid = np.zeros((grid.nx * grid.ny, 2))
-        dcs = []
-        for s in range(k):
-            dc_grid[live, 0], dc_grid[live, 1] = div[:, s], curl[:, s]
-            dcs.append(lagrange_at(grid, dc_grid.reshape(grid.shape + (2,)), binned.points,
-                                   binned.order))
+        # (every field's two columns in one interpolation)
+        dc_grid = np.zeros((grid.nx * grid.ny, k, 2))
+        dc_grid[live, :, 0], dc_grid[live, :, 1] = div, curl
+        dc = lagrange_at(grid, dc_grid.reshape(grid.shape + (2 * k,)), binned.points,
+                         binned.order).reshape(len(binned.order), k, 2)
         if self.near.size:
             gn = self.gradients("near", vs).reshape(len(self.near), k, 2, 2)
             rows = binned.order[self.near]
-            for s in range(k):
-                dcs[s][rows] = np.c_[gn[:, s, 0, 0] + gn[:, s, 1, 1],
-                                     gn[:, s, 1, 0] - gn[:, s, 0, 1]]
+            dc[rows, :, 0] = gn[:, :, 0, 0] + gn[:, :, 1, 1]
+            dc[rows, :, 1] = gn[:, :, 1, 0] - gn[:, :, 0, 1]
+        dcs = [dc[:, s] for s in range(k)]
         lap("divergence")
         check = self.check
         splits = [NaturalSplit(phi=at[:, 2 * s, 0].copy(), d=at[:, 2 * s, 1:].copy(),
