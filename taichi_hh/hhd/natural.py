@@ -346,31 +346,32 @@ class NaturalSetup:
             rows = binned.order[self.near]
             dc[rows, :, 0] = gn[:, :, 0, 0] + gn[:, :, 1, 1]
             dc[rows, :, 1] = gn[:, :, 1, 0] - gn[:, :, 0, 1]
-        dcs = [dc[:, s] for s in range(k)]
         lap("divergence")
+        # each quantity of every field in one copy, field-major (each field's
+        # rows contiguous)
+        phi = np.ascontiguousarray(at[:, 0::2, 0].T)                    # (k, N)
+        psi = np.ascontiguousarray(at[:, 1::2, 0].T)
+        d = np.ascontiguousarray(at[:, 0::2, 1:].transpose(1, 0, 2))     # (k, N, 2)
+        grad_psi = np.ascontiguousarray(at[:, 1::2, 1:].transpose(1, 0, 2))
+        dc = np.ascontiguousarray(dc.transpose(1, 2, 0))                 # (k, 2, N)
         check = self.check
-        splits = [NaturalSplit(phi=at[:, 2 * s, 0].copy(), d=at[:, 2 * s, 1:].copy(),
-                               psi=at[:, 2 * s + 1, 0].copy(),
-                               grad_psi=at[:, 2 * s + 1, 1:].copy(),
-                               divergence=dcs[s][:, 0].copy(), curl=dcs[s][:, 1].copy(),
-                               volume=self.volume, grid=grid,
-                               mean_fit_points=float(count.mean()) if count.size else 0.0,
-                               _check_scale=float(np.hypot(div[check, s],
-                                                           curl[check, s]).mean()))
-                  for s in range(k)]
+        check_scale = np.hypot(div[check], curl[check]).mean(axis=0)    # (k,)
+        mean_fit_points = float(count.mean()) if count.size else 0.0
         lap("gather")
         # h = v - d - r of every field, and the harmonic check's fits of h at
         # the check nodes for all of them in one gather
-        hs = np.empty((len(binned.order), 2 * k))
-        for s, split in enumerate(splits):
-            split.harmonic = np.asarray(snapshots[s], dtype=np.float64) - split.d \
-                - J(split.grad_psi)
-            hs[:, 2 * s:2 * s + 2] = split.harmonic[binned.order]
+        v = np.stack([np.asarray(vec, dtype=np.float64) for vec in snapshots])   # (k, N, 2)
+        harmonic = v - d - J(grad_psi)
+        hs = harmonic[:, binned.order].transpose(1, 0, 2).reshape(len(binned.order), 2 * k)
         gh = self.gradients("check", hs).reshape(-1, k, 2, 2)
-        for s, split in enumerate(splits):
-            g = gh[:, s]
-            split._harmonic_means = (np.abs(g[:, 0, 0] + g[:, 1, 1]).mean(),
-                                     np.abs(g[:, 1, 0] - g[:, 0, 1]).mean())
+        div_h = np.abs(gh[:, :, 0, 0] + gh[:, :, 1, 1]).mean(axis=0)    # (k,)
+        curl_h = np.abs(gh[:, :, 1, 0] - gh[:, :, 0, 1]).mean(axis=0)
+        splits = [NaturalSplit(phi=phi[s], d=d[s], psi=psi[s], grad_psi=grad_psi[s],
+                               divergence=dc[s, 0], curl=dc[s, 1], harmonic=harmonic[s],
+                               volume=self.volume, grid=grid, mean_fit_points=mean_fit_points,
+                               _check_scale=float(check_scale[s]),
+                               _harmonic_means=(float(div_h[s]), float(curl_h[s])))
+                  for s in range(k)]
         lap("harmonic")
         for split in splits:
             split.seconds = {name: t / k for name, t in lap.seconds.items()}
