@@ -329,8 +329,9 @@ def grid_noise_sigma(lat, samples: int = NOISE_SAMPLES, *, geometry=None) -> flo
                            vec[flat], samples)
     # both components padded in one array, the deviations of both in one
     padded = _padded(np.stack([lat.u, lat.v]), NOISE_REACH, NOISE_REACH, 0.0).reshape(2, -1)
-    # one matrix-vector product over both components' rows (2 S, 20)
-    fitted = (padded[:, rows].reshape(-1, rows.shape[1]) @ filt).reshape(2, -1)
+    # both components' fits in one product, by einsum: no BLAS call, whose
+    # threads would spin beside Taichi's pinned workers after it
+    fitted = np.einsum("csk,k->cs", padded[:, rows], filt)                # (2, S)
     deviations = padded[:, centre] - fitted                              # (2, S)
     return 1.4826 * float(median(np.abs(deviations, out=deviations).ravel()))
 
