@@ -266,6 +266,7 @@ class NaturalSetup:
             i, j = np.divmod(live, grid.ny)
             check &= (i % k == 0) & (j % k == 0)
         self.check = check
+        self.check_rows = np.flatnonzero(check)
         self.volume = _volumes(cells, binned)
         lap("setup")
         self.fits = self.one_sided = None
@@ -354,8 +355,10 @@ class NaturalSetup:
         d = np.ascontiguousarray(at[:, 0::2, 1:].transpose(1, 0, 2))     # (k, N, 2)
         grad_psi = np.ascontiguousarray(at[:, 1::2, 1:].transpose(1, 0, 2))
         dc = np.ascontiguousarray(dc.transpose(1, 2, 0))                 # (k, 2, N)
-        check = self.check
-        check_scale = np.hypot(div[check], curl[check]).mean(axis=0)    # (k,)
+        # the check's scale: mean sqrt(div v^2 + curl v^2) over its nodes
+        at_check = self.check_rows
+        check_scale = np.sqrt(div[at_check] ** 2 + curl[at_check] ** 2).sum(axis=0) \
+            / max(len(at_check), 1)                                     # (k,)
         mean_fit_points = float(count.mean()) if count.size else 0.0
         lap("gather")
         # h = v - d - r of every field, and the harmonic check's fits of h at
@@ -364,8 +367,9 @@ class NaturalSetup:
         harmonic = v - d - J(grad_psi)
         hs = harmonic[:, binned.order].transpose(1, 0, 2).reshape(len(binned.order), 2 * k)
         gh = self.gradients("check", hs).reshape(-1, k, 2, 2)
-        div_h = np.abs(gh[:, :, 0, 0] + gh[:, :, 1, 1]).mean(axis=0)    # (k,)
-        curl_h = np.abs(gh[:, :, 1, 0] - gh[:, :, 0, 1]).mean(axis=0)
+        n_check = max(len(gh), 1)
+        div_h = np.abs(gh[:, :, 0, 0] + gh[:, :, 1, 1]).sum(axis=0) / n_check   # (k,)
+        curl_h = np.abs(gh[:, :, 1, 0] - gh[:, :, 0, 1]).sum(axis=0) / n_check
         splits = [NaturalSplit(phi=phi[s], d=d[s], psi=psi[s], grad_psi=grad_psi[s],
                                divergence=dc[s, 0], curl=dc[s, 1], harmonic=harmonic[s],
                                volume=self.volume, grid=grid, mean_fit_points=mean_fit_points,
