@@ -325,7 +325,9 @@ class NaturalSetup:
         # the snapshots' components side by side: columns 2 s, 2 s + 1
         vs = np.empty((len(binned.order), 2 * k))
         for s, vec in enumerate(snapshots):
-            vs[:, 2 * s:2 * s + 2] = np.asarray(vec, dtype=np.float64)[binned.order]
+            # np.take: a tenth of fancy indexing's time for rows
+            vs[:, 2 * s:2 * s + 2] = np.take(np.asarray(vec, dtype=np.float64), binned.order,
+                                             axis=0)
         g, count = self.gradients("nodes", vs, counts=True)
         g = g.reshape(len(live), k, 2, 2)
         div = g[:, :, 0, 0] + g[:, :, 1, 1]                       # (live, k)
@@ -365,7 +367,9 @@ class NaturalSetup:
         # the check nodes for all of them in one gather
         v = np.stack([np.asarray(vec, dtype=np.float64) for vec in snapshots])   # (k, N, 2)
         harmonic = v - d - J(grad_psi)
-        hs = harmonic[:, binned.order].transpose(1, 0, 2).reshape(len(binned.order), 2 * k)
+        hs = np.empty((len(binned.order), 2 * k))
+        for s in range(k):
+            hs[:, 2 * s:2 * s + 2] = np.take(harmonic[s], binned.order, axis=0)
         gh = self.gradients("check", hs).reshape(-1, k, 2, 2)
         n_check = max(len(gh), 1)
         div_h = np.abs(gh[:, :, 0, 0] + gh[:, :, 1, 1]).sum(axis=0) / n_check   # (k,)
