@@ -306,7 +306,8 @@ def multipole_patches(grid, moments: np.ndarray) -> np.ndarray:
     order = moments.shape[1] - 1
     rhs = moments - moments[:, :1] * cell_moments(grid.hx, grid.hy, order)[None, :]
     rhs = np.concatenate([rhs.real, rhs.imag[:, 1:]], axis=1)
-    return (rhs @ patch_solver(grid.hx, grid.hy, order).T).reshape(-1, 5, 5)
+    # einsum, not @: no BLAS call (its threads spin beside Taichi's workers)
+    return np.einsum("kc,pc->kp", rhs, patch_solver(grid.hx, grid.hy, order)).reshape(-1, 5, 5)
 
 
 def multipole_density(grid, cut: CutCells, patches: np.ndarray, density) -> np.ndarray:
@@ -348,7 +349,7 @@ def near_field_correction(grid, cut: CutCells, patches, density) -> np.ndarray:
     windows = windows[:, :, ::-1, ::-1].reshape(n_off * n_off, 25)
     charge = cut.area / (grid.hx * grid.hy)
     grid_rep = charge[:, None] * kern[2:-2, 2:-2].reshape(1, -1) \
-        + patches.reshape(K, 25) @ windows.T                             # (K, n_off^2)
+        + np.einsum("kc,oc->ko", patches.reshape(K, 25), windows)       # (K, n_off^2)
     # the exact integrals: the segments about their cell's centre, every target
     a = cut.starts - centre[owner]
     b = cut.ends - centre[owner]

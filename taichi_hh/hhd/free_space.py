@@ -153,7 +153,8 @@ class Grid:
             inside = domain.contains(sp).reshape(len(cut), -1)
             frac[cut] = inside.mean(axis=1)
             count = inside.sum(axis=1)
-            offset[cut] = (inside @ offs) / np.maximum(count, 1)[:, None]
+            offset[cut] = np.einsum("ks,sc->kc", inside.astype(np.float64), offs) \
+                / np.maximum(count, 1)[:, None]
         return frac, offset, centre_in
 
     def self_integral(self) -> float:

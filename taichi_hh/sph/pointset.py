@@ -52,7 +52,9 @@ def close_pair(points, tolerance: float = 0.0):
     n = len(pts)
     if n < 2:
         return None
-    proj = pts @ _SORT_DIRECTION
+    # elementwise, not pts @ direction: a BLAS call this long wakes
+    # OpenBLAS's threads, which spin beside Taichi's pinned workers after it
+    proj = pts[:, 0] * _SORT_DIRECTION[0] + pts[:, 1] * _SORT_DIRECTION[1]
     order = np.argsort(proj)                  # (a third of a stable sort's time)
     sp = proj[order]
     # the projections' rounding: a pair tolerance apart may differ a little more
@@ -65,7 +67,7 @@ def close_pair(points, tolerance: float = 0.0):
     in_run[1:] |= close
     run = np.concatenate([[0], np.cumsum(~close)])[in_run]
     idx = order[in_run]
-    across = pts[idx] @ np.array([-_SORT_DIRECTION[1], _SORT_DIRECTION[0]])
+    across = pts[idx, 1] * _SORT_DIRECTION[0] - pts[idx, 0] * _SORT_DIRECTION[1]
     by = np.lexsort((across, run))
     idx, run, across = idx[by], run[by], across[by]
     tol2 = float(tolerance) ** 2
