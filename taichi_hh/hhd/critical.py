@@ -296,11 +296,17 @@ def strength_scale(res, edge_distance=None) -> float:
     if not ok.any():
         return 0.0
     v = np.asarray(res.vectors, dtype=np.float64)
+    return scale_of(np.stack([div[ok], curl[ok]]), v[:, 0], v[:, 1], float(res.stats["spacing"]))
+
+
+def scale_of(abs_div_curl: np.ndarray, u: np.ndarray, v: np.ndarray, spacing: float) -> float:
+    """:func:`strength_scale` of the rows |div v|, |curl v| (2, n) already
+    chosen and the field's components ``u``, ``v`` (the points it reads)."""
     # the largest speed by the squares (np.hypot's guard costs five times as
     # much; a speed near 1e154 in any units is not data)
-    speed = float(np.sqrt(np.nanmax(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]))) if len(v) else 0.0
-    both = linear_percentile(np.stack([div[ok], curl[ok]]), SCALE_PERCENTILE)
-    return max(float(both[0]), float(both[1]), NOISE_FLOOR * speed / float(res.stats["spacing"]))
+    speed = float(np.sqrt(np.nanmax(u * u + v * v))) if len(u) else 0.0
+    both = linear_percentile(abs_div_curl, SCALE_PERCENTILE)
+    return max(float(both[0]), float(both[1]), NOISE_FLOOR * speed / spacing)
 
 
 def linear_percentile(values: np.ndarray, q: float) -> np.ndarray:

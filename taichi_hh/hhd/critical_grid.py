@@ -2,6 +2,7 @@
 of :func:`~.critical.find_critical_points` on the grid itself, without a
 neighbour search (candidates by shifted views of the whole grid, the
 significance sums and the refinements for all candidates at once)."""
+from __future__ import annotations
 
 import functools
 import math
@@ -9,9 +10,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from .critical import (COHERENCE, COHERENCE_RADIUS, EDGE, NOISE_FLOOR, NOISE_SAMPLES, POT_PASSES,
-                       SCALE_EDGE, SCALE_PERCENTILE, SIGNIFICANCE, SIGNIFICANCE_RADII, THRESHOLD,
-                       CriticalPoint, linear_percentile, noise_sigma, strength_scale)
+from .critical import (COHERENCE, COHERENCE_RADIUS, EDGE, NOISE_SAMPLES, POT_PASSES, SCALE_EDGE,
+                       SIGNIFICANCE, SIGNIFICANCE_RADII, THRESHOLD, CriticalPoint, noise_sigma,
+                       scale_of, strength_scale)
 from .recent import Recent
 
 
@@ -177,10 +178,7 @@ def grid_strength_scale(lat, geo, div_curl, ell: float) -> float:
         return strength_scale(SimpleNamespace(divergence=both[0], curl=both[1], vectors=uv.T,
                                               stats={"spacing": ell}), geo.edge_distance)
     sel = both if geo.scale_nodes is None else both[:, geo.scale_nodes]
-    # the largest speed by the squares (as strength_scale)
-    speed = float(np.sqrt(np.nanmax(uv[0] * uv[0] + uv[1] * uv[1])))
-    q = linear_percentile(np.abs(sel), SCALE_PERCENTILE)
-    return max(float(q[0]), float(q[1]), NOISE_FLOOR * speed / ell)
+    return scale_of(np.abs(sel), uv[0], uv[1], ell)
 
 
 def _inside_outline(domain, points, segments=None) -> np.ndarray:
