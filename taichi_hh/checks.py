@@ -20,6 +20,7 @@ from typing import Callable, Union
 
 import numpy as np
 
+from .arrays import column_mean, rows_all_finite
 from .errors import InputError
 
 __all__ = ["as_real_array", "check_spread", "check_points", "check_values", "check_real", "check_int", "check_bool",
@@ -70,9 +71,9 @@ def check_points(points, name: str = "points", *, allow_empty: bool = False) -> 
         raise InputError(f"{name} must have shape (N, 2), got {arr.shape}")
     if arr.shape[0] == 0 and not allow_empty:
         raise InputError(f"{name} is empty: at least one point is needed")
-    bad = ~np.isfinite(arr).all(axis=1)
-    if bad.any():
-        idx = np.flatnonzero(bad)
+    finite = rows_all_finite(arr)
+    if finite is not None:
+        idx = np.flatnonzero(~finite)
         raise InputError(f"{name} contains {idx.size} non-finite (NaN or inf) entries, "
                          f"first at index {idx[0]}: {arr[idx[0]].tolist()}")
     return arr
@@ -84,9 +85,9 @@ def check_values(values, n: int, ncomp: int, name: str = "values") -> np.ndarray
     want = (n,) if ncomp == 1 else (n, ncomp)
     if arr.shape != want:
         raise InputError(f"{name} must have shape {want} (one per point), got {arr.shape}")
-    bad = ~np.isfinite(arr.reshape(n, -1)).all(axis=1)
-    if bad.any():
-        idx = np.flatnonzero(bad)
+    finite = rows_all_finite(arr.reshape(n, -1))
+    if finite is not None:
+        idx = np.flatnonzero(~finite)
         raise InputError(f"{name} contains {idx.size} non-finite (NaN or inf) entries, "
                          f"first at point {idx[0]}")
     return arr
@@ -115,19 +116,22 @@ def check_spread(points, name: str = "points") -> None:
     n = len(pts)
     if n == 0:
         return
-    centre = pts.mean(axis=0)
-    c = pts - centre
-    size = float(np.abs(c).max())
+    centre = column_mean(pts)
+    cx, cy = pts[:, 0] - centre[0], pts[:, 1] - centre[1]
+    size = max(float(np.abs(cx).max()), float(np.abs(cy).max()))
     if size > 0:
-        c = c / size                    # the scatter below squares: no overflow at 1e200
-    # principal axes of the points (the eigenvectors of their 2 x 2 scatter)
-    scatter = c.T @ c
+        cx, cy = cx / size, cy / size   # the scatter below squares: no overflow at 1e200
+    # principal axes of the points (the eigenvectors of their 2 x 2 scatter);
+    # elementwise sums, not c.T @ c: a BLAS call this long leaves OpenBLAS's
+    # threads spinning on the cores Taichi's workers use (docs/notes/series.md)
+    sxy = float((cx * cy).sum())
+    scatter = np.array([[float((cx * cx).sum()), sxy], [sxy, float((cy * cy).sum())]])
     _, axes = np.linalg.eigh(scatter)              # ascending: axes[:, 1] the major
-    along = c @ axes[:, 1]
+    along = cx * axes[0, 1] + cy * axes[1, 1]
     length = float(np.ptp(along))
     if not length > 0:
         raise InputError(f"all {n} {name} are the same point: {NEEDS_AREA}")
-    across = float(np.ptp(c @ axes[:, 0]))
+    across = float(np.ptp(cx * axes[0, 0] + cy * axes[1, 0]))
     if across * n >= LINE_ROWS * length:
         return
     if across <= 1e-9 * length:

@@ -16,6 +16,12 @@ from taichi_hh.linalg import lanes
 @pytest.fixture
 def forced(monkeypatch):
     def use(flag: bool):
+        if not flag and runtime.state().arch == "cuda":
+            # the CPU's schedule (f64 sums in kernel-scope vectors) faults in
+            # Taichi 1.7.4's CUDA backend, so there is no loop result to
+            # compare with; CUDA's lanes are compared with the CPU arch in
+            # test_arch.py and benchmarks/arch.py
+            pytest.skip("the CPU's loop schedule does not run on CUDA (docs/arch.md)")
         monkeypatch.setenv(runtime.GPU_SCHEDULE_VARIABLE, "1" if flag else "0")
     return use
 
@@ -28,7 +34,7 @@ def test_lane_sums_are_exact_on_integers(n, forced):
     runtime.ensure_init()
     values = np.arange(n, dtype=np.float64) % 1000 - 300.0
     want = float((values * values).sum())
-    for flag in (False, True):
+    for flag in (True,) if runtime.state().arch == "cuda" else (False, True):
         forced(flag)
         k = solver_kernels(max(n, 1))
         a = runtime.array(None, max(n, 1))

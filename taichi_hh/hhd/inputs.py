@@ -8,6 +8,7 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
+from ..arrays import bounds, rows_any
 from ..checks import as_real_array
 from ..errors import AccuracyWarning, InputError
 from ..sph.pointset import check_points, check_values
@@ -29,13 +30,15 @@ MIN_POINTS = 10
 FEW_POINTS = 100
 
 
-def validate_input(points, vectors, domain):
+def validate_input(points, vectors, domain, *, holds_points: bool = False):
     """``(points, vectors, domain)`` checked: (N, 2) finite arrays without
     duplicates, every point inside ``domain`` (a Box, a Polygon, ``(x0, y0, x1,
     y1)``, an (M, 2) vertex array, or ``"bbox"`` / ``"hull"`` / ``"alpha"`` /
     ``("alpha", A)``: the points' bounding box (the default), convex hull or
     alpha shape, :func:`~taichi_hh.geometry.from_points.domain_spec`).
-    Raises :class:`~taichi_hh.errors.InputError`."""
+    ``holds_points``: the caller has checked that ``domain`` holds the points
+    (:func:`prepare_data`, in the caller's coordinates).  Raises
+    :class:`~taichi_hh.errors.InputError`."""
     from ..geometry.from_points import domain_from_points, domain_spec
     pts = check_points(points)
     vec = check_values(vectors, len(pts), 2, "vectors")
@@ -45,6 +48,8 @@ def validate_input(points, vectors, domain):
     else:
         from ..geometry.domain import as_domain
         domain = as_domain(domain)
+    if holds_points:
+        return pts, vec, domain
     scale = float(np.max(np.abs(np.asarray(domain.bounds)))) or 1.0
     inside = domain.contains(pts, tol=1e-9 * scale)
     if not inside.all():
@@ -245,7 +250,9 @@ def prepare_data(points, vectors, domain, *, invalid: str = "missing", valid=Non
         raise InputError(f"invalid must be one of {INVALID_MODES}, got {invalid!r}")
     pts, masked_p = _real_rows(points, "points", None)
     vec, masked_v = _real_rows(vectors, "vectors", len(pts))
-    missing = np.isnan(pts).any(axis=1) | np.isnan(vec).any(axis=1)
+    missing = np.zeros(len(pts), dtype=bool)
+    if np.isnan(pts).any() or np.isnan(vec).any():
+        missing = rows_any(np.isnan(pts)) | rows_any(np.isnan(vec))
     for m in (masked_p, masked_v):
         if m is not None:
             missing |= m
@@ -269,33 +276,37 @@ def prepare_data(points, vectors, domain, *, invalid: str = "missing", valid=Non
     if n_valid == 0:
         raise InputError(f"all {len(pts)} rows are missing (NaN, masked or marked invalid): "
                          "there is no field to decompose")
-    pts_ok, vec_ok = pts[ok], vec[ok]
+    every = n_valid == len(pts)
+    pts_ok, vec_ok = (pts, vec) if every else (pts[ok], vec[ok])
     # in the caller's coordinates and row numbers, before any re-centring
     from ..checks import check_spread
     from ..sph.pointset import check_distinct
     check_spread(pts_ok)
-    check_distinct(pts_ok, rows=np.flatnonzero(ok))
+    check_distinct(pts_ok, rows=None if every else np.flatnonzero(ok))
     from ..geometry.from_points import domain_from_points, domain_spec
     made_from = domain_spec(domain)
     if made_from is not None:
-        lo, hi = pts_ok.min(axis=0), pts_ok.max(axis=0)
+        lo, hi = bounds(pts_ok)
         frame = Frame.of((lo, hi), vec_ok)
+        unit_in = frame.points_to_unit(pts_ok)
         # made in the unit frame, its messages in the caller's coordinates
-        unit_domain = domain_from_points(frame.points_to_unit(pts_ok), *made_from,
-                                         to_caller=frame.points_from_unit)
+        unit_domain = domain_from_points(unit_in, *made_from, to_caller=frame.points_from_unit)
     else:
         from ..geometry.domain import as_domain
         user_domain = as_domain(domain)
-        scale = float(np.max(np.abs(np.asarray(user_domain.bounds)))) or 1.0
-        inside = user_domain.contains(pts_ok, tol=1e-9 * scale)
+        frame = Frame.of(user_domain.bounds, vec_ok)
+        unit_domain = frame.domain_to_unit(user_domain)
+        unit_in = frame.points_to_unit(pts_ok)
+        # asked once, in the unit frame (its tolerance is the tighter one),
+        # answered in the caller's rows and coordinates
+        scale = float(np.max(np.abs(np.asarray(unit_domain.bounds)))) or 1.0
+        inside = unit_domain.contains(unit_in, tol=1e-9 * scale)
         if not inside.all():
             bad = np.flatnonzero(ok)[~inside]
             raise InputError(f"{bad.size} point(s) lie outside the domain {user_domain!r}, "
                              f"first row {bad[0]} at {pts[bad[0]].tolist()}")
-        frame = Frame.of(user_domain.bounds, vec_ok)
-        unit_domain = frame.domain_to_unit(user_domain)
-    unit_pts, unit_vec, unit_domain = validate_input(frame.points_to_unit(pts_ok),
-                                                     vec_ok / frame.speed, unit_domain)
+    unit_pts, unit_vec, unit_domain = validate_input(unit_in, vec_ok / frame.speed, unit_domain,
+                                                     holds_points=made_from is None)
     vec_out = vec.copy()
     vec_out[missing] = np.nan
     data = Data(pts, vec_out, ok, frame, unit_pts, unit_vec, unit_domain,

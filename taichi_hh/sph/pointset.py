@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from .. import runtime
+from ..arrays import bounds
 from ..checks import check_points, check_values
 from ..errors import InputError, NeighbourError
 from .kernels import KERNELS
@@ -116,7 +117,7 @@ def check_distinct(points, tolerance: float | None = None, *, rows=None,
     if n < 2:
         return
     if tolerance is None:
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        lo, hi = bounds(pts)
         box = float(np.prod(hi - lo))
         tolerance = DUPLICATE_FRACTION * math.sqrt(box / n) if box > 0 else 0.0
     pair = close_pair(pts, tolerance)
