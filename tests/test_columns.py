@@ -214,21 +214,6 @@ def test_three_columns_together(bordered):
         assert np.abs(res.x - alone.x).max() <= 1e-8 * np.abs(alone.x).max()
 
 
-def test_direction_in_its_own_kernel_is_the_fused_kernel(bordered, monkeypatch):
-    """On CUDA several columns take BiCGSTAB's new direction in a second kernel
-    (``direction_apart``: Taichi 1.7.4 faults in the fused one); forced here
-    on this arch, the joint solve is the fused one's, iterate for iterate."""
-    from taichi_hh.linalg import krylov_kernels
-    A, B = bordered
-    fused = A.solve_columns(B, tol=1e-10)
-    monkeypatch.setattr(krylov_kernels, "direction_apart", lambda cols: cols > 1)
-    assert krylov_kernels.solver_kernels(len(B) + 1, 2).bicg_direction is not None
-    apart = A.solve_columns(B, tol=1e-10)
-    for f, a in zip(fused, apart):
-        assert a.converged and a.iterations == f.iterations
-        assert np.abs(a.x - f.x).max() <= 1e-12 * np.abs(f.x).max()
-
-
 class ScipyColumns:
     """An operator that takes several columns (``accepts_columns``), applied in
     numpy: the joint driver's failure paths on systems built to fail."""

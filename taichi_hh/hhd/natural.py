@@ -108,11 +108,14 @@ def _grid_potentials(cells: _Cells, at_cells: np.ndarray, evaluation: str,
     grid, live = cells.grid, cells.live
     m = at_cells.shape[1]
     dens = np.zeros((m, grid.nx * grid.ny))
-    dens[:, live] = (at_cells * cells.frac[live, None]).T
+    charge = at_cells * np.take(cells.frac, live)[:, None]
+    for c in range(m):              # a row at a time: 4x a transposed scatter
+        dens[c, live] = charge[:, c]
     values = None
     if cells.cut is not None:
         values = np.zeros((m, grid.nx * grid.ny))
-        values[:, live] = at_cells.T
+        for c in range(m):
+            values[c, live] = at_cells[:, c]
         dens += multipole_density(grid, cells.cut, cells.patches, values)
     dens = dens.reshape((m,) + grid.shape)
     lap("density")
@@ -253,7 +256,7 @@ class NaturalSetup:
         lap("coverage")
         self.binned = binned = PointBins(grid, points)
         lap("bins")
-        self.nodes = grid.centres()[live]
+        self.nodes = np.take(grid.centres(), live, axis=0)
         self.scale, self.edge = _local_spacing(cells, binned)
         self.near = _near_points(cells, binned, domain)
         self.near_cell = np.repeat(np.arange(grid.nx * grid.ny), np.diff(binned.start))[self.near]
@@ -479,7 +482,7 @@ def _volumes(cells: _Cells, binned: "PointBins") -> np.ndarray:
     per = box3(area) / np.maximum(box3(count), 1.0)
     cell_of = np.repeat(np.arange(grid.nx * grid.ny), np.diff(binned.start))
     out = np.empty(len(binned.order))
-    out[binned.order] = per.ravel()[cell_of]
+    out[binned.order] = np.take(per.ravel(), cell_of)
     return out
 
 

@@ -340,7 +340,7 @@ class _BiCGSTAB(_Method):
         cols = self.cols
         self.r, self.r_hat, self.p = v("r", n, cols), v("r_hat", n, cols), v("p", n, cols)
         self.v, self.t, self.z = v("v", n, cols), v("t", n, cols), v("z", n, cols)
-        self.beta_slot = v("beta", 3, cols)
+        self.beta_slot = v("beta", 1, cols)
         self.rr, self.rho, self.rhat2 = np.zeros(cols), np.zeros(cols), np.zeros(cols)
         # A preconditioner object: the kernels' z = dinv * (.) (dinv = 1) is
         # overwritten by z = M^-1 (.) right after each of them.
@@ -378,15 +378,10 @@ class _BiCGSTAB(_Method):
             if self.M is not None:
                 self.M.apply(self.r, self.z)        # r holds s
             ts, tt = self._apply_dot(self.z, self.t, self.r)
-            going_arg = self._arg(going)
-            sums = self.k.bicg_full(
+            rr, rho, omega_flag, rho_flag = (self._host(a) for a in self.k.bicg_full(
                 ts, tt, self._arg(ss), self._arg(alpha), self._arg(self.rho),
-                self._arg(self.rhat2), going_arg, self.x, self.r, self.r_hat, self.p,
-                self.v, self.t, self.z, self.dinv, self.btol, self.n, self.beta_slot)
-            if self.k.bicg_direction is not None:       # not fused (CUDA, several columns)
-                self.k.bicg_direction(ts, tt, going_arg, sums[4], self.r, self.p, self.v,
-                                      self.z, self.dinv, self.n)
-            rr, rho, omega_flag, rho_flag = (self._host(a) for a in sums[:4])
+                self._arg(self.rhat2), self._arg(going), self.x, self.r, self.r_hat, self.p,
+                self.v, self.t, self.z, self.dinv, self.btol, self.n, self.beta_slot))
             self.rr = np.where(going > 0.0, rr, self.rr)
             self.rho = np.where(going > 0.0, rho, self.rho)
             self._z_pending = self.M is not None     # z = M^-1 p: in the next step, if any
@@ -592,12 +587,6 @@ def bicgstab(A, b, x0=None, *, tol: float = 1e-6, max_iterations: Optional[int] 
                          tol, max_iterations, stagnation_window, divergence_factor, callback)[0]
 
 
-# Taichi 1.7.4's CUDA backend faulted (misaligned address) in the
-# several-column BiCGSTAB kernels, whose arguments and results are vectors of
-# f64; so one column at a time runs there unless this is set (docs/arch.md).
-JOINT_COLUMNS_ON_CUDA = False
-
-
 def bicgstab_columns(A, B, *, tol: float = 1e-6, max_iterations: Optional[int] = None,
                      preconditioner: Optional[str] = "jacobi", raise_on_failure: bool = True,
                      stagnation_window: int = STAGNATION_WINDOW,
@@ -627,10 +616,13 @@ def bicgstab_columns(A, B, *, tol: float = 1e-6, max_iterations: Optional[int] =
                   raise_on_failure=raise_on_failure, stagnation_window=stagnation_window,
                   divergence_factor=divergence_factor, workspace=workspace)
     M = preconditioner if _is_preconditioner_object(preconditioner) else None
+    # Not on CUDA: Taichi 1.7.4's CUDA backend faults (misaligned address) in
+    # the several-column BiCGSTAB kernels, whose arguments and results are
+    # vectors of f64; one column at a time runs there (docs/arch.md)
     joint = (cols > 1 and getattr(A, "accepts_columns", False)
              and callable(getattr(A, "apply_dot", None))
              and (M is None or getattr(M, "accepts_columns", False))
-             and (JOINT_COLUMNS_ON_CUDA or runtime.state().arch != "cuda"))
+             and runtime.state().arch != "cuda")
     if not joint:
         return [bicgstab(A, B[:, c], **kwargs) for c in range(cols)]
     return _solve_square(_BiCGSTAB, A, B, None, preconditioner, raise_on_failure, workspace,

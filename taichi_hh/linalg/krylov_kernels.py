@@ -22,7 +22,7 @@ from taichi_hh import runtime
 from taichi_hh.linalg import lanes
 from taichi_hh.linalg.columns import zeros
 
-__all__ = ["PARALLEL_MIN_SIZE", "direction_apart", "serial_below_threshold", "solver_kernels"]
+__all__ = ["PARALLEL_MIN_SIZE", "serial_below_threshold", "solver_kernels"]
 
 # Vector sizes below which loops run on one thread: a serial pass over 1e5
 # entries beats waking the thread pool (docs/notes/linalg.md).
@@ -42,15 +42,7 @@ def solver_kernels(size: int, cols: int = 1) -> SimpleNamespace:
     ``bicg_half``, ``bicg_full``); the one-column set also CG's and CGNR's,
     which solve one right-hand side only."""
     runtime.ensure_init()
-    return _build(runtime.state().precision, serial_below_threshold(size), cols, lanes.on(),
-                  direction_apart(cols))
-
-
-def direction_apart(cols: int) -> bool:
-    """Whether BiCGSTAB's ``bicg_full`` leaves the new direction to a second
-    kernel, ``bicg_direction``: on CUDA with several columns, where Taichi
-    1.7.4 faults in the fused kernel (docs/arch.md)."""
-    return cols > 1 and runtime.state().arch == "cuda"
+    return _build(runtime.state().precision, serial_below_threshold(size), cols, lanes.on())
 
 
 @ti.func
@@ -96,14 +88,13 @@ def _with_partials(kernel, values: int, cols: int):
 
 
 @lru_cache(maxsize=None)
-def _build(precision: str, serial: bool, cols: int, in_lanes: bool = False,
-           direction_apart: bool = False) -> SimpleNamespace:
+def _build(precision: str, serial: bool, cols: int, in_lanes: bool = False) -> SimpleNamespace:
     """Compile-once kernel set.  Built lazily because the real type of the
     arguments and return values depends on the runtime precision; ``serial``,
     ``cols`` and ``in_lanes`` (the GPU's reductions, :mod:`taichi_hh.linalg.
     lanes`) are compile-time settings, not data."""
     kernels = _vector_kernels(precision, serial, cols, in_lanes)
-    kernels.update(_bicgstab_kernels(precision, serial, cols, in_lanes, direction_apart))
+    kernels.update(_bicgstab_kernels(precision, serial, cols, in_lanes))
     # the reducing kernels take their partials last (used on a GPU only)
     for name, values in (("norm2", 1), ("dot2", 2), ("bicg_restart", 1), ("bicg_half", 1),
                          ("bicg_full", 2)):
@@ -173,8 +164,7 @@ def _vector_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -> 
     return dict(fill=fill, copy=copy, norm2=norm2, dot2=dot2, invert_diagonal=invert_diagonal)
 
 
-def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool,
-                      direction_apart: bool) -> dict:
+def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -> dict:
     """BiCGSTAB (right-preconditioned, M^-1 = dinv) on ``cols`` columns, each its
     own iteration: the scalars (alpha, omega, rho, ...) are per column, and so
     are ``active`` (1: iterating, 0: frozen, e.g. converged: x and r stay) and
@@ -240,75 +230,32 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool,
         ok = active * (1.0 - indicator(negligible(rv, rhat2, vv, btol)))
         return ss, _half_alpha(rv, vv, rho, rhat2, active, btol), active - ok
 
-    @ti.func
-    def full_sums(ts, tt, ss, alpha, rho, rhat2, active, btol, x: ti.template(),
-                  r: ti.template(), r_hat: ti.template(), t: ti.template(), z: ti.template(), n,
-                  part: ti.template()):
-        """The first half of ``bicg_full``: its sums, flags and beta."""
+    @ti.kernel
+    def bicg_full(ts: scal, tt: scal, ss: scal, alpha: scal, rho: scal, rhat2: scal,
+                  active: scal, x: vec, r: vec, r_hat: vec, p: vec, v: vec, t: vec, z: vec,
+                  dinv: rvec, btol: real, n: ti.i32, beta_slot: vec,
+                  part: ti.types.ndarray()) -> (scal, scal, scal, scal):
+        """Given t = A shat and its dots ts = <s, t>, tt = <t, t> (from the apply)
+        and ss = ||s||^2: omega = ts / tt; x += omega shat; r = s - omega t;
+        then the next direction p = r + beta (p - omega v), z = phat = M^-1 p.
+        Returns (||r||^2, rho_new, omega flag, rho flag).  ``beta_slot`` (one
+        entry) carries beta from the sums to the second loop."""
         total = lanes.fold_entries(n, full_entry, (ts, tt, active, x, r, r_hat, t, z), 2, cols,
                                    lanes.ADD, in_lanes, serial, part)
         rr = lanes.unpack(cols, total, 0)
         rho_new = lanes.unpack(cols, total, 1)
         omega_flag, rho_flag = _full_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol)
         go = active * (1.0 - omega_flag) * (1.0 - rho_flag)
-        beta = ti.select(go > 0.0, (rho_new / rho) * (alpha / _omega(ts, tt, active)), 0.0)
-        return rr, rho_new, omega_flag, rho_flag, beta
+        beta_slot[0] = ti.select(go > 0.0, (rho_new / rho) * (alpha / _omega(ts, tt, active)), 0.0)
+        ti.loop_config(serialize=serial)
+        for i in range(n):
+            pi = r[i] + beta_slot[0] * (p[i] - _omega(ts, tt, active) * v[i])
+            p[i] = pi
+            z[i] = dinv[i] * pi
+        omega_end, rho_end = _full_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol)
+        return rr, rho_new, omega_end, rho_end
 
-    @ti.func
-    def direction_entry(i, ts, tt, active, beta, r: ti.template(), p: ti.template(),
-                        v: ti.template(), z: ti.template(), dinv: ti.template()):
-        pi = r[i] + beta * (p[i] - _omega(ts, tt, active) * v[i])
-        p[i] = pi
-        z[i] = dinv[i] * pi
-
-    if direction_apart:
-        # Taichi 1.7.4 on CUDA faults (misaligned address) in the fused kernel
-        # below with several columns: the sums and the new direction are two
-        # kernels there, beta going from one to the other as an argument
-        @ti.kernel
-        def bicg_full(ts: scal, tt: scal, ss: scal, alpha: scal, rho: scal, rhat2: scal,
-                      active: scal, x: vec, r: vec, r_hat: vec, p: vec, v: vec, t: vec, z: vec,
-                      dinv: rvec, btol: real, n: ti.i32, beta_slot: vec,
-                      part: ti.types.ndarray()) -> (scal, scal, scal, scal, scal):
-            return full_sums(ts, tt, ss, alpha, rho, rhat2, active, btol, x, r, r_hat, t, z, n,
-                             part)
-
-        @ti.kernel
-        def bicg_direction(ts: scal, tt: scal, active: scal, beta: scal, r: vec, p: vec, v: vec,
-                           z: vec, dinv: rvec, n: ti.i32):
-            ti.loop_config(serialize=serial)
-            for i in range(n):
-                direction_entry(i, ts, tt, active, beta, r, p, v, z, dinv)
-    else:
-        @ti.kernel
-        def bicg_full(ts: scal, tt: scal, ss: scal, alpha: scal, rho: scal, rhat2: scal,
-                      active: scal, x: vec, r: vec, r_hat: vec, p: vec, v: vec, t: vec, z: vec,
-                      dinv: rvec, btol: real, n: ti.i32, beta_slot: vec,
-                      part: ti.types.ndarray()) -> (scal, scal, scal, scal, scal):
-            """Given t = A shat and its dots ts = <s, t>, tt = <t, t> (from the
-            apply) and ss = ||s||^2: omega = ts / tt; x += omega shat; r = s -
-            omega t; then the next direction p = r + beta (p - omega v), z =
-            phat = M^-1 p.  Returns (||r||^2, rho_new, omega flag, rho flag,
-            beta).  ``beta_slot`` (three entries: beta, ||r||^2, rho_new)
-            carries the sums' results across the second loop: a kernel-scope
-            vector that outlives a loop sits in Taichi's global temporaries,
-            where an f64 vector can be misaligned on CUDA."""
-            rr, rho_new, omega_flag, rho_flag, beta = full_sums(
-                ts, tt, ss, alpha, rho, rhat2, active, btol, x, r, r_hat, t, z, n, part)
-            beta_slot[0] = beta
-            beta_slot[1] = rr
-            beta_slot[2] = rho_new
-            ti.loop_config(serialize=serial)
-            for i in range(n):
-                direction_entry(i, ts, tt, active, beta_slot[0], r, p, v, z, dinv)
-            omega_end, rho_end = _full_flags(ts, tt, ss, beta_slot[1], beta_slot[2], rhat2,
-                                             active, btol)
-            return beta_slot[1], beta_slot[2], omega_end, rho_end, beta_slot[0]
-
-        bicg_direction = None
-
-    return dict(bicg_restart=bicg_restart, bicg_half=bicg_half, bicg_full=bicg_full,
-                bicg_direction=bicg_direction)
+    return dict(bicg_restart=bicg_restart, bicg_half=bicg_half, bicg_full=bicg_full)
 
 
 def _cg_kernels(precision: str, serial: bool) -> dict:
