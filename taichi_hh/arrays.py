@@ -2,7 +2,7 @@
 
 numpy reduces ``a.min(axis=0)`` of an (N, 2) array, or ``a.any(axis=1)``,
 through its general strided machinery: at a million points 15-35 ms each,
-10-25x one pass over each column (docs/notes/arch.md, the 1M host work).
+10-25x one pass over each column (docs/arch.md, the seventh session on CUDA).
 Input checks and set-ups run several per call, so they use these instead.
 Like :mod:`taichi_hh.errors` this sits at the bottom of the package.
 """
