@@ -113,6 +113,36 @@ def test_bicgstab_agrees_with_and_without_lanes(forced):
     assert np.abs(x[True] - x[False]).max() <= 1e-10 * np.abs(x[False]).max()
 
 
+def test_cg_and_cgnr_agree_with_and_without_lanes(forced):
+    """CG on a symmetric definite system and CGNR on an overdetermined one
+    (their sums in lanes, as `project` and the flow's shifting solve them on
+    a GPU) give the loops' answers to round-off."""
+    import scipy.sparse as sp
+    from taichi_hh.linalg.csr import CSRMatrix
+    from taichi_hh.linalg.krylov import cg, cgnr
+    runtime.ensure_init()
+    rng = np.random.default_rng(1)
+    n = 2 * lanes.LANES + 11
+    M = sp.random(n, n, density=8.0 / n, random_state=2, format="csr")
+    M = (M + M.T + sp.diags(np.full(n, 20.0))).tocsr()
+    R = sp.vstack([M, sp.random(n // 3, n, density=6.0 / n, random_state=3)]).tocsr()
+    b, c = rng.standard_normal(n), rng.standard_normal(R.shape[0])
+    got = {}
+    for flag in (False, True):
+        forced(flag)
+        spd = cg(CSRMatrix(M.indptr, M.indices, M.data, M.shape), b, tol=1e-12)
+        ls = cgnr(CSRMatrix(R.indptr, R.indices, R.data, R.shape), c, tol=1e-10,
+                  least_squares=True)
+        assert spd.converged and ls.converged
+        got[flag] = spd.x, ls.x, spd.iterations, ls.iterations
+    for k in (0, 1):
+        assert np.abs(got[True][k] - got[False][k]).max() <= 1e-9 * np.abs(got[False][k]).max()
+    assert abs(got[True][2] - got[False][2]) <= 1 and abs(got[True][3] - got[False][3]) <= 1
+    # the least-squares answer is the normal equations' (scipy's, as a check)
+    want = sp.linalg.lsqr(R, c, atol=1e-14, btol=1e-14)[0]
+    assert np.abs(got[True][1] - want).max() <= 1e-7 * np.abs(want).max()
+
+
 def test_parallel_prefix_sums_and_counting_sorts_are_the_serial_ones(forced):
     """The GPU's blocked prefix sum (i64 total), its counting sort (atomic
     slots, then each cell's run in input order) and the neighbour grid's

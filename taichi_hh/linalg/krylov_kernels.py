@@ -96,12 +96,15 @@ def _build(precision: str, serial: bool, cols: int, in_lanes: bool = False) -> S
     kernels = _vector_kernels(precision, serial, cols, in_lanes)
     kernels.update(_bicgstab_kernels(precision, serial, cols, in_lanes))
     # the reducing kernels take their partials last (used on a GPU only)
-    for name, values in (("norm2", 1), ("dot2", 2), ("bicg_restart", 1), ("bicg_half", 1),
-                         ("bicg_full", 2)):
-        kernels[name] = _with_partials(kernels[name], values, cols)
+    reducing = [("norm2", 1), ("dot2", 2), ("bicg_restart", 1), ("bicg_half", 1),
+                ("bicg_full", 2)]
     if cols == 1:
-        kernels.update(_cg_kernels(precision, serial))
-        kernels.update(_cgnr_kernels(precision, serial))
+        kernels.update(_cg_kernels(precision, serial, in_lanes))
+        kernels.update(_cgnr_kernels(precision, serial, in_lanes))
+        reducing += [("cg_restart", 3), ("cg_step", 3), ("nr_residual", 1),
+                     ("nr_direction", 2), ("nr_update", 1)]
+    for name, values in reducing:
+        kernels[name] = _with_partials(kernels[name], values, cols)
     return SimpleNamespace(**kernels)
 
 
@@ -258,57 +261,57 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -
     return dict(bicg_restart=bicg_restart, bicg_half=bicg_half, bicg_full=bicg_full)
 
 
-def _cg_kernels(precision: str, serial: bool) -> dict:
-    """Preconditioned CG (M^-1 = dinv), one column."""
+def _cg_kernels(precision: str, serial: bool, in_lanes: bool) -> dict:
+    """Preconditioned CG (M^-1 = dinv), one column; sums as in BiCGSTAB's
+    kernels (in lanes on a GPU)."""
     real, _, vec, _ = _types(precision, 1)
 
+    @ti.func
+    def restart_entry(i, b: ti.template(), ax: ti.template(), r: ti.template(),
+                      p: ti.template(), dinv: ti.template()):
+        ri = b[i] - ax[i]
+        zi = dinv[i] * ri
+        r[i] = ri
+        p[i] = zi
+        return lanes.pack3(1, ri * ri, ri * zi, zi * zi)
+
+    @ti.func
+    def curvature_entry(i, p: ti.template(), q: ti.template()):
+        return lanes.pack3(1, p[i] * q[i], p[i] * p[i], q[i] * q[i])
+
+    @ti.func
+    def update_entry(i, alpha, x: ti.template(), r: ti.template(), p: ti.template(),
+                     q: ti.template(), dinv: ti.template()):
+        x[i] += alpha * p[i]
+        ri = r[i] - alpha * q[i]
+        zi = dinv[i] * ri
+        r[i] = ri
+        return lanes.pack3(1, ri * ri, ri * zi, zi * zi)
+
     @ti.kernel
-    def cg_restart(b: vec, ax: vec, r: vec, p: vec, dinv: vec, n: ti.i32) -> (real, real, real):
+    def cg_restart(b: vec, ax: vec, r: vec, p: vec, dinv: vec, n: ti.i32,
+                   part: ti.types.ndarray()) -> (real, real, real):
         """r = b - A x; p = M^-1 r.  Returns (||r||^2, <r, M^-1 r>, ||M^-1 r||^2)."""
-        rr = 0.0
-        rz = 0.0
-        zz = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            ri = b[i] - ax[i]
-            zi = dinv[i] * ri
-            r[i] = ri
-            p[i] = zi
-            rr += ri * ri
-            rz += ri * zi
-            zz += zi * zi
-        return rr, rz, zz
+        total = lanes.fold_entries(n, restart_entry, (b, ax, r, p, dinv), 3, 1, lanes.ADD,
+                                   in_lanes, serial, part)
+        return total[0], total[1], total[2]
 
     @ti.kernel
     def cg_step(x: vec, r: vec, p: vec, q: vec, dinv: vec, rz: real, btol: real,
-                n: ti.i32) -> (real, real, real, real):
+                n: ti.i32, part: ti.types.ndarray()) -> (real, real, real, real):
         """alpha = rz/<p, q>; x += alpha p; r -= alpha q; p = M^-1 r + beta p.
         Returns (||r||^2, rz_new, <p,q> flag, rz flag); alpha = 0 on breakdown."""
-        pq = 0.0
-        pp = 0.0
-        qq = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            pq += p[i] * q[i]
-            pp += p[i] * p[i]
-            qq += q[i] * q[i]
+        dots = lanes.fold_entries(n, curvature_entry, (p, q), 3, 1, lanes.ADD, in_lanes,
+                                  serial, part)
+        pq, pp, qq = dots[0], dots[1], dots[2]
         alpha = 0.0
         pq_flag = 1.0
         if not negligible(pq, pp, qq, btol):
             alpha = rz / pq
             pq_flag = 0.0
-        rr = 0.0
-        rz_new = 0.0
-        zz = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            x[i] += alpha * p[i]
-            ri = r[i] - alpha * q[i]
-            zi = dinv[i] * ri
-            r[i] = ri
-            rr += ri * ri
-            rz_new += ri * zi
-            zz += zi * zi
+        sums = lanes.fold_entries(n, update_entry, (alpha, x, r, p, q, dinv), 3, 1, lanes.ADD,
+                                  in_lanes, serial, part)
+        rr, rz_new, zz = sums[0], sums[1], sums[2]
         rz_flag = 1.0 if negligible(rz_new, rr, zz, btol) else 0.0
         beta = 0.0
         if rz_flag == 0.0:
@@ -321,31 +324,51 @@ def _cg_kernels(precision: str, serial: bool) -> dict:
     return dict(cg_restart=cg_restart, cg_step=cg_step)
 
 
-def _cgnr_kernels(precision: str, serial: bool) -> dict:
-    """CG on A^T A x = A^T b, preconditioned by M^-1 = dinv, one column."""
+def _cgnr_kernels(precision: str, serial: bool, in_lanes: bool) -> dict:
+    """CG on A^T A x = A^T b, preconditioned by M^-1 = dinv, one column; sums
+    as in BiCGSTAB's kernels (in lanes on a GPU)."""
     real, _, vec, _ = _types(precision, 1)
 
-    @ti.kernel
-    def nr_residual(b: vec, ax: vec, r: vec, m: ti.i32) -> real:
-        """r = b - A x.  Returns ||r||^2."""
+    @ti.func
+    def residual_entry(i, b: ti.template(), ax: ti.template(), r: ti.template()):
+        ri = b[i] - ax[i]
+        r[i] = ri
+        return ri * ri
+
+    @ti.func
+    def gamma_entry(i, z: ti.template(), dinv: ti.template()):
+        return lanes.pack2(1, z[i] * dinv[i] * z[i], z[i] * z[i])
+
+    @ti.func
+    def square_entry(i, w: ti.template()):
+        return w[i] * w[i]
+
+    @ti.func
+    def update_entry(i, alpha, m, n, x: ti.template(), r: ti.template(), p: ti.template(),
+                     w: ti.template()):
         rr = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(m):
-            ri = b[i] - ax[i]
+        if i < n:
+            x[i] += alpha * p[i]
+        if i < m:
+            ri = r[i] - alpha * w[i]
             r[i] = ri
-            rr += ri * ri
+            rr = ri * ri
         return rr
 
     @ti.kernel
-    def nr_direction(z: vec, p: vec, dinv: vec, gamma_old: real, n: ti.i32) -> (real, real):
+    def nr_residual(b: vec, ax: vec, r: vec, m: ti.i32, part: ti.types.ndarray()) -> real:
+        """r = b - A x.  Returns ||r||^2."""
+        return lanes.fold_entries(m, residual_entry, (b, ax, r), 1, 1, lanes.ADD, in_lanes,
+                                  serial, part)
+
+    @ti.kernel
+    def nr_direction(z: vec, p: vec, dinv: vec, gamma_old: real, n: ti.i32,
+                     part: ti.types.ndarray()) -> (real, real):
         """z = A^T r: gamma = <z, M^-1 z>; p = M^-1 z + (gamma/gamma_old) p
         (a fresh start when gamma_old = 0).  Returns (gamma, ||z||^2)."""
-        gamma = 0.0
-        zz = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            gamma += z[i] * dinv[i] * z[i]
-            zz += z[i] * z[i]
+        sums = lanes.fold_entries(n, gamma_entry, (z, dinv), 2, 1, lanes.ADD, in_lanes, serial,
+                                  part)
+        gamma, zz = sums[0], sums[1]
         beta = 0.0
         if gamma_old != 0.0:
             beta = gamma / gamma_old
@@ -356,27 +379,17 @@ def _cgnr_kernels(precision: str, serial: bool) -> dict:
 
     @ti.kernel
     def nr_update(x: vec, r: vec, p: vec, w: vec, gamma: real, m: ti.i32,
-                  n: ti.i32) -> (real, real):
+                  n: ti.i32, part: ti.types.ndarray()) -> (real, real):
         """w = A p: alpha = gamma/||w||^2; x += alpha p; r -= alpha w.
         Returns (||r||^2, breakdown flag); alpha = 0 when A p = 0."""
-        ww = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(m):
-            ww += w[i] * w[i]
+        ww = lanes.fold_entries(m, square_entry, (w,), 1, 1, lanes.ADD, in_lanes, serial, part)
         alpha = 0.0
         flag = 1.0
         if ww > 0.0:
             alpha = gamma / ww
             flag = 0.0
-        rr = 0.0
-        ti.loop_config(serialize=serial)
-        for i in range(ti.max(m, n)):
-            if i < n:
-                x[i] += alpha * p[i]
-            if i < m:
-                ri = r[i] - alpha * w[i]
-                r[i] = ri
-                rr += ri * ri
+        rr = lanes.fold_entries(ti.max(m, n), update_entry, (alpha, m, n, x, r, p, w), 1, 1,
+                                lanes.ADD, in_lanes, serial, part)
         return rr, flag
 
     return dict(nr_residual=nr_residual, nr_direction=nr_direction, nr_update=nr_update)
