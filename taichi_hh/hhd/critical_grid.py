@@ -53,43 +53,35 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     # distances to the outline (in the points' units) up to what the tests need
     far = max(SCALE_EDGE, edge or 0.0) * ell
     geo = CriticalGeometry.of(lat, rad, far)
-    dist = geo.dist
     # the derivatives smoothed as the scattered path's MLS operator smooths
     # them (natural_grid.smoothed): the strengths, signs, coherence and
     # significance read them
     ddr = lat.components_div_curl
     sm = smoothed(np.stack([lat.divergence, lat.curl, ddr[..., 0], ddr[..., 1], lat.phi, lat.psi]),
                   lat.inside, (1, 1, 1, 1, POT_PASSES, POT_PASSES), steps=geo.smoothing)
-    comps, pots = sm[2:4], sm[4:6]
     scale = grid_strength_scale(lat, geo, sm[0:2], ell)
     if scale == 0.0 or not math.isfinite(scale):
         return []
-    Ry, Rx, oy, ox, r_off = geo.Ry, geo.Rx, geo.oy, geo.ox, geo.r_off
+    Ry, Rx, oy, ox = geo.Ry, geo.Rx, geo.oy, geo.ox
     ny, nx = used.shape
-    in_rad = (r_off < rad) & (r_off > 0)                  # the others within radius
     found = []              # (refined place, node, kind, strength, significance, coherence)
     # both components at once, stacked: d's sources and sinks (phi's minima
     # and maxima), then r's clockwise and counter-clockwise vortices (psi's)
     kinds = (("source", "sink"), ("cw_vortex", "ccw_vortex"))
-    low_sign = np.array([1.0, -1.0])        # the sign of div d or curl r at a minimum
-    pot = np.where(used, pots, np.nan)                           # (2, ny, nx)
-    comp = np.where(used, comps, np.nan)
-    fld = np.stack([lat.curl_free, lat.div_free])                # (2, ny, nx, 2)
-    with np.errstate(invalid="ignore"):
-        strength = np.abs(comp) / scale
-        # by the squares: np.hypot's guard costs five times as much
-        speed = np.sqrt(fld[..., 0] * fld[..., 0] + fld[..., 1] * fld[..., 1])
-        cand = used & (strength >= threshold) & (speed <= np.abs(comp) * rad)
-        if edge is not None and edge > 0:
-            cand &= dist >= edge * ell
-        cand &= (comp > 0) | (-comp > 0)
-    # a strict extremum among the 8 neighbours (necessary: shifted views of
-    # the whole grid), then among the used nodes within the radius (gathers
-    # over the candidates left).  fmin/fmax skip NaN (off the used nodes) as
-    # nanmin/nanmax do; none but NaN: no extremum
-    padded = _padded(pot, Ry, Rx, np.nan)
+    # div d, curl r, phi, psi padded by the window, NaN off the used nodes
+    # (what the gathers over the windows read)
+    both = np.full((4, ny + 2 * Ry, nx + 2 * Rx), np.nan)
+    np.copyto(both[:, Ry:Ry + ny, Rx:Rx + nx], sm[2:6], where=used)
+    cpad, padded = both[0:2], both[2:4]
+    pot = padded[:, Ry:Ry + ny, Rx:Rx + nx]                      # (2, ny, nx)
+    # a strict extremum of the potential among the 8 neighbours first (a
+    # necessary condition, by shifted views of the whole grid: few nodes
+    # pass it), then the node's own tests on those (the same arithmetic as
+    # over the whole grid, on fewer nodes), then a strict extremum among the
+    # used nodes within the radius (gathers).  fmin/fmax skip NaN (off the
+    # used nodes) as nanmin/nanmax do; none but NaN: no extremum
     lo8 = hi8 = None
-    if cand.any() and Ry >= 1 and Rx >= 1:
+    if Ry >= 1 and Rx >= 1:
         # separably: the two row neighbours, the three nodes of the rows
         # above and below (min and max are exact: the same values as eight
         # shifted views, half the calls)
@@ -100,7 +92,7 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
         hi3 = np.fmax(hi_side, rows[:, :, Rx:Rx + nx])
         lo8 = np.fmin(np.fmin(lo3[:, :-2], lo3[:, 2:]), lo_side[:, 1:-1])
         hi8 = np.fmax(np.fmax(hi3[:, :-2], hi3[:, 2:]), hi_side[:, 1:-1])
-    elif cand.any():
+    else:
         for dy in range(-min(Ry, 1), min(Ry, 1) + 1):
             for dx in range(-min(Rx, 1), min(Rx, 1) + 1):
                 if dy or dx:
@@ -109,46 +101,60 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
                     hi8 = view if hi8 is None else np.fmax(hi8, view)
     if lo8 is not None:
         with np.errstate(invalid="ignore"):
-            low8, high8 = pot < lo8, pot > hi8
-            cand &= (low8 | high8) & geo.two_of_eight      # pot is finite on the used nodes
-            cc, jj, ii = np.nonzero(cand)
-            low, high = low8[cc, jj, ii], high8[cc, jj, ii]
-            nb = padded[cc[:, None], jj[:, None] + Ry + oy[in_rad][None, :],
-                        ii[:, None] + Rx + ox[in_rad][None, :]]
-            here = pot[cc, jj, ii]
-            c_here = comp[cc, jj, ii]
-            sign_low = low_sign[cc]
+            low8, high8 = pot < lo8, pot > hi8     # False off the used nodes (NaN)
+            cc, jj, ii = np.nonzero((low8 | high8) & geo.two_of_eight)
+        low, high = low8[cc, jj, ii], high8[cc, jj, ii]
+        pj, pi = jj + Ry, ii + Rx
+        c_here = cpad[cc, pj, pi]
+        # d's speed for phi, r's for psi, by the squares (np.hypot's guard
+        # costs five times as much)
+        fld = np.where((cc == 0)[:, None], lat.curl_free[jj, ii], lat.div_free[jj, ii])
+        with np.errstate(invalid="ignore"):
+            speed = np.sqrt(fld[:, 0] * fld[:, 0] + fld[:, 1] * fld[:, 1])
+            keep = (np.abs(c_here) / scale >= threshold) & (speed <= np.abs(c_here) * rad) & \
+                ((c_here > 0) | (-c_here > 0))
+            if edge is not None and edge > 0:
+                keep &= geo.dist[jj, ii] >= edge * ell
+        cc, jj, ii, pj, pi, low, high, c_here = (cc[keep], jj[keep], ii[keep], pj[keep],
+                                                 pi[keep], low[keep], high[keep], c_here[keep])
+        with np.errstate(invalid="ignore"):
+            nb = padded[cc[:, None], pj[:, None] + geo.in_radius[0][None, :],
+                        pi[:, None] + geo.in_radius[1][None, :]]
+            here = padded[cc, pj, pi]
+            sign_low = np.where(cc == 0, 1.0, -1.0)   # of div d or curl r at a minimum
             low &= (here < np.fmin.reduce(nb, axis=1)) & (c_here * sign_low > 0)
             high &= (here > np.fmax.reduce(nb, axis=1)) & (c_here * -sign_low > 0)
             keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
-        cc, jj, ii, low = cc[keep], jj[keep], ii[keep], low[keep]
-        cpad = _padded(comp, Ry, Rx, np.nan)
+        cc, jj, ii, low, c_here = cc[keep], jj[keep], ii[keep], low[keep], c_here[keep]
         c_all = np.full(jj.size, math.nan)
         if coherence is not None and jj.size:            # one sign over the disc
-            sel = (r_off <= COHERENCE_RADIUS * ell)
+            sel = (geo.r_off <= COHERENCE_RADIUS * ell)
             disc_c = cpad[cc[:, None], jj[:, None] + Ry + oy[sel][None, :],
                           ii[:, None] + Rx + ox[sel][None, :]]
-            sign = np.sign(comp[cc, jj, ii])
+            sign = np.sign(c_here)
             total = np.nansum(np.abs(disc_c), axis=1)
             c_all = np.where(total > 0, sign * np.nansum(disc_c, axis=1) /
                              np.maximum(total, 1e-300), 1.0)
             keep = c_all >= coherence
-            cc, jj, ii, low, c_all = cc[keep], jj[keep], ii[keep], low[keep], c_all[keep]
+            cc, jj, ii, low, c_all, c_here = (cc[keep], jj[keep], ii[keep], low[keep],
+                                              c_all[keep], c_here[keep])
         # by component, then by strength (stable: ties in the grid's order)
-        order = np.lexsort((-strength[cc, jj, ii], cc))
-        cc, jj, ii, low, c_all = cc[order], jj[order], ii[order], low[order], c_all[order]
+        strength = np.abs(c_here) / scale
+        order = np.lexsort((-strength, cc))
+        cc, jj, ii, low, c_all, c_here, strength = (cc[order], jj[order], ii[order], low[order],
+                                                    c_all[order], c_here[order], strength[order])
         z_all = np.full(jj.size, math.nan)
         if significance is not None and jj.size:
             sigma = grid_noise_sigma(lat, geometry=geo)
-            z_all = _grid_significance(geo, comp, cpad, cc, jj, ii, sigma)
+            z_all = _grid_significance(geo, c_here, cpad, cc, jj, ii, sigma)
             keep = z_all >= significance
-            cc, jj, ii, low, c_all, z_all = (cc[keep], jj[keep], ii[keep], low[keep],
-                                             c_all[keep], z_all[keep])
+            cc, jj, ii, low, c_all, z_all, strength = (cc[keep], jj[keep], ii[keep], low[keep],
+                                                       c_all[keep], z_all[keep], strength[keep])
         places = _grid_refine(lat, geo, padded, cc, jj, ii, rad)
         for k in range(jj.size):
             c, j, i = int(cc[k]), int(jj[k]), int(ii[k])
             found.append((places[k], (float(lat.x[i]), float(lat.y[j])),
-                          kinds[c][0] if low[k] else kinds[c][1], strength[c, j, i],
+                          kinds[c][0] if low[k] else kinds[c][1], strength[k],
                           float(z_all[k]), float(c_all[k])))
     if found and lat.domain is not None:
         # a refined place outside the outline falls back to its node (one
@@ -234,20 +240,20 @@ def _padded(values, Ry, Rx, fill):
     return out
 
 
-def _grid_significance(geo, comp, padded_comp, cc, jj, ii, sigma) -> np.ndarray:
+def _grid_significance(geo, c_here, padded_comp, cc, jj, ii, sigma) -> np.ndarray:
     """Per candidate node (jj, ii) (K,), the significance of
     :func:`find_grid_critical_points`: the best over ``SIGNIFICANCE_RADII`` of
     the mean of ``comp`` over the used nodes of the disc (also within the
     radius), signed by the candidate's, over ``sigma`` times the disc mean's
     white-noise spread (:meth:`CriticalGeometry.spreads`).  The sums for all
-    candidates at once (``comp``: (2, ny, nx), the candidates' at cc;
+    candidates at once (``c_here``: (K,) the candidates' components;
     ``padded_comp``: ``comp`` padded by the window, NaN off the used
     nodes)."""
     g_used = geo.window_gather(geo.padded_used, jj, ii)                 # (K, wy * wx)
     g_comp = np.where(g_used, geo.window_gather(padded_comp, jj, ii, cc), 0.0)
     counts = g_used.astype(np.float64) @ geo.disc_weights.T              # (K, 4)
     sums = g_comp @ geo.disc_weights.T
-    sign = np.where(comp[cc, jj, ii] > 0, 1.0, -1.0)
+    sign = np.where(c_here > 0, 1.0, -1.0)
     means = sign[:, None] * sums / np.maximum(counts, 1)
     spread = sigma * geo.spreads(jj, ii)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -436,6 +442,9 @@ class CriticalGeometry:
         self.disc_weights = self.discs.reshape(len(self.discs), -1).astype(np.float64)
         near = self.r_off < rad
         self.near_offsets = (self.oy[near], self.ox[near])
+        # the others within the radius: the extremum's test
+        others = near & (self.r_off > 0)
+        self.in_radius = (self.oy[others], self.ox[others])
         self.padded_used = _padded(self.used, self.Ry, self.Rx, False)
         # the axes padded by the window (clamped: the padding is never used)
         ny, nx = self.used.shape
