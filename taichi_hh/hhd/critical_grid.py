@@ -40,10 +40,17 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     - what those take from the nodes alone (:class:`CriticalGeometry`) kept
       for the last few grids, as the decomposition keeps its layouts.
     """
+    # one errstate for all (NaN off the used nodes compares and sums
+    # quietly; a context costs a few microseconds each)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return _grid_points(lat, threshold, radius, filter, edge, significance, coherence)
+
+
+def _grid_points(lat, threshold, radius, filter, edge, significance, coherence) -> list:
+    """:func:`find_grid_critical_points`'s work, under its errstate."""
     from .natural_grid import smoothed
     used = lat.used
-    n = int(used.sum())
-    if n < 4:
+    if np.count_nonzero(used) < 4:
         return []
     if not filter:
         edge = significance = coherence = None
@@ -58,22 +65,26 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     # significance read them
     ddr = lat.components_div_curl
     sm = smoothed(np.stack([lat.divergence, lat.curl, ddr[..., 0], ddr[..., 1], lat.phi, lat.psi]),
-                  lat.inside, (1, 1, 1, 1, POT_PASSES, POT_PASSES), steps=geo.smoothing)
+                  lat.inside, (1, 1, 1, 1, POT_PASSES, POT_PASSES), steps=geo.smoothing,
+                  outside=None)                 # only the used nodes are read
     scale = grid_strength_scale(lat, geo, sm[0:2], ell)
     if scale == 0.0 or not math.isfinite(scale):
         return []
-    Ry, Rx, oy, ox = geo.Ry, geo.Rx, geo.oy, geo.ox
+    Ry, Rx = geo.Ry, geo.Rx
     ny, nx = used.shape
     found = []              # (refined place, node, kind, strength, significance, coherence)
     # both components at once, stacked: d's sources and sinks (phi's minima
     # and maxima), then r's clockwise and counter-clockwise vortices (psi's)
     kinds = (("source", "sink"), ("cw_vortex", "ccw_vortex"))
-    # div d, curl r, phi, psi padded by the window, NaN off the used nodes
-    # (what the gathers over the windows read)
-    both = np.full((4, ny + 2 * Ry, nx + 2 * Rx), np.nan)
-    np.copyto(both[:, Ry:Ry + ny, Rx:Rx + nx], sm[2:6], where=used)
-    cpad, padded = both[0:2], both[2:4]
-    pot = padded[:, Ry:Ry + ny, Rx:Rx + nx]                      # (2, ny, nx)
+    # padded by the window (what the gathers over the windows read): div d
+    # and curl r, 0 off the used nodes (the sums over discs); phi and psi,
+    # NaN off them (the extrema: fmin and fmax skip NaN)
+    inner = (slice(None), slice(Ry, Ry + ny), slice(Rx, Rx + nx))
+    cpad = np.zeros((2, ny + 2 * Ry, nx + 2 * Rx))
+    np.copyto(cpad[inner], sm[2:4], where=used)
+    padded = np.full((2, ny + 2 * Ry, nx + 2 * Rx), np.nan)
+    np.copyto(padded[inner], sm[4:6], where=used)
+    pot = padded[inner]                                          # (2, ny, nx)
     # a strict extremum of the potential among the 8 neighbours first (a
     # necessary condition, by shifted views of the whole grid: few nodes
     # pass it), then the node's own tests on those (the same arithmetic as
@@ -100,40 +111,37 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
                     lo8 = view if lo8 is None else np.fmin(lo8, view)
                     hi8 = view if hi8 is None else np.fmax(hi8, view)
     if lo8 is not None:
-        with np.errstate(invalid="ignore"):
-            low8, high8 = pot < lo8, pot > hi8     # False off the used nodes (NaN)
-            cc, jj, ii = np.nonzero((low8 | high8) & geo.two_of_eight)
+        low8, high8 = pot < lo8, pot > hi8         # False off the used nodes (NaN)
+        cc, jj, ii = np.nonzero((low8 | high8) & geo.two_of_eight)
         low, high = low8[cc, jj, ii], high8[cc, jj, ii]
         pj, pi = jj + Ry, ii + Rx
         c_here = cpad[cc, pj, pi]
         # d's speed for phi, r's for psi, by the squares (np.hypot's guard
         # costs five times as much)
         fld = np.where((cc == 0)[:, None], lat.curl_free[jj, ii], lat.div_free[jj, ii])
-        with np.errstate(invalid="ignore"):
-            speed = np.sqrt(fld[:, 0] * fld[:, 0] + fld[:, 1] * fld[:, 1])
-            keep = (np.abs(c_here) / scale >= threshold) & (speed <= np.abs(c_here) * rad) & \
-                ((c_here > 0) | (-c_here > 0))
-            if edge is not None and edge > 0:
-                keep &= geo.dist[jj, ii] >= edge * ell
+        speed = np.sqrt(fld[:, 0] * fld[:, 0] + fld[:, 1] * fld[:, 1])
+        keep = (np.abs(c_here) / scale >= threshold) & (speed <= np.abs(c_here) * rad) & \
+            ((c_here > 0) | (-c_here > 0))
+        if edge is not None and edge > 0:
+            keep &= geo.dist[jj, ii] >= edge * ell
         cc, jj, ii, pj, pi, low, high, c_here = (cc[keep], jj[keep], ii[keep], pj[keep],
                                                  pi[keep], low[keep], high[keep], c_here[keep])
-        with np.errstate(invalid="ignore"):
-            nb = padded[cc[:, None], pj[:, None] + geo.in_radius[0][None, :],
-                        pi[:, None] + geo.in_radius[1][None, :]]
-            here = padded[cc, pj, pi]
-            sign_low = np.where(cc == 0, 1.0, -1.0)   # of div d or curl r at a minimum
-            low &= (here < np.fmin.reduce(nb, axis=1)) & (c_here * sign_low > 0)
-            high &= (here > np.fmax.reduce(nb, axis=1)) & (c_here * -sign_low > 0)
-            keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
+        nb = padded[cc[:, None], pj[:, None] + geo.in_radius[0][None, :],
+                    pi[:, None] + geo.in_radius[1][None, :]]
+        here = padded[cc, pj, pi]
+        sign_low = np.where(cc == 0, 1.0, -1.0)       # of div d or curl r at a minimum
+        low &= (here < np.fmin.reduce(nb, axis=1)) & (c_here * sign_low > 0)
+        high &= (here > np.fmax.reduce(nb, axis=1)) & (c_here * -sign_low > 0)
+        keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
         cc, jj, ii, low, c_here = cc[keep], jj[keep], ii[keep], low[keep], c_here[keep]
         c_all = np.full(jj.size, math.nan)
         if coherence is not None and jj.size:            # one sign over the disc
-            sel = (geo.r_off <= COHERENCE_RADIUS * ell)
-            disc_c = cpad[cc[:, None], jj[:, None] + Ry + oy[sel][None, :],
-                          ii[:, None] + Rx + ox[sel][None, :]]
+            # the used nodes' values, 0 off them (nansum's sums of the same
+            # values, NaN for 0), one flat gather
+            disc_c = np.take(cpad, geo.coherence_flat(jj, ii, cc, ell))
             sign = np.sign(c_here)
-            total = np.nansum(np.abs(disc_c), axis=1)
-            c_all = np.where(total > 0, sign * np.nansum(disc_c, axis=1) /
+            total = np.sum(np.abs(disc_c), axis=1)
+            c_all = np.where(total > 0, sign * np.sum(disc_c, axis=1) /
                              np.maximum(total, 1e-300), 1.0)
             keep = c_all >= coherence
             cc, jj, ii, low, c_all, c_here = (cc[keep], jj[keep], ii[keep], low[keep],
@@ -176,15 +184,16 @@ def grid_strength_scale(lat, geo, div_curl, ell: float) -> float:
     the general function."""
     if geo.every_node_used:                 # views: no gathers
         both = div_curl.reshape(2, -1)
-        uv = np.stack([lat.u, lat.v]).reshape(2, -1)
-    else:
-        both = div_curl.reshape(2, -1)[:, geo.used_flat]
-        uv = np.stack([lat.u, lat.v]).reshape(2, -1)[:, geo.used_flat]
+        u, v = lat.u.reshape(-1), lat.v.reshape(-1)
+    else:                                   # np.take: a tenth of fancy indexing's time
+        both = np.take(div_curl.reshape(2, -1), geo.used_flat, axis=1)
+        u, v = np.take(lat.u, geo.used_flat), np.take(lat.v, geo.used_flat)
     if not np.isfinite(both).all():
-        return strength_scale(SimpleNamespace(divergence=both[0], curl=both[1], vectors=uv.T,
+        return strength_scale(SimpleNamespace(divergence=both[0], curl=both[1],
+                                              vectors=np.stack([u, v], axis=1),
                                               stats={"spacing": ell}), geo.edge_distance)
-    sel = both if geo.scale_nodes is None else both[:, geo.scale_nodes]
-    return scale_of(np.abs(sel), uv[0], uv[1], ell)
+    sel = both if geo.scale_nodes is None else np.take(both, geo.scale_nodes, axis=1)
+    return scale_of(np.abs(sel), u, v, ell)
 
 
 def _inside_outline(domain, points, segments=None) -> np.ndarray:
@@ -247,18 +256,18 @@ def _grid_significance(geo, c_here, padded_comp, cc, jj, ii, sigma) -> np.ndarra
     radius), signed by the candidate's, over ``sigma`` times the disc mean's
     white-noise spread (:meth:`CriticalGeometry.spreads`).  The sums for all
     candidates at once (``c_here``: (K,) the candidates' components;
-    ``padded_comp``: ``comp`` padded by the window, NaN off the used
-    nodes)."""
-    g_used = geo.window_gather(geo.padded_used, jj, ii)                 # (K, wy * wx)
-    g_comp = np.where(g_used, geo.window_gather(padded_comp, jj, ii, cc), 0.0)
-    counts = g_used.astype(np.float64) @ geo.disc_weights.T              # (K, 4)
+    ``padded_comp``: ``comp`` padded by the window, 0 off the used
+    nodes; the discs' counts of used nodes kept per node)."""
+    plane = padded_comp[0].size
+    g_comp = np.take(padded_comp, geo.window_flat(jj, ii) + (cc * plane)[:, None])
+    counts = np.take(geo.disc_counts().reshape(-1, len(geo.discs)), jj * geo.used.shape[1] + ii,
+                     axis=0)                                            # (K, 4)
     sums = g_comp @ geo.disc_weights.T
     sign = np.where(c_here > 0, 1.0, -1.0)
     means = sign[:, None] * sums / np.maximum(counts, 1)
     spread = sigma * geo.spreads(jj, ii)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(spread > 0, means / np.where(spread > 0, spread, 1.0),
-                     np.where(means > 0, math.inf, -math.inf))
+    z = np.where(spread > 0, means / np.where(spread > 0, spread, 1.0),
+                 np.where(means > 0, math.inf, -math.inf))
     return z.max(axis=1) if z.size else np.full(len(jj), -math.inf)
 
 
@@ -275,7 +284,7 @@ def _grid_refine(lat, geo, padded_pot, cc, jj, ii, rad) -> list:
     oy, ox = geo.near_offsets
     here_x, here_y = lat.x[ii], lat.y[jj]
     rows, cols = jj[:, None] + geo.Ry + oy[None, :], ii[:, None] + geo.Rx + ox[None, :]
-    m = geo.padded_used[rows, cols]                                     # (K, O)
+    m = np.take(geo.padded_used, rows * geo.padded_used.shape[1] + cols)  # (K, O)
     A = np.empty(m.shape + (6,))                                        # (K, O, 6)
     A[..., 0] = m
     A[..., 1] = X = np.where(m, geo.padded_x[cols] - here_x[:, None], 0.0)
@@ -286,13 +295,12 @@ def _grid_refine(lat, geo, padded_pot, cc, jj, ii, rad) -> list:
     P = np.where(m, padded_pot[cc[:, None], rows, cols], 0.0)
     normal = np.einsum("koa,kob->kab", A, A)
     rhs = np.einsum("koa,ko->ka", A, P)
-    fit = m.sum(axis=1) >= 6
-    every = bool(fit.all())
-    coef = np.full((len(jj), 6), np.nan)
+    fit = geo.near_counts()[jj, ii] >= 6                                # m's row sums
     try:                                  # the normal equations: no LAPACK least squares
-        if every:
+        if fit.all():
             coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
         else:
+            coef = np.full((len(jj), 6), np.nan)
             coef[fit] = np.linalg.solve(normal[fit], rhs[fit][..., None])[..., 0]
     except np.linalg.LinAlgError:         # one singular: each on its own
         coef = np.full((len(jj), 6), np.nan)
@@ -302,12 +310,11 @@ def _grid_refine(lat, geo, padded_pot, cc, jj, ii, rad) -> list:
             except np.linalg.LinAlgError:
                 pass
     a, b, c = 2 * coef[:, 3], coef[:, 4], 2 * coef[:, 5]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        det = a * c - b * b
-        step_x = -(c * coef[:, 1] - b * coef[:, 2]) / det
-        step_y = -(a * coef[:, 2] - b * coef[:, 1]) / det
-        ok = (det != 0) & np.isfinite(det) & np.isfinite(step_x) & np.isfinite(step_y) & \
-            (np.hypot(step_x, step_y) <= rad)
+    det = a * c - b * b                   # (the caller's errstate: quiet)
+    step_x = -(c * coef[:, 1] - b * coef[:, 2]) / det
+    step_y = -(a * coef[:, 2] - b * coef[:, 1]) / det
+    ok = (det != 0) & np.isfinite(det) & np.isfinite(step_x) & np.isfinite(step_y) & \
+        (np.hypot(step_x, step_y) <= rad)
     out = []
     for k, good in enumerate(ok.tolist()):
         x, y = float(here_x[k]), float(here_y[k])
@@ -336,7 +343,9 @@ def grid_noise_sigma(lat, samples: int = NOISE_SAMPLES, *, geometry=None) -> flo
     # pinned workers after it)
     index, weights = noise_rows(lat.used.shape, centre, rows, filt) if geometry is None \
         else geometry.noise_rows(samples)
-    values = np.take(np.stack([lat.u, lat.v]).reshape(2, -1), index, axis=1)   # (2, S, 21)
+    values = np.empty((2,) + index.shape)                                      # (2, S, 21)
+    np.take(lat.u, index, out=values[0])
+    np.take(lat.v, index, out=values[1])
     deviations = np.abs(np.einsum("csk,k->cs", values, weights))
     return 1.4826 * float(median(deviations.ravel()))
 
@@ -360,7 +369,8 @@ def median(values: np.ndarray) -> float:
     m = len(values)
     lo, hi = (m - 1) // 2, m // 2
     part = np.partition(values, (lo, hi))
-    return float(part[lo]) if lo == hi else float(np.mean(part[lo:hi + 1]))
+    # np.mean of the two: their sum over two (the same operations)
+    return float(part[lo]) if lo == hi else (float(part[lo]) + float(part[hi])) / 2.0
 
 
 #: the noise filter's reach in nodes: its 20 nearest within 3 steps each way
@@ -437,6 +447,8 @@ class CriticalGeometry:
         self.oy, self.ox = np.mgrid[-self.Ry:self.Ry + 1, -self.Rx:self.Rx + 1]
         self.r_off = np.hypot(self.oy * self.hy, self.ox * self.hx)
         self.window_offsets = (self.oy.ravel(), self.ox.ravel())
+        self.window_flat_offsets = (self.oy.ravel() * (lat.used.shape[1] + 2 * self.Rx)
+                                    + self.ox.ravel())
         self.discs = np.stack([(self.r_off < rad) & (self.r_off <= radius_i * ell)
                                for radius_i in SIGNIFICANCE_RADII])      # (4, wy, wx)
         self.disc_weights = self.discs.reshape(len(self.discs), -1).astype(np.float64)
@@ -466,6 +478,9 @@ class CriticalGeometry:
         self._noise = {}
         self._spreads = {}                    # node -> its windows' spreads
         self._clear = None
+        self._disc_counts = None
+        self._near_counts = None
+        self._coherence = None
 
     @classmethod
     def of(cls, lat, rad: float, far: float) -> "CriticalGeometry":
@@ -483,13 +498,49 @@ class CriticalGeometry:
         _GEOMETRIES.put(key, geo)
         return geo
 
-    def window_gather(self, padded, jj, ii, cc=None) -> np.ndarray:
-        """(K, wy * wx): ``padded`` (a grid array padded by the window; with
-        ``cc``, a stack of them, the candidates' at cc) over the window of
-        each node (jj, ii)."""
-        oy, ox = self.window_offsets
-        at = (jj[:, None] + self.Ry + oy[None, :], ii[:, None] + self.Rx + ox[None, :])
-        return padded[at] if cc is None else padded[(cc[:, None],) + at]
+    def window_flat(self, jj, ii) -> np.ndarray:
+        """(K, wy * wx): the flat indices, in the grid padded by the window,
+        of the window of each node (jj, ii)."""
+        width = self.used.shape[1] + 2 * self.Rx
+        return ((jj + self.Ry) * width + ii + self.Rx)[:, None] + self.window_flat_offsets
+
+    def coherence_flat(self, jj, ii, cc, ell: float) -> np.ndarray:
+        """(K, D): the flat indices, in a stack of two grids padded by the
+        window, of the nodes within :data:`COHERENCE_RADIUS` spacings of
+        each node (jj, ii) of grid cc."""
+        if self._coherence is None:
+            sel = (self.r_off <= COHERENCE_RADIUS * ell).ravel()
+            self._coherence = self.window_flat_offsets[sel]
+        ny, nx = self.used.shape
+        height, width = ny + 2 * self.Ry, nx + 2 * self.Rx
+        centre = (cc * height + jj + self.Ry) * width + ii + self.Rx
+        return centre[:, None] + self._coherence
+
+    def near_counts(self) -> np.ndarray:
+        """(ny, nx): per node the used nodes within the radius, itself
+        counted (its refinement's fit needs 6; made once)."""
+        if self._near_counts is None:
+            ny, nx = self.used.shape
+            counts = np.zeros((ny, nx), dtype=np.int64)
+            for oy, ox in zip(*self.near_offsets):
+                counts += self.padded_used[self.Ry + oy:self.Ry + oy + ny,
+                                           self.Rx + ox:self.Rx + ox + nx]
+            self._near_counts = counts
+        return self._near_counts
+
+    def disc_counts(self) -> np.ndarray:
+        """(ny, nx, 4) float: per node the used nodes of each significance
+        disc around it (made once)."""
+        if self._disc_counts is None:
+            ny, nx = self.used.shape
+            counts = np.zeros((len(self.discs), ny, nx), dtype=np.int32)
+            for oy, ox, w in zip(*self.window_offsets, self.disc_weights.T):
+                shifted = self.padded_used[self.Ry + oy:self.Ry + oy + ny,
+                                           self.Rx + ox:self.Rx + ox + nx]
+                for k in np.flatnonzero(w):
+                    counts[k] += shifted
+            self._disc_counts = np.moveaxis(counts, 0, -1).astype(np.float64)
+        return self._disc_counts
 
     def noise_filter(self, samples: int) -> tuple:
         """:func:`noise_filter` of these nodes (made once per ``samples``)."""

@@ -103,13 +103,15 @@ def smoothing_steps(avail: np.ndarray) -> list:
     return steps
 
 
-def smoothed(F: np.ndarray, avail: np.ndarray, passes=1, steps: list | None = None) \
-        -> np.ndarray:
+def smoothed(F: np.ndarray, avail: np.ndarray, passes=1, steps: list | None = None,
+             outside=np.nan) -> np.ndarray:
     """``F`` (ny, nx), or a stack of fields (k, ny, nx), smoothed over the
     nodes ``avail`` by the binomial filter [1, 2, 1] / 4 along x, then along
     y (each pass renormalised by the weight of the available nodes; NaN off
     ``avail``), ``passes`` times (or per field: k counts); ``steps``:
-    :func:`smoothing_steps` of ``avail`` if made already.  One pass is what
+    :func:`smoothing_steps` of ``avail`` if made already; ``outside``: the
+    value off ``avail`` (None: left as the passes leave it, 0, for a caller
+    that reads the available nodes only).  One pass is what
     the scattered path's cubic moving-least-squares divergence does to a
     field's differences: on pivpy's noisy samples the differences smoothed
     so differ from it by 16-22% (wing tip, soap film; 31-54% unsmoothed).
@@ -136,7 +138,8 @@ def smoothed(F: np.ndarray, avail: np.ndarray, passes=1, steps: list | None = No
             np.multiply(num, scale, out=part)
         if not run:
             Z[sel] = part
-    Z[:, ~avail] = np.nan
+    if outside is not None:
+        Z[:, ~avail] = outside
     return Z[0] if one else Z
 
 
