@@ -275,19 +275,10 @@ def _grid_refine(lat, geo, padded_pot, cc, jj, ii, rad) -> list:
     it falls outside the domain's outline): all fits at once."""
     if len(jj) == 0:
         return []
-    oy, ox = geo.near_offsets
     here_x, here_y = lat.x[ii], lat.y[jj]
-    rows, cols = jj[:, None] + geo.Ry + oy[None, :], ii[:, None] + geo.Rx + ox[None, :]
-    m = np.take(geo.padded_used, rows * geo.padded_used.shape[1] + cols)  # (K, O)
-    A = np.empty(m.shape + (6,))                                        # (K, O, 6)
-    A[..., 0] = m
-    A[..., 1] = X = np.where(m, geo.padded_x[cols] - here_x[:, None], 0.0)
-    A[..., 2] = Y = np.where(m, geo.padded_y[rows] - here_y[:, None], 0.0)
-    np.multiply(X, X, out=A[..., 3])
-    np.multiply(X, Y, out=A[..., 4])
-    np.multiply(Y, Y, out=A[..., 5])
-    P = np.where(m, padded_pot[cc[:, None], rows, cols], 0.0)
-    normal = np.einsum("koa,kob->kab", A, A)
+    # the fits' matrices (the nodes alone: kept per node by the geometry)
+    at, m, A, normal = geo.fit_rows(jj, ii)
+    P = np.where(m, np.take(padded_pot, at + (cc * padded_pot[0].size)[:, None]), 0.0)
     rhs = np.einsum("koa,ko->ka", A, P)
     fit = geo.near_counts()[jj, ii] >= 6                                # m's row sums
     try:                                  # the normal equations: no LAPACK least squares
@@ -365,6 +356,7 @@ class CriticalGeometry:
         ny, nx = self.used.shape
         self.padded_x = lat.x[np.clip(np.arange(-self.Rx, nx + self.Rx), 0, nx - 1)]
         self.padded_y = lat.y[np.clip(np.arange(-self.Ry, ny + self.Ry), 0, ny - 1)]
+        self.x, self.y = lat.x, lat.y
         # the used nodes with two used nodes or more among their 8 neighbours
         count8 = np.zeros(self.used.shape, dtype=np.int64)
         ry, rx = min(self.Ry, 1), min(self.Rx, 1)
@@ -383,6 +375,7 @@ class CriticalGeometry:
         self._clear = None
         self._disc_counts = None
         self._near_counts = None
+        self._fits = {}                       # node -> its fit's rows (fit_rows)
         self._coherence = None
 
     @classmethod
@@ -418,6 +411,37 @@ class CriticalGeometry:
         height, width = ny + 2 * self.Ry, nx + 2 * self.Rx
         centre = (cc * height + jj + self.Ry) * width + ii + self.Rx
         return centre[:, None] + self._coherence
+
+    def fit_rows(self, jj, ii) -> tuple:
+        """``(at, m, A, normal)`` of :func:`_grid_refine`'s fits at the nodes
+        (jj, ii) (K,): the flat indices (K, O) in the grid padded by the
+        window of the offsets within the radius, the used ones among them,
+        the quadratic's rows (K, O, 6: 1, X, Y, X^2, XY, Y^2 from the node;
+        0 off the used nodes) and the normal matrices A^T A (K, 6, 6), each
+        node's made once (einsum's sums per node: the same in any batch)."""
+        keys = (jj * self.used.shape[1] + ii).tolist()
+        kept = self._fits
+        new = [k for k, key in enumerate(keys) if key not in kept]
+        if new:
+            if len(kept) + len(new) > KEPT_FITS:
+                kept.clear()
+            nj, ni = jj[new], ii[new]
+            oy, ox = self.near_offsets
+            rows, cols = nj[:, None] + self.Ry + oy[None, :], ni[:, None] + self.Rx + ox[None, :]
+            at = rows * self.padded_used.shape[1] + cols
+            m = np.take(self.padded_used, at)                              # (k, O)
+            A = np.empty(m.shape + (6,))                                   # (k, O, 6)
+            A[..., 0] = m
+            A[..., 1] = X = np.where(m, self.padded_x[cols] - self.x[ni][:, None], 0.0)
+            A[..., 2] = Y = np.where(m, self.padded_y[rows] - self.y[nj][:, None], 0.0)
+            np.multiply(X, X, out=A[..., 3])
+            np.multiply(X, Y, out=A[..., 4])
+            np.multiply(Y, Y, out=A[..., 5])
+            normal = np.einsum("koa,kob->kab", A, A)
+            for k, key in enumerate(jj[new] * self.used.shape[1] + ii[new]):
+                kept[int(key)] = (at[k], m[k], A[k], normal[k])
+        rows = [kept[key] for key in keys]
+        return tuple(np.stack(parts) for parts in zip(*rows))
 
     def near_counts(self) -> np.ndarray:
         """(ny, nx): per node the used nodes within the radius, itself
@@ -516,6 +540,9 @@ class CriticalGeometry:
 #: the geometries :meth:`CriticalGeometry.of` keeps (as the layouts,
 #: :data:`~taichi_hh.hhd.grid.KEPT_LAYOUTS`)
 KEPT_GEOMETRIES = 4
+#: the fits' rows a geometry keeps (:meth:`CriticalGeometry.fit_rows`; a
+#: few kilobytes each): all of them dropped past this count
+KEPT_FITS = 4096
 #: grids of more nodes keep none (their windows' spreads are a small part of
 #: their critical points' time)
 KEPT_GEOMETRY_NODES = 1_000_000
