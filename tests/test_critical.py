@@ -337,6 +337,31 @@ def test_kept_geometry_changes_nothing():
         np.testing.assert_allclose(spreads[k], rows.mean_row_norms(mine, win), rtol=1e-12)
 
 
+def test_deep_nodes_places_are_inside():
+    """CriticalGeometry.deep, the nodes whose refined places skip the
+    outline's containment test, is what the test would say: every place
+    within the radius of a deep node is inside the domain (masked holes, an
+    unlit corner cut off), on the domain's own locator; used nodes of both
+    kinds occur."""
+    from taichi_hh.hhd import critical_grid
+    x, y, X, pts = _grid(48)
+    v = _noisy_max(_vortices(pts), 0.05, seed=5)
+    u, w = v[:, 0].reshape(X.shape), v[:, 1].reshape(X.shape)
+    Y = np.meshgrid(x, y)[1]
+    mask = ((X - 0.6) ** 2 + (Y - 0.4) ** 2 < 0.1 ** 2) | (X + Y > 1.7)
+    lat = thh.decompose_grid(x, y, u, w, mask=mask).lattice
+    rad = critical_grid.grid_support(lat.hx, lat.hy, lat.options.support_ratio)
+    geo = critical_grid.CriticalGeometry(lat, rad, critical.SCALE_EDGE * lat.spacing)
+    jj, ii = np.nonzero(geo.deep)
+    assert 0 < len(jj) < lat.used.sum()
+    rng = np.random.default_rng(1)
+    angle = rng.uniform(0, 2 * np.pi, len(jj))
+    for r in (rad, 0.999 * rad, 0.5 * rad):         # on the radius and within
+        places = np.c_[x[ii] + r * np.cos(angle), y[jj] + r * np.sin(angle)]
+        assert lat.domain.contains(places).all()
+    assert (lat.used & ~geo.deep).any()            # the others take the test
+
+
 def test_linear_percentile_is_numpys():
     """critical.linear_percentile (one partition) gives np.percentile's
     default, linear interpolation, bit for bit: sizes 1 to 5000, percentiles

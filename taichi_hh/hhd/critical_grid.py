@@ -169,9 +169,13 @@ def _grid_points(lat, threshold, radius, filter, edge, significance, coherence) 
                           float(z_all[k]), float(c_all[k])))
     if found and lat.domain is not None:
         # a refined place outside the outline falls back to its node (one
-        # vectorised test for all)
-        moved = np.array([f[0] for f in found], dtype=np.float64)
-        inside = _inside_outline(lat.domain, moved, geo.segments)
+        # vectorised test for those not deep inside: a place at most the
+        # radius from a node whose block of nodes reaching a cell past the
+        # radius is inside is inside)
+        inside = geo.deep[jj, ii]
+        if not inside.all():
+            moved = np.array([f[0] for f, ok in zip(found, inside) if not ok], dtype=np.float64)
+            inside[~inside] = _inside_outline(lat.domain, moved, geo.segments)
         found = [(f[0] if ok else f[1],) + f[1:] for f, ok in zip(found, inside)]
     out = [CriticalPoint(float(p[0][0]), float(p[0][1]), p[2], p[3], p[4], p[5])
            for p in found]
@@ -318,7 +322,7 @@ class CriticalGeometry:
     them once)."""
 
     def __init__(self, lat, rad: float, far: float):
-        from .natural_grid import outline_distance, smoothing_steps
+        from .natural_grid import eroded, outline_distance, smoothing_steps
         self.used, self.inside = lat.used, lat.inside
         self.data_codes = lat.data_codes
         self.hx, self.hy = lat.hx, lat.hy
@@ -337,6 +341,10 @@ class CriticalGeometry:
         self.scale_nodes = None if far_nodes.sum() < 0.25 * len(far_nodes) else \
             np.flatnonzero(far_nodes)
         self.smoothing = smoothing_steps(self.inside)
+        # the nodes whose block of nodes a cell past the radius is inside: a
+        # place within the radius of one is inside the outline
+        self.deep = eroded(self.inside, int(math.ceil(rad / self.hy)) + 1,
+                           int(math.ceil(rad / self.hx)) + 1)
         self.Ry, self.Rx = int(rad // self.hy), int(rad // self.hx)
         self.oy, self.ox = np.mgrid[-self.Ry:self.Ry + 1, -self.Rx:self.Rx + 1]
         self.r_off = np.hypot(self.oy * self.hy, self.ox * self.hx)
