@@ -67,7 +67,7 @@ def _grid_points(lat, threshold, radius, filter, edge, significance, coherence) 
     # them (natural_grid.smoothed): the strengths, signs, coherence and
     # significance read them
     ddr = lat.components_div_curl
-    sm = smoothed(np.stack([lat.divergence, lat.curl, ddr[..., 0], ddr[..., 1], lat.phi, lat.psi]),
+    sm = smoothed([lat.divergence, lat.curl, ddr[..., 0], ddr[..., 1], lat.phi, lat.psi],
                   lat.inside, (1, 1, 1, 1, POT_PASSES, POT_PASSES), steps=geo.smoothing,
                   outside=None)                 # only the used nodes are read
     scale = grid_strength_scale(lat, geo, sm[0:2], ell)
