@@ -337,6 +337,52 @@ def test_kept_geometry_changes_nothing():
         np.testing.assert_allclose(spreads[k], rows.mean_row_norms(mine, win), rtol=1e-12)
 
 
+def _smoothed_by_rows(F, avail, passes):
+    """The binomial smoothing of natural_grid.smoothed written out axis by
+    axis on the grid itself (each step (2 p + lower) + upper over the
+    weight of the available nodes): the reference its shifted flat sums
+    must equal."""
+    Z = np.where(avail, F, 0.0)
+    w = avail.astype(np.float64)
+    for _ in range(passes):
+        for axis in (1, 0):
+            n = avail.shape[axis]
+            if n < 2:
+                continue
+            lo = (slice(None),) * axis + (slice(0, n - 1),)
+            hi = (slice(None),) * axis + (slice(1, n),)
+            den = 2.0 * w
+            den[hi] += w[lo]
+            den[lo] += w[hi]
+            num = 2.0 * Z
+            num[hi] += Z[lo]
+            num[lo] += Z[hi]
+            Z = num * np.where(avail, 1.0 / np.maximum(den, 1e-300), 0.0)
+    return np.where(avail, Z, np.nan)
+
+
+def test_smoothed_is_the_filter_node_by_node():
+    """natural_grid.smoothed (shifted flat sums over fields grown by a row
+    and a column of zeros, one work array) equals the filter written out
+    axis by axis, to the bit: masked grids, a single row and a single
+    column, several fields with their own pass counts, given as a stack or
+    as a list."""
+    from taichi_hh.hhd.natural_grid import smoothed, smoothing_steps
+    rng = np.random.default_rng(4)
+    for ny, nx in ((22, 30), (63, 79), (1, 17), (13, 1), (2, 2)):
+        avail = rng.uniform(size=(ny, nx)) > 0.2
+        F = rng.standard_normal((3, ny, nx)) * 10.0 ** rng.uniform(-3, 3)
+        F[:, ~avail] = np.nan                          # never read
+        passes = (1, 3, 2)
+        want = np.stack([_smoothed_by_rows(f, avail, c) for f, c in zip(F, passes)])
+        for given in (F, list(F)):
+            got = smoothed(given, avail, passes, steps=smoothing_steps(avail))
+            np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(smoothed(F[1], avail, 3), want[1])
+        kept = smoothed(F, avail, passes, outside=None)[:, avail]
+        np.testing.assert_array_equal(kept, want[:, avail])
+
+
 def test_deep_nodes_places_are_inside():
     """CriticalGeometry.deep, the nodes whose refined places skip the
     outline's containment test, is what the test would say: every place
