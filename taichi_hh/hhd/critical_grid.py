@@ -114,54 +114,57 @@ def _grid_points(lat, threshold, radius, filter, edge, significance, coherence) 
                     lo8 = view if lo8 is None else np.fmin(lo8, view)
                     hi8 = view if hi8 is None else np.fmax(hi8, view)
     if lo8 is not None:
-        low8, high8 = pot < lo8, pot > hi8         # False off the used nodes (NaN)
-        cc, jj, ii = np.nonzero((low8 | high8) & geo.two_of_eight)
-        low, high = low8[cc, jj, ii], high8[cc, jj, ii]
-        pj, pi = jj + Ry, ii + Rx
-        c_here = cpad[cc, pj, pi]
+        low8 = pot < lo8                           # False off the used nodes (NaN)
+        cc, jj, ii = np.nonzero((low8 | (pot > hi8)) & geo.two_of_eight)
+        low = low8[cc, jj, ii]                     # else a strict maximum (one of the two)
+        at = (cc * padded[0].shape[0] + jj + Ry) * padded[0].shape[1] + ii + Rx   # flat
+        c_here = np.take(cpad, at)
         # d's speed for phi, r's for psi, by the squares (np.hypot's guard
-        # costs five times as much)
+        # costs five times as much); the component's sign, tested below,
+        # makes it nonzero
         fld = np.where((cc == 0)[:, None], lat.curl_free[jj, ii], lat.div_free[jj, ii])
         speed = np.sqrt(fld[:, 0] * fld[:, 0] + fld[:, 1] * fld[:, 1])
-        keep = (np.abs(c_here) / scale >= threshold) & (speed <= np.abs(c_here) * rad) & \
-            ((c_here > 0) | (-c_here > 0))
+        keep = (np.abs(c_here) / scale >= threshold) & (speed <= np.abs(c_here) * rad)
         if edge is not None and edge > 0:
-            keep &= geo.dist[jj, ii] >= edge * ell
-        cc, jj, ii, pj, pi, low, high, c_here = (cc[keep], jj[keep], ii[keep], pj[keep],
-                                                 pi[keep], low[keep], high[keep], c_here[keep])
-        nb = padded[cc[:, None], pj[:, None] + geo.in_radius[0][None, :],
-                    pi[:, None] + geo.in_radius[1][None, :]]
-        here = padded[cc, pj, pi]
-        sign_low = np.where(cc == 0, 1.0, -1.0)       # of div d or curl r at a minimum
-        low &= (here < np.fmin.reduce(nb, axis=1)) & (c_here * sign_low > 0)
-        high &= (here > np.fmax.reduce(nb, axis=1)) & (c_here * -sign_low > 0)
-        keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
-        cc, jj, ii, low, c_here = cc[keep], jj[keep], ii[keep], low[keep], c_here[keep]
-        c_all = np.full(jj.size, math.nan)
-        if coherence is not None and jj.size:            # one sign over the disc
+            keep &= np.take(geo.dist, jj * nx + ii) >= edge * ell
+        # the candidates' grid, row, column, flat index, minimum (1) or
+        # maximum (0), filtered together from here on
+        nodes = np.stack((cc, jj, ii, at, low))[:, keep]
+        cc, jj, ii, at, low = nodes
+        c_here = c_here[keep]
+        nb = np.take(padded, at[:, None] + geo.in_radius_flat)
+        here = np.take(padded, at)
+        # div d or curl r positive at phi's or psi's minimum (times -1 at a
+        # maximum, and for psi: exact)
+        sign = np.where((low == 1) == (cc == 0), 1.0, -1.0)
+        keep = np.where(low, here < np.fmin.reduce(nb, axis=1), here > np.fmax.reduce(nb, axis=1))
+        keep &= (c_here * sign > 0) & (np.isfinite(nb).sum(axis=1) >= 2)
+        nodes, c_here = nodes[:, keep], c_here[keep]
+        c_all = np.full(len(c_here), math.nan)
+        if coherence is not None and len(c_here):       # one sign over the disc
             # the used nodes' values, 0 off them (nansum's sums of the same
             # values, NaN for 0), one flat gather
-            disc_c = np.take(cpad, geo.coherence_flat(jj, ii, cc, ell))
+            disc_c = np.take(cpad, nodes[3][:, None] + geo.coherence_offsets(ell))
             sign = np.sign(c_here)
             total = np.sum(np.abs(disc_c), axis=1)
             c_all = np.where(total > 0, sign * np.sum(disc_c, axis=1) /
                              np.maximum(total, 1e-300), 1.0)
             keep = c_all >= coherence
-            cc, jj, ii, low, c_all, c_here = (cc[keep], jj[keep], ii[keep], low[keep],
-                                              c_all[keep], c_here[keep])
+            nodes, c_all, c_here = nodes[:, keep], c_all[keep], c_here[keep]
         # by component, then by strength (stable: ties in the grid's order)
         strength = np.abs(c_here) / scale
-        order = np.lexsort((-strength, cc))
-        cc, jj, ii, low, c_all, c_here, strength = (cc[order], jj[order], ii[order], low[order],
-                                                    c_all[order], c_here[order], strength[order])
-        z_all = np.full(jj.size, math.nan)
-        if significance is not None and jj.size:
+        order = np.lexsort((-strength, nodes[0]))
+        nodes, c_all, c_here, strength = (nodes[:, order], c_all[order], c_here[order],
+                                          strength[order])
+        z_all = np.full(len(c_here), math.nan)
+        if significance is not None and len(c_here):
             sigma = grid_noise_sigma(lat, geometry=geo)
-            z_all = _grid_significance(geo, c_here, cpad, cc, jj, ii, sigma)
+            z_all = _grid_significance(geo, c_here, cpad, nodes, sigma)
             keep = z_all >= significance
-            cc, jj, ii, low, c_all, z_all, strength = (cc[keep], jj[keep], ii[keep], low[keep],
-                                                       c_all[keep], z_all[keep], strength[keep])
-        places = _grid_refine(lat, geo, padded, cc, jj, ii, rad)
+            nodes, c_all, z_all, strength = (nodes[:, keep], c_all[keep], z_all[keep],
+                                             strength[keep])
+        cc, jj, ii, at, low = nodes
+        places = _grid_refine(lat, geo, padded, nodes, rad)
         for k in range(jj.size):
             c, j, i = int(cc[k]), int(jj[k]), int(ii[k])
             found.append((places[k], (float(lat.x[i]), float(lat.y[j])),
@@ -247,7 +250,7 @@ def _padded(values, Ry, Rx, fill):
     return out
 
 
-def _grid_significance(geo, c_here, padded_comp, cc, jj, ii, sigma) -> np.ndarray:
+def _grid_significance(geo, c_here, padded_comp, nodes, sigma) -> np.ndarray:
     """Per candidate node (jj, ii) (K,), the significance of
     :func:`find_grid_critical_points`: the best over ``SIGNIFICANCE_RADII`` of
     the mean of ``comp`` over the used nodes of the disc (also within the
@@ -255,9 +258,11 @@ def _grid_significance(geo, c_here, padded_comp, cc, jj, ii, sigma) -> np.ndarra
     white-noise spread (:meth:`CriticalGeometry.spreads`).  The sums for all
     candidates at once (``c_here``: (K,) the candidates' components;
     ``padded_comp``: ``comp`` padded by the window, 0 off the used
-    nodes; the discs' counts of used nodes kept per node)."""
-    plane = padded_comp[0].size
-    g_comp = np.take(padded_comp, geo.window_flat(jj, ii) + (cc * plane)[:, None])
+    nodes; ``nodes``: the candidates' grid, row, column and flat index in
+    ``padded_comp`` (4+, K); the discs' counts of used nodes kept per
+    node)."""
+    cc, jj, ii, at = nodes[:4]
+    g_comp = np.take(padded_comp, at[:, None] + geo.window_flat_offsets)
     counts = np.take(geo.disc_counts().reshape(-1, len(geo.discs)), jj * geo.used.shape[1] + ii,
                      axis=0)                                            # (K, 4)
     sums = g_comp @ geo.disc_weights.T
@@ -269,7 +274,7 @@ def _grid_significance(geo, c_here, padded_comp, cc, jj, ii, sigma) -> np.ndarra
     return z.max(axis=1) if z.size else np.full(len(jj), -math.inf)
 
 
-def _grid_refine(lat, geo, padded_pot, cc, jj, ii, rad) -> list:
+def _grid_refine(lat, geo, padded_pot, nodes, rad) -> list:
     """Per candidate node (jj, ii), the stationary point of the quadratic
     least-squares fit of its potential (``padded_pot``: the two potentials,
     (2, ny, nx) padded by the window, NaN off the used nodes; the
@@ -277,12 +282,13 @@ def _grid_refine(lat, geo, padded_pot, cc, jj, ii, rad) -> list:
     node kept where the fit has fewer than 6 nodes, is singular, or its
     stationary point falls farther than ``rad``; the caller keeps it where
     it falls outside the domain's outline): all fits at once."""
+    cc, jj, ii, at = nodes[:4]
     if len(jj) == 0:
         return []
     here_x, here_y = lat.x[ii], lat.y[jj]
     # the fits' matrices (the nodes alone: kept per node by the geometry)
-    at, m, A, normal = geo.fit_rows(jj, ii)
-    P = np.where(m, np.take(padded_pot, at + (cc * padded_pot[0].size)[:, None]), 0.0)
+    m, A, normal = geo.fit_rows(jj, ii)
+    P = np.where(m, np.take(padded_pot, at[:, None] + geo.near_flat_offsets), 0.0)
     rhs = np.einsum("koa,ko->ka", A, P)
     fit = geo.near_counts()[jj, ii] >= 6                                # m's row sums
     try:                                  # the normal equations: no LAPACK least squares
@@ -356,9 +362,13 @@ class CriticalGeometry:
         self.disc_weights = self.discs.reshape(len(self.discs), -1).astype(np.float64)
         near = self.r_off < rad
         self.near_offsets = (self.oy[near], self.ox[near])
-        # the others within the radius: the extremum's test
+        self.near_flat_offsets = self.oy[near] * (lat.used.shape[1] + 2 * self.Rx) + \
+            self.ox[near]
+        # the others within the radius (the extremum's test): flat offsets
+        # in the grid padded by the window
         others = near & (self.r_off > 0)
-        self.in_radius = (self.oy[others], self.ox[others])
+        self.in_radius_flat = self.oy[others] * (lat.used.shape[1] + 2 * self.Rx) + \
+            self.ox[others]
         self.padded_used = _padded(self.used, self.Ry, self.Rx, False)
         # the axes padded by the window (clamped: the padding is never used)
         ny, nx = self.used.shape
@@ -402,28 +412,18 @@ class CriticalGeometry:
         _GEOMETRIES.put(key, geo)
         return geo
 
-    def window_flat(self, jj, ii) -> np.ndarray:
-        """(K, wy * wx): the flat indices, in the grid padded by the window,
-        of the window of each node (jj, ii)."""
-        width = self.used.shape[1] + 2 * self.Rx
-        return ((jj + self.Ry) * width + ii + self.Rx)[:, None] + self.window_flat_offsets
-
-    def coherence_flat(self, jj, ii, cc, ell: float) -> np.ndarray:
-        """(K, D): the flat indices, in a stack of two grids padded by the
-        window, of the nodes within :data:`COHERENCE_RADIUS` spacings of
-        each node (jj, ii) of grid cc."""
+    def coherence_offsets(self, ell: float) -> np.ndarray:
+        """The flat offsets, in the grid padded by the window, of the nodes
+        within :data:`COHERENCE_RADIUS` spacings ``ell`` of a node."""
         if self._coherence is None:
             sel = (self.r_off <= COHERENCE_RADIUS * ell).ravel()
             self._coherence = self.window_flat_offsets[sel]
-        ny, nx = self.used.shape
-        height, width = ny + 2 * self.Ry, nx + 2 * self.Rx
-        centre = (cc * height + jj + self.Ry) * width + ii + self.Rx
-        return centre[:, None] + self._coherence
+        return self._coherence
 
     def fit_rows(self, jj, ii) -> tuple:
-        """``(at, m, A, normal)`` of :func:`_grid_refine`'s fits at the nodes
-        (jj, ii) (K,): the flat indices (K, O) in the grid padded by the
-        window of the offsets within the radius, the used ones among them,
+        """``(m, A, normal)`` of :func:`_grid_refine`'s fits at the nodes
+        (jj, ii) (K,): the used nodes among those within the radius
+        (:attr:`near_offsets`),
         the quadratic's rows (K, O, 6: 1, X, Y, X^2, XY, Y^2 from the node;
         0 off the used nodes) and the normal matrices A^T A (K, 6, 6), each
         node's made once (einsum's sums per node: the same in any batch)."""
@@ -447,7 +447,7 @@ class CriticalGeometry:
             np.multiply(Y, Y, out=A[..., 5])
             normal = np.einsum("koa,kob->kab", A, A)
             for k, key in enumerate(jj[new] * self.used.shape[1] + ii[new]):
-                kept[int(key)] = (at[k], m[k], A[k], normal[k])
+                kept[int(key)] = (m[k], A[k], normal[k])
         rows = [kept[key] for key in keys]
         return tuple(np.stack(parts) for parts in zip(*rows))
 
