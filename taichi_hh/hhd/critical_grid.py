@@ -212,19 +212,27 @@ def _inside_outline(domain, points, segments=None) -> np.ndarray:
     segments) without the point locator :meth:`Polygon.contains` builds on
     its first query (0.15 s for the staircase outline of a masked 64 x 64
     grid, four times the decomposition).  ``segments``: ``domain.segments()``
-    if made already.  Points on the boundary itself (a set of measure zero)
-    may go either way."""
+    if made already, or :func:`segment_columns` of it.  Points on the
+    boundary itself (a set of measure zero) may go either way."""
     if segments is None:
         segments = getattr(domain, "segments", None)
         segments = None if segments is None else segments()
     if segments is None or len(points) > 256:
         return domain.contains(points)
-    a, b = segments
+    ax, ay, by, dx, dy = segments if len(segments) == 5 else segment_columns(segments)
     px, py = points[:, 0:1], points[:, 1:2]                     # (k, 1) against (S,)
-    crosses = (a[:, 1] > py) != (b[:, 1] > py)
+    crosses = (ay > py) != (by > py)
     with np.errstate(divide="ignore", invalid="ignore"):
-        at = a[:, 0] + (py - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+        at = ax + (py - ay) * dx / dy
     return ((crosses & (px < at)).sum(axis=1) % 2) == 1
+
+
+def segment_columns(segments) -> tuple:
+    """``(ax, ay, by, bx - ax, by - ay)``, contiguous, of the segments
+    ``(a, b)`` ((S, 2) each): what :func:`_inside_outline` reads."""
+    a, b = segments
+    return tuple(np.ascontiguousarray(c) for c in (a[:, 0], a[:, 1], b[:, 1], b[:, 0] - a[:, 0],
+                                                   b[:, 1] - a[:, 1]))
 
 
 @functools.lru_cache(maxsize=16)
@@ -287,10 +295,9 @@ def _grid_refine(lat, geo, padded_pot, nodes, rad) -> list:
         return []
     here_x, here_y = lat.x[ii], lat.y[jj]
     # the fits' matrices (the nodes alone: kept per node by the geometry)
-    m, A, normal = geo.fit_rows(jj, ii)
+    m, A, normal, fit = geo.fit_rows(jj, ii)
     P = np.where(m, np.take(padded_pot, at[:, None] + geo.near_flat_offsets), 0.0)
     rhs = np.einsum("koa,ko->ka", A, P)
-    fit = geo.near_counts()[jj, ii] >= 6                                # m's row sums
     try:                                  # the normal equations: no LAPACK least squares
         if fit.all():
             coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
@@ -308,8 +315,9 @@ def _grid_refine(lat, geo, padded_pot, nodes, rad) -> list:
     det = a * c - b * b                   # (the caller's errstate: quiet)
     step_x = -(c * coef[:, 1] - b * coef[:, 2]) / det
     step_y = -(a * coef[:, 2] - b * coef[:, 1]) / det
-    ok = (det != 0) & np.isfinite(det) & np.isfinite(step_x) & np.isfinite(step_y) & \
-        (np.hypot(step_x, step_y) <= rad)
+    # a step within the radius is finite (so det is not 0); an infinite det
+    # would make a finite step of 0
+    ok = np.isfinite(det) & (np.hypot(step_x, step_y) <= rad)
     out = []
     for k, good in enumerate(ok.tolist()):
         x, y = float(here_x[k]), float(here_y[k])
@@ -385,15 +393,15 @@ class CriticalGeometry:
                                                self.Rx + dx:self.Rx + dx + nx]
         self.two_of_eight = count8 >= 2
         segments = getattr(lat.domain, "segments", None)
-        self.segments = None if segments is None else segments()
+        self.segments = None if segments is None else segment_columns(segments())
         self._rows = None
         self._off_centre_area = None
         self._noise = {}
         self._spreads = {}                    # node -> its windows' spreads
         self._clear = None
         self._disc_counts = None
-        self._near_counts = None
-        self._fits = {}                       # node -> its fit's rows (fit_rows)
+        self._fit_slot = {}                   # node -> its row in _fits (fit_rows)
+        self._fits = None
         self._coherence = None
 
     @classmethod
@@ -421,23 +429,24 @@ class CriticalGeometry:
         return self._coherence
 
     def fit_rows(self, jj, ii) -> tuple:
-        """``(m, A, normal)`` of :func:`_grid_refine`'s fits at the nodes
-        (jj, ii) (K,): the used nodes among those within the radius
-        (:attr:`near_offsets`),
-        the quadratic's rows (K, O, 6: 1, X, Y, X^2, XY, Y^2 from the node;
-        0 off the used nodes) and the normal matrices A^T A (K, 6, 6), each
-        node's made once (einsum's sums per node: the same in any batch)."""
+        """``(m, A, normal, fits)`` of :func:`_grid_refine`'s fits at the
+        nodes (jj, ii) (K,): the used nodes among those within the radius
+        (:attr:`near_offsets`), the quadratic's rows (K, O, 6: 1, X, Y, X^2,
+        XY, Y^2 from the node; 0 off the used nodes), the normal matrices
+        A^T A (K, 6, 6) and whether 6 nodes or more are used; each node's
+        made once and kept in one array per part (einsum's sums per node: the
+        same in any batch)."""
         keys = (jj * self.used.shape[1] + ii).tolist()
-        kept = self._fits
-        new = [k for k, key in enumerate(keys) if key not in kept]
+        slot = self._fit_slot
+        new = list(dict.fromkeys(key for key in keys if key not in slot))
         if new:
-            if len(kept) + len(new) > KEPT_FITS:
-                kept.clear()
-            nj, ni = jj[new], ii[new]
+            if len(slot) + len(new) > KEPT_FITS:
+                slot.clear()
+                self._fits = None
+            nj, ni = np.divmod(np.array(new), self.used.shape[1])
             oy, ox = self.near_offsets
             rows, cols = nj[:, None] + self.Ry + oy[None, :], ni[:, None] + self.Rx + ox[None, :]
-            at = rows * self.padded_used.shape[1] + cols
-            m = np.take(self.padded_used, at)                              # (k, O)
+            m = np.take(self.padded_used, rows * self.padded_used.shape[1] + cols)  # (k, O)
             A = np.empty(m.shape + (6,))                                   # (k, O, 6)
             A[..., 0] = m
             A[..., 1] = X = np.where(m, self.padded_x[cols] - self.x[ni][:, None], 0.0)
@@ -445,23 +454,13 @@ class CriticalGeometry:
             np.multiply(X, X, out=A[..., 3])
             np.multiply(X, Y, out=A[..., 4])
             np.multiply(Y, Y, out=A[..., 5])
-            normal = np.einsum("koa,kob->kab", A, A)
-            for k, key in enumerate(jj[new] * self.used.shape[1] + ii[new]):
-                kept[int(key)] = (m[k], A[k], normal[k])
-        rows = [kept[key] for key in keys]
-        return tuple(np.stack(parts) for parts in zip(*rows))
-
-    def near_counts(self) -> np.ndarray:
-        """(ny, nx): per node the used nodes within the radius, itself
-        counted (its refinement's fit needs 6; made once)."""
-        if self._near_counts is None:
-            ny, nx = self.used.shape
-            counts = np.zeros((ny, nx), dtype=np.int64)
-            for oy, ox in zip(*self.near_offsets):
-                counts += self.padded_used[self.Ry + oy:self.Ry + oy + ny,
-                                           self.Rx + ox:self.Rx + ox + nx]
-            self._near_counts = counts
-        return self._near_counts
+            parts = (m, A, np.einsum("koa,kob->kab", A, A), m.sum(axis=1) >= 6)
+            start = len(slot)
+            self._fits = parts if self._fits is None else \
+                tuple(np.concatenate(pair) for pair in zip(self._fits, parts))
+            slot.update((key, start + k) for k, key in enumerate(new))
+        at = [slot[key] for key in keys]
+        return tuple(np.take(part, at, axis=0) for part in self._fits)
 
     def disc_counts(self) -> np.ndarray:
         """(ny, nx, 4) float: per node the used nodes of each significance
