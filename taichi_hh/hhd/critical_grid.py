@@ -271,12 +271,11 @@ def _grid_significance(geo, c_here, padded_comp, nodes, sigma) -> np.ndarray:
     node)."""
     cc, jj, ii, at = nodes[:4]
     g_comp = np.take(padded_comp, at[:, None] + geo.window_flat_offsets)
-    counts = np.take(geo.disc_counts().reshape(-1, len(geo.discs)), jj * geo.used.shape[1] + ii,
-                     axis=0)                                            # (K, 4)
+    counts, spreads = geo.disc_rows(jj, ii)                             # (K, 4) each
     sums = g_comp @ geo.disc_weights.T
     sign = np.where(c_here > 0, 1.0, -1.0)
-    means = sign[:, None] * sums / np.maximum(counts, 1)
-    spread = sigma * geo.spreads(jj, ii)
+    means = sign[:, None] * sums / counts
+    spread = sigma * spreads
     z = np.where(spread > 0, means / np.where(spread > 0, spread, 1.0),
                  np.where(means > 0, math.inf, -math.inf))
     return z.max(axis=1) if z.size else np.full(len(jj), -math.inf)
@@ -399,7 +398,8 @@ class CriticalGeometry:
         self._noise = {}
         self._spreads = {}                    # node -> its windows' spreads
         self._clear = None
-        self._disc_counts = None
+        self._disc_slot = {}                  # node -> its row in _discs_kept (disc_rows)
+        self._discs_kept = None
         self._fit_slot = {}                   # node -> its row in _fits (fit_rows)
         self._fits = None
         self._coherence = None
@@ -462,19 +462,30 @@ class CriticalGeometry:
         at = [slot[key] for key in keys]
         return tuple(np.take(part, at, axis=0) for part in self._fits)
 
-    def disc_counts(self) -> np.ndarray:
-        """(ny, nx, 4) float: per node the used nodes of each significance
-        disc around it (made once)."""
-        if self._disc_counts is None:
-            ny, nx = self.used.shape
-            counts = np.zeros((len(self.discs), ny, nx), dtype=np.int32)
-            for oy, ox, w in zip(*self.window_offsets, self.disc_weights.T):
-                shifted = self.padded_used[self.Ry + oy:self.Ry + oy + ny,
-                                           self.Rx + ox:self.Rx + ox + nx]
-                for k in np.flatnonzero(w):
-                    counts[k] += shifted
-            self._disc_counts = np.moveaxis(counts, 0, -1).astype(np.float64)
-        return self._disc_counts
+    def disc_rows(self, jj, ii) -> tuple:
+        """``(counts, spreads)`` (K, 4) each: per node (jj, ii) the used nodes
+        of its significance discs (1 where none) and their means'
+        white-noise spreads (:meth:`spreads`); each node's made once and kept
+        in one array per part."""
+        nx = self.used.shape[1]
+        keys = (jj * nx + ii).tolist()
+        slot = self._disc_slot
+        new = list(dict.fromkeys(key for key in keys if key not in slot))
+        if new:
+            if len(slot) + len(new) > KEPT_FITS:
+                slot.clear()
+                self._discs_kept = None
+            nj, ni = np.divmod(np.array(new), nx)
+            centre = (nj + self.Ry) * (nx + 2 * self.Rx) + ni + self.Rx
+            used = np.take(self.padded_used, centre[:, None] + self.window_flat_offsets)
+            parts = (np.maximum(used.astype(np.float64) @ self.disc_weights.T, 1),  # exact
+                     self.spreads(nj, ni))
+            start = len(slot)
+            self._discs_kept = parts if self._discs_kept is None else \
+                tuple(np.concatenate(pair) for pair in zip(self._discs_kept, parts))
+            slot.update((key, start + k) for k, key in enumerate(new))
+        at = [slot[key] for key in keys]
+        return tuple(np.take(part, at, axis=0) for part in self._discs_kept)
 
     def noise_filter(self, samples: int) -> tuple:
         """:func:`noise_filter` of these nodes (made once per ``samples``)."""
