@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from types import SimpleNamespace
 
 import numpy as np
@@ -400,6 +401,7 @@ class CriticalGeometry:
         self._clear = None
         self._disc_slot = {}                  # node -> its row in _discs_kept (disc_rows)
         self._discs_kept = None
+        self._lock = threading.Lock()         # the per-node rows below, across threads
         self._fit_slot = {}                   # node -> its row in _fits (fit_rows)
         self._fits = None
         self._coherence = None
@@ -436,56 +438,59 @@ class CriticalGeometry:
         A^T A (K, 6, 6) and whether 6 nodes or more are used; each node's
         made once and kept in one array per part (einsum's sums per node: the
         same in any batch)."""
-        keys = (jj * self.used.shape[1] + ii).tolist()
-        slot = self._fit_slot
-        new = list(dict.fromkeys(key for key in keys if key not in slot))
-        if new:
-            if len(slot) + len(new) > KEPT_FITS:
-                slot.clear()
-                self._fits = None
-            nj, ni = np.divmod(np.array(new), self.used.shape[1])
-            oy, ox = self.near_offsets
-            rows, cols = nj[:, None] + self.Ry + oy[None, :], ni[:, None] + self.Rx + ox[None, :]
-            m = np.take(self.padded_used, rows * self.padded_used.shape[1] + cols)  # (k, O)
-            A = np.empty(m.shape + (6,))                                   # (k, O, 6)
-            A[..., 0] = m
-            A[..., 1] = X = np.where(m, self.padded_x[cols] - self.x[ni][:, None], 0.0)
-            A[..., 2] = Y = np.where(m, self.padded_y[rows] - self.y[nj][:, None], 0.0)
-            np.multiply(X, X, out=A[..., 3])
-            np.multiply(X, Y, out=A[..., 4])
-            np.multiply(Y, Y, out=A[..., 5])
-            parts = (m, A, np.einsum("koa,kob->kab", A, A), m.sum(axis=1) >= 6)
-            start = len(slot)
-            self._fits = parts if self._fits is None else \
-                tuple(np.concatenate(pair) for pair in zip(self._fits, parts))
-            slot.update((key, start + k) for k, key in enumerate(new))
-        at = [slot[key] for key in keys]
-        return tuple(np.take(part, at, axis=0) for part in self._fits)
+        with self._lock:                  # the slots and the arrays agree
+            keys = (jj * self.used.shape[1] + ii).tolist()
+            slot = self._fit_slot
+            new = list(dict.fromkeys(key for key in keys if key not in slot))
+            if new:
+                if len(slot) + len(new) > KEPT_FITS:
+                    slot.clear()
+                    self._fits = None
+                nj, ni = np.divmod(np.array(new), self.used.shape[1])
+                oy, ox = self.near_offsets
+                rows = nj[:, None] + self.Ry + oy[None, :]
+                cols = ni[:, None] + self.Rx + ox[None, :]
+                m = np.take(self.padded_used, rows * self.padded_used.shape[1] + cols)  # (k, O)
+                A = np.empty(m.shape + (6,))                                   # (k, O, 6)
+                A[..., 0] = m
+                A[..., 1] = X = np.where(m, self.padded_x[cols] - self.x[ni][:, None], 0.0)
+                A[..., 2] = Y = np.where(m, self.padded_y[rows] - self.y[nj][:, None], 0.0)
+                np.multiply(X, X, out=A[..., 3])
+                np.multiply(X, Y, out=A[..., 4])
+                np.multiply(Y, Y, out=A[..., 5])
+                parts = (m, A, np.einsum("koa,kob->kab", A, A), m.sum(axis=1) >= 6)
+                start = len(slot)
+                self._fits = parts if self._fits is None else \
+                    tuple(np.concatenate(pair) for pair in zip(self._fits, parts))
+                slot.update((key, start + k) for k, key in enumerate(new))
+            at = [slot[key] for key in keys]
+            return tuple(np.take(part, at, axis=0) for part in self._fits)
 
     def disc_rows(self, jj, ii) -> tuple:
         """``(counts, spreads)`` (K, 4) each: per node (jj, ii) the used nodes
         of its significance discs (1 where none) and their means'
         white-noise spreads (:meth:`spreads`); each node's made once and kept
         in one array per part."""
-        nx = self.used.shape[1]
-        keys = (jj * nx + ii).tolist()
-        slot = self._disc_slot
-        new = list(dict.fromkeys(key for key in keys if key not in slot))
-        if new:
-            if len(slot) + len(new) > KEPT_FITS:
-                slot.clear()
-                self._discs_kept = None
-            nj, ni = np.divmod(np.array(new), nx)
-            centre = (nj + self.Ry) * (nx + 2 * self.Rx) + ni + self.Rx
-            used = np.take(self.padded_used, centre[:, None] + self.window_flat_offsets)
-            parts = (np.maximum(used.astype(np.float64) @ self.disc_weights.T, 1),  # exact
-                     self.spreads(nj, ni))
-            start = len(slot)
-            self._discs_kept = parts if self._discs_kept is None else \
-                tuple(np.concatenate(pair) for pair in zip(self._discs_kept, parts))
-            slot.update((key, start + k) for k, key in enumerate(new))
-        at = [slot[key] for key in keys]
-        return tuple(np.take(part, at, axis=0) for part in self._discs_kept)
+        with self._lock:                  # the slots and the arrays agree
+            nx = self.used.shape[1]
+            keys = (jj * nx + ii).tolist()
+            slot = self._disc_slot
+            new = list(dict.fromkeys(key for key in keys if key not in slot))
+            if new:
+                if len(slot) + len(new) > KEPT_FITS:
+                    slot.clear()
+                    self._discs_kept = None
+                nj, ni = np.divmod(np.array(new), nx)
+                centre = (nj + self.Ry) * (nx + 2 * self.Rx) + ni + self.Rx
+                used = np.take(self.padded_used, centre[:, None] + self.window_flat_offsets)
+                parts = (np.maximum(used.astype(np.float64) @ self.disc_weights.T, 1),  # exact
+                         self.spreads(nj, ni))
+                start = len(slot)
+                self._discs_kept = parts if self._discs_kept is None else \
+                    tuple(np.concatenate(pair) for pair in zip(self._discs_kept, parts))
+                slot.update((key, start + k) for k, key in enumerate(new))
+            at = [slot[key] for key in keys]
+            return tuple(np.take(part, at, axis=0) for part in self._discs_kept)
 
     def noise_filter(self, samples: int) -> tuple:
         """:func:`noise_filter` of these nodes (made once per ``samples``)."""
