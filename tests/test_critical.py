@@ -383,6 +383,34 @@ def test_smoothed_is_the_filter_node_by_node():
         np.testing.assert_array_equal(kept, want[:, avail])
 
 
+def test_kept_node_rows_past_their_limit(monkeypatch):
+    """The rows CriticalGeometry keeps per node (the refinement's fits, the
+    significance discs' counts and spreads), asked for in batches with
+    repeats and past the count it keeps (then dropped and made again), are
+    those a fresh geometry makes for the same nodes, bit for bit."""
+    from taichi_hh.hhd import critical_grid
+    x, y, X, pts = _grid(32)
+    v = _noisy_max(_vortices(pts), 0.05, seed=6)
+    u, w = v[:, 0].reshape(X.shape), v[:, 1].reshape(X.shape)
+    Y = np.meshgrid(x, y)[1]
+    lat = thh.decompose_grid(x, y, u, w, mask=(X - 0.5) ** 2 + (Y - 0.5) ** 2 < 0.1 ** 2).lattice
+    rad = critical_grid.grid_support(lat.hx, lat.hy, lat.options.support_ratio)
+    far = critical.SCALE_EDGE * lat.spacing
+    monkeypatch.setattr(critical_grid, "KEPT_FITS", 7)
+    kept = critical_grid.CriticalGeometry(lat, rad, far)
+    jj, ii = np.nonzero(lat.used)
+    rng = np.random.default_rng(0)
+    for _ in range(6):
+        pick = rng.integers(0, len(jj), 5)
+        pick[-1] = pick[0]                                  # a node twice
+        fresh = critical_grid.CriticalGeometry(lat, rad, far)
+        for name in ("fit_rows", "disc_rows"):
+            got = getattr(kept, name)(jj[pick], ii[pick])
+            want = getattr(fresh, name)(jj[pick], ii[pick])
+            for g, w_ in zip(got, want):
+                np.testing.assert_array_equal(g, w_)
+
+
 def test_deep_nodes_places_are_inside():
     """CriticalGeometry.deep, the nodes whose refined places skip the
     outline's containment test, is what the test would say: every place

@@ -563,9 +563,10 @@ class CriticalGeometry:
 #: the geometries :meth:`CriticalGeometry.of` keeps (as the layouts,
 #: :data:`~taichi_hh.hhd.grid.KEPT_LAYOUTS`)
 KEPT_GEOMETRIES = 4
-#: the fits' rows a geometry keeps (:meth:`CriticalGeometry.fit_rows`; a
-#: few kilobytes each): all of them dropped past this count
-KEPT_FITS = 4096
+#: the nodes whose fit rows (:meth:`CriticalGeometry.fit_rows`, 2 kB each
+#: at the default radius) and disc rows a geometry keeps: all dropped past
+#: this count (a frame's points are tens of nodes)
+KEPT_FITS = 1024
 #: grids of more nodes keep none (their windows' spreads are a small part of
 #: their critical points' time)
 KEPT_GEOMETRY_NODES = 1_000_000
