@@ -116,18 +116,22 @@ def _grid_points(lat, threshold, radius, filter, edge, significance, coherence) 
                     hi8 = view if hi8 is None else np.fmax(hi8, view)
     if lo8 is not None:
         low8 = pot < lo8                           # False off the used nodes (NaN)
-        cc, jj, ii = np.nonzero((low8 | (pot > hi8)) & geo.two_of_eight)
-        low = low8[cc, jj, ii]                     # else a strict maximum (one of the two)
+        flat = np.flatnonzero((low8 | (pot > hi8)) & geo.two_of_eight)
+        low = np.take(low8, flat)                  # else a strict maximum (one of the two)
+        cc, node = np.divmod(flat, ny * nx)
+        jj, ii = np.divmod(node, nx)
         at = (cc * padded[0].shape[0] + jj + Ry) * padded[0].shape[1] + ii + Rx   # flat
         c_here = np.take(cpad, at)
         # d's speed for phi, r's for psi, by the squares (np.hypot's guard
         # costs five times as much); the component's sign, tested below,
         # makes it nonzero
-        fld = np.where((cc == 0)[:, None], lat.curl_free[jj, ii], lat.div_free[jj, ii])
+        fld = np.where((cc == 0)[:, None], np.take(lat.curl_free.reshape(-1, 2), node, axis=0),
+                       np.take(lat.div_free.reshape(-1, 2), node, axis=0))
         speed = np.sqrt(fld[:, 0] * fld[:, 0] + fld[:, 1] * fld[:, 1])
-        keep = (np.abs(c_here) / scale >= threshold) & (speed <= np.abs(c_here) * rad)
+        size = np.abs(c_here)
+        keep = (size / scale >= threshold) & (speed <= size * rad)
         if edge is not None and edge > 0:
-            keep &= np.take(geo.dist, jj * nx + ii) >= edge * ell
+            keep &= np.take(geo.dist, node) >= edge * ell
         # the candidates' grid, row, column, flat index, minimum (1) or
         # maximum (0), filtered together from here on
         nodes = np.stack((cc, jj, ii, at, low))[:, keep]
