@@ -116,29 +116,29 @@ def _grid_points(lat, threshold, radius, filter, edge, significance, coherence) 
                     hi8 = view if hi8 is None else np.fmax(hi8, view)
     if lo8 is not None:
         low8 = pot < lo8                           # False off the used nodes (NaN)
-        flat = np.flatnonzero((low8 | (pot > hi8)) & geo.two_of_eight)
-        low = np.take(low8, flat)                  # else a strict maximum (one of the two)
+        flat = ((low8 | (pot > hi8)) & geo.two_of_eight).ravel().nonzero()[0]
+        low = low8.take(flat)                  # else a strict maximum (one of the two)
         cc, node = np.divmod(flat, ny * nx)
         jj, ii = np.divmod(node, nx)
         at = (cc * padded[0].shape[0] + jj + Ry) * padded[0].shape[1] + ii + Rx   # flat
-        c_here = np.take(cpad, at)
+        c_here = cpad.take(at)
         # d's speed for phi, r's for psi, by the squares (np.hypot's guard
         # costs five times as much); the component's sign, tested below,
         # makes it nonzero
-        fld = np.where((cc == 0)[:, None], np.take(lat.curl_free.reshape(-1, 2), node, axis=0),
-                       np.take(lat.div_free.reshape(-1, 2), node, axis=0))
+        fld = np.where((cc == 0)[:, None], lat.curl_free.reshape(-1, 2).take(node, axis=0),
+                       lat.div_free.reshape(-1, 2).take(node, axis=0))
         speed = np.sqrt(fld[:, 0] * fld[:, 0] + fld[:, 1] * fld[:, 1])
         size = np.abs(c_here)
         keep = (size / scale >= threshold) & (speed <= size * rad)
         if edge is not None and edge > 0:
-            keep &= np.take(geo.dist, node) >= edge * ell
+            keep &= geo.dist.take(node) >= edge * ell
         # the candidates' grid, row, column, flat index, minimum (1) or
         # maximum (0), filtered together from here on
-        nodes = np.stack((cc, jj, ii, at, low))[:, keep]
+        nodes = np.array((cc, jj, ii, at, low))[:, keep]
         cc, jj, ii, at, low = nodes
         c_here = c_here[keep]
-        nb = np.take(padded, at[:, None] + geo.in_radius_flat)
-        here = np.take(padded, at)
+        nb = padded.take(at[:, None] + geo.in_radius_flat)
+        here = padded.take(at)
         # div d or curl r positive at phi's or psi's minimum (times -1 at a
         # maximum, and for psi: exact)
         sign = np.where((low == 1) == (cc == 0), 1.0, -1.0)
@@ -149,10 +149,10 @@ def _grid_points(lat, threshold, radius, filter, edge, significance, coherence) 
         if coherence is not None and len(c_here):       # one sign over the disc
             # the used nodes' values, 0 off them (nansum's sums of the same
             # values, NaN for 0), one flat gather
-            disc_c = np.take(cpad, nodes[3][:, None] + geo.coherence_offsets(ell))
+            disc_c = cpad.take(nodes[3][:, None] + geo.coherence_offsets(ell))
             sign = np.sign(c_here)
-            total = np.sum(np.abs(disc_c), axis=1)
-            c_all = np.where(total > 0, sign * np.sum(disc_c, axis=1) /
+            total = np.abs(disc_c).sum(axis=1)
+            c_all = np.where(total > 0, sign * disc_c.sum(axis=1) /
                              np.maximum(total, 1e-300), 1.0)
             keep = c_all >= coherence
             nodes, c_all, c_here = nodes[:, keep], c_all[keep], c_here[keep]
@@ -201,13 +201,13 @@ def grid_strength_scale(lat, geo, div_curl, ell: float) -> float:
         both = div_curl.reshape(2, -1)
         u, v = lat.u.reshape(-1), lat.v.reshape(-1)
     else:                                   # np.take: a tenth of fancy indexing's time
-        both = np.take(div_curl.reshape(2, -1), geo.used_flat, axis=1)
-        u, v = np.take(lat.u, geo.used_flat), np.take(lat.v, geo.used_flat)
+        both = div_curl.reshape(2, -1).take(geo.used_flat, axis=1)
+        u, v = lat.u.take(geo.used_flat), lat.v.take(geo.used_flat)
     if not np.isfinite(both).all():
         return strength_scale(SimpleNamespace(divergence=both[0], curl=both[1],
                                               vectors=np.stack([u, v], axis=1),
                                               stats={"spacing": ell}), geo.edge_distance)
-    sel = both if geo.scale_nodes is None else np.take(both, geo.scale_nodes, axis=1)
+    sel = both if geo.scale_nodes is None else both.take(geo.scale_nodes, axis=1)
     return scale_of(np.abs(sel), u, v, ell)
 
 
@@ -275,7 +275,7 @@ def _grid_significance(geo, c_here, padded_comp, nodes, sigma) -> np.ndarray:
     ``padded_comp`` (4+, K); the discs' counts of used nodes kept per
     node)."""
     cc, jj, ii, at = nodes[:4]
-    g_comp = np.take(padded_comp, at[:, None] + geo.window_flat_offsets)
+    g_comp = padded_comp.take(at[:, None] + geo.window_flat_offsets)
     counts, spreads = geo.disc_rows(jj, ii)                             # (K, 4) each
     sums = g_comp @ geo.disc_weights.T
     sign = np.where(c_here > 0, 1.0, -1.0)
@@ -300,7 +300,7 @@ def _grid_refine(lat, geo, padded_pot, nodes, rad) -> list:
     here_x, here_y = lat.x[ii], lat.y[jj]
     # the fits' matrices (the nodes alone: kept per node by the geometry)
     m, A, normal, fit = geo.fit_rows(jj, ii)
-    P = np.where(m, np.take(padded_pot, at[:, None] + geo.near_flat_offsets), 0.0)
+    P = np.where(m, padded_pot.take(at[:, None] + geo.near_flat_offsets), 0.0)
     rhs = np.einsum("koa,ko->ka", A, P)
     try:                                  # the normal equations: no LAPACK least squares
         if fit.all():
@@ -468,7 +468,7 @@ class CriticalGeometry:
                     tuple(np.concatenate(pair) for pair in zip(self._fits, parts))
                 slot.update((key, start + k) for k, key in enumerate(new))
             at = [slot[key] for key in keys]
-            return tuple(np.take(part, at, axis=0) for part in self._fits)
+            return tuple(part.take(at, axis=0) for part in self._fits)
 
     def disc_rows(self, jj, ii) -> tuple:
         """``(counts, spreads)`` (K, 4) each: per node (jj, ii) the used nodes
@@ -494,7 +494,7 @@ class CriticalGeometry:
                     tuple(np.concatenate(pair) for pair in zip(self._discs_kept, parts))
                 slot.update((key, start + k) for k, key in enumerate(new))
             at = [slot[key] for key in keys]
-            return tuple(np.take(part, at, axis=0) for part in self._discs_kept)
+            return tuple(part.take(at, axis=0) for part in self._discs_kept)
 
     def noise_filter(self, samples: int) -> tuple:
         """:func:`noise_filter` of these nodes (made once per ``samples``)."""

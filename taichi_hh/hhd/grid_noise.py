@@ -42,8 +42,8 @@ def grid_noise_sigma(lat, samples: int = NOISE_SAMPLES, *, geometry=None) -> flo
     index, weights = noise_rows(lat.used.shape, centre, rows, filt) if geometry is None \
         else geometry.noise_rows(samples)
     values = np.empty((2,) + index.shape)                                      # (2, S, 21)
-    np.take(lat.u, index, out=values[0])
-    np.take(lat.v, index, out=values[1])
+    lat.u.take(index, out=values[0])
+    lat.v.take(index, out=values[1])
     deviations = np.abs(np.einsum("csk,k->cs", values, weights))
     return 1.4826 * float(median(deviations.ravel()))
 
