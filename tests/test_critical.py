@@ -337,6 +337,105 @@ def test_kept_geometry_changes_nothing():
         np.testing.assert_allclose(spreads[k], rows.mean_row_norms(mine, win), rtol=1e-12)
 
 
+def _smoothed_by_rows(F, avail, passes):
+    """The binomial smoothing of natural_grid.smoothed written out axis by
+    axis on the grid itself (each step (2 p + lower) + upper over the
+    weight of the available nodes): the reference its shifted flat sums
+    must equal."""
+    Z = np.where(avail, F, 0.0)
+    w = avail.astype(np.float64)
+    for _ in range(passes):
+        for axis in (1, 0):
+            n = avail.shape[axis]
+            if n < 2:
+                continue
+            lo = (slice(None),) * axis + (slice(0, n - 1),)
+            hi = (slice(None),) * axis + (slice(1, n),)
+            den = 2.0 * w
+            den[hi] += w[lo]
+            den[lo] += w[hi]
+            num = 2.0 * Z
+            num[hi] += Z[lo]
+            num[lo] += Z[hi]
+            Z = num * np.where(avail, 1.0 / np.maximum(den, 1e-300), 0.0)
+    return np.where(avail, Z, np.nan)
+
+
+def test_smoothed_is_the_filter_node_by_node():
+    """natural_grid.smoothed (shifted flat sums over fields grown by a row
+    and a column of zeros, one work array) equals the filter written out
+    axis by axis, to the bit: masked grids, a single row and a single
+    column, several fields with their own pass counts, given as a stack or
+    as a list."""
+    from taichi_hh.hhd.natural_grid import smoothed, smoothing_steps
+    rng = np.random.default_rng(4)
+    for ny, nx in ((22, 30), (63, 79), (1, 17), (13, 1), (2, 2)):
+        avail = rng.uniform(size=(ny, nx)) > 0.2
+        F = rng.standard_normal((3, ny, nx)) * 10.0 ** rng.uniform(-3, 3)
+        F[:, ~avail] = np.nan                          # never read
+        passes = (1, 3, 2)
+        want = np.stack([_smoothed_by_rows(f, avail, c) for f, c in zip(F, passes)])
+        for given in (F, list(F)):
+            got = smoothed(given, avail, passes, steps=smoothing_steps(avail))
+            np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(smoothed(F[1], avail, 3), want[1])
+        kept = smoothed(F, avail, passes, outside=None)[:, avail]
+        np.testing.assert_array_equal(kept, want[:, avail])
+
+
+def test_kept_node_rows_past_their_limit(monkeypatch):
+    """The rows CriticalGeometry keeps per node (the refinement's fits, the
+    significance discs' counts and spreads), asked for in batches with
+    repeats and past the count it keeps (then dropped and made again), are
+    those a fresh geometry makes for the same nodes, bit for bit."""
+    from taichi_hh.hhd import critical_grid
+    x, y, X, pts = _grid(32)
+    v = _noisy_max(_vortices(pts), 0.05, seed=6)
+    u, w = v[:, 0].reshape(X.shape), v[:, 1].reshape(X.shape)
+    Y = np.meshgrid(x, y)[1]
+    lat = thh.decompose_grid(x, y, u, w, mask=(X - 0.5) ** 2 + (Y - 0.5) ** 2 < 0.1 ** 2).lattice
+    rad = critical_grid.grid_support(lat.hx, lat.hy, lat.options.support_ratio)
+    far = critical.SCALE_EDGE * lat.spacing
+    monkeypatch.setattr(critical_grid, "KEPT_FITS", 7)
+    kept = critical_grid.CriticalGeometry(lat, rad, far)
+    jj, ii = np.nonzero(lat.used)
+    rng = np.random.default_rng(0)
+    for _ in range(6):
+        pick = rng.integers(0, len(jj), 5)
+        pick[-1] = pick[0]                                  # a node twice
+        fresh = critical_grid.CriticalGeometry(lat, rad, far)
+        for name in ("fit_rows", "disc_rows"):
+            got = getattr(kept, name)(jj[pick], ii[pick])
+            want = getattr(fresh, name)(jj[pick], ii[pick])
+            for g, w_ in zip(got, want):
+                np.testing.assert_array_equal(g, w_)
+
+
+def test_deep_nodes_places_are_inside():
+    """CriticalGeometry.deep, the nodes whose refined places skip the
+    outline's containment test, is what the test would say: every place
+    within the radius of a deep node is inside the domain (masked holes, an
+    unlit corner cut off), on the domain's own locator; used nodes of both
+    kinds occur."""
+    from taichi_hh.hhd import critical_grid
+    x, y, X, pts = _grid(48)
+    v = _noisy_max(_vortices(pts), 0.05, seed=5)
+    u, w = v[:, 0].reshape(X.shape), v[:, 1].reshape(X.shape)
+    Y = np.meshgrid(x, y)[1]
+    mask = ((X - 0.6) ** 2 + (Y - 0.4) ** 2 < 0.1 ** 2) | (X + Y > 1.7)
+    lat = thh.decompose_grid(x, y, u, w, mask=mask).lattice
+    rad = critical_grid.grid_support(lat.hx, lat.hy, lat.options.support_ratio)
+    geo = critical_grid.CriticalGeometry(lat, rad, critical.SCALE_EDGE * lat.spacing)
+    jj, ii = np.nonzero(geo.deep)
+    assert 0 < len(jj) < lat.used.sum()
+    rng = np.random.default_rng(1)
+    angle = rng.uniform(0, 2 * np.pi, len(jj))
+    for r in (rad, 0.999 * rad, 0.5 * rad):         # on the radius and within
+        places = np.c_[x[ii] + r * np.cos(angle), y[jj] + r * np.sin(angle)]
+        assert lat.domain.contains(places).all()
+    assert (lat.used & ~geo.deep).any()            # the others take the test
+
+
 def test_linear_percentile_is_numpys():
     """critical.linear_percentile (one partition) gives np.percentile's
     default, linear interpolation, bit for bit: sizes 1 to 5000, percentiles

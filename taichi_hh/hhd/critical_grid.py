@@ -6,13 +6,17 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from types import SimpleNamespace
 
 import numpy as np
 
-from .critical import (COHERENCE, COHERENCE_RADIUS, EDGE, NOISE_SAMPLES, POT_PASSES, SCALE_EDGE,
-                       SIGNIFICANCE, SIGNIFICANCE_RADII, THRESHOLD, CriticalPoint, noise_sigma,
-                       scale_of, strength_scale)
+from .critical import (COHERENCE, COHERENCE_RADIUS, EDGE, POT_PASSES, SCALE_EDGE, SIGNIFICANCE,
+                       SIGNIFICANCE_RADII, THRESHOLD, CriticalPoint, scale_of, strength_scale)
+# the noise and the spreads' rows (grid_noise); median, GridRows and window
+# as the tests read them here
+from .grid_noise import (GridRows, grid_noise_sigma, median, noise_filter,  # noqa: F401
+                         noise_rows, window)
 from .recent import Recent
 
 
@@ -40,10 +44,17 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     - what those take from the nodes alone (:class:`CriticalGeometry`) kept
       for the last few grids, as the decomposition keeps its layouts.
     """
+    # one errstate for all (NaN off the used nodes compares and sums
+    # quietly; a context costs a few microseconds each)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return _grid_points(lat, threshold, radius, filter, edge, significance, coherence)
+
+
+def _grid_points(lat, threshold, radius, filter, edge, significance, coherence) -> list:
+    """:func:`find_grid_critical_points`'s work, under its errstate."""
     from .natural_grid import smoothed
     used = lat.used
-    n = int(used.sum())
-    if n < 4:
+    if np.count_nonzero(used) < 4:
         return []
     if not filter:
         edge = significance = coherence = None
@@ -53,43 +64,39 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
     # distances to the outline (in the points' units) up to what the tests need
     far = max(SCALE_EDGE, edge or 0.0) * ell
     geo = CriticalGeometry.of(lat, rad, far)
-    dist = geo.dist
     # the derivatives smoothed as the scattered path's MLS operator smooths
     # them (natural_grid.smoothed): the strengths, signs, coherence and
     # significance read them
     ddr = lat.components_div_curl
-    sm = smoothed(np.stack([lat.divergence, lat.curl, ddr[..., 0], ddr[..., 1], lat.phi, lat.psi]),
-                  lat.inside, (1, 1, 1, 1, POT_PASSES, POT_PASSES), steps=geo.smoothing)
-    comps, pots = sm[2:4], sm[4:6]
+    sm = smoothed([lat.divergence, lat.curl, ddr[..., 0], ddr[..., 1], lat.phi, lat.psi],
+                  lat.inside, (1, 1, 1, 1, POT_PASSES, POT_PASSES), steps=geo.smoothing,
+                  outside=None)                 # only the used nodes are read
     scale = grid_strength_scale(lat, geo, sm[0:2], ell)
     if scale == 0.0 or not math.isfinite(scale):
         return []
-    Ry, Rx, oy, ox, r_off = geo.Ry, geo.Rx, geo.oy, geo.ox, geo.r_off
+    Ry, Rx = geo.Ry, geo.Rx
     ny, nx = used.shape
-    in_rad = (r_off < rad) & (r_off > 0)                  # the others within radius
     found = []              # (refined place, node, kind, strength, significance, coherence)
     # both components at once, stacked: d's sources and sinks (phi's minima
     # and maxima), then r's clockwise and counter-clockwise vortices (psi's)
     kinds = (("source", "sink"), ("cw_vortex", "ccw_vortex"))
-    low_sign = np.array([1.0, -1.0])        # the sign of div d or curl r at a minimum
-    pot = np.where(used, pots, np.nan)                           # (2, ny, nx)
-    comp = np.where(used, comps, np.nan)
-    fld = np.stack([lat.curl_free, lat.div_free])                # (2, ny, nx, 2)
-    with np.errstate(invalid="ignore"):
-        strength = np.abs(comp) / scale
-        # by the squares: np.hypot's guard costs five times as much
-        speed = np.sqrt(fld[..., 0] * fld[..., 0] + fld[..., 1] * fld[..., 1])
-        cand = used & (strength >= threshold) & (speed <= np.abs(comp) * rad)
-        if edge is not None and edge > 0:
-            cand &= dist >= edge * ell
-        cand &= (comp > 0) | (-comp > 0)
-    # a strict extremum among the 8 neighbours (necessary: shifted views of
-    # the whole grid), then among the used nodes within the radius (gathers
-    # over the candidates left).  fmin/fmax skip NaN (off the used nodes) as
-    # nanmin/nanmax do; none but NaN: no extremum
-    padded = _padded(pot, Ry, Rx, np.nan)
+    # padded by the window (what the gathers over the windows read): div d
+    # and curl r, 0 off the used nodes (the sums over discs); phi and psi,
+    # NaN off them (the extrema: fmin and fmax skip NaN)
+    inner = (slice(None), slice(Ry, Ry + ny), slice(Rx, Rx + nx))
+    cpad = np.zeros((2, ny + 2 * Ry, nx + 2 * Rx))
+    np.copyto(cpad[inner], sm[2:4], where=used)
+    padded = np.full((2, ny + 2 * Ry, nx + 2 * Rx), np.nan)
+    np.copyto(padded[inner], sm[4:6], where=used)
+    pot = padded[inner]                                          # (2, ny, nx)
+    # a strict extremum of the potential among the 8 neighbours first (a
+    # necessary condition, by shifted views of the whole grid: few nodes
+    # pass it), then the node's own tests on those (the same arithmetic as
+    # over the whole grid, on fewer nodes), then a strict extremum among the
+    # used nodes within the radius (gathers).  fmin/fmax skip NaN (off the
+    # used nodes) as nanmin/nanmax do; none but NaN: no extremum
     lo8 = hi8 = None
-    if cand.any() and Ry >= 1 and Rx >= 1:
+    if Ry >= 1 and Rx >= 1:
         # separably: the two row neighbours, the three nodes of the rows
         # above and below (min and max are exact: the same values as eight
         # shifted views, half the calls)
@@ -100,7 +107,7 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
         hi3 = np.fmax(hi_side, rows[:, :, Rx:Rx + nx])
         lo8 = np.fmin(np.fmin(lo3[:, :-2], lo3[:, 2:]), lo_side[:, 1:-1])
         hi8 = np.fmax(np.fmax(hi3[:, :-2], hi3[:, 2:]), hi_side[:, 1:-1])
-    elif cand.any():
+    else:
         for dy in range(-min(Ry, 1), min(Ry, 1) + 1):
             for dx in range(-min(Rx, 1), min(Rx, 1) + 1):
                 if dy or dx:
@@ -108,53 +115,75 @@ def find_grid_critical_points(lat, threshold: float = THRESHOLD, radius: float |
                     lo8 = view if lo8 is None else np.fmin(lo8, view)
                     hi8 = view if hi8 is None else np.fmax(hi8, view)
     if lo8 is not None:
-        with np.errstate(invalid="ignore"):
-            low8, high8 = pot < lo8, pot > hi8
-            cand &= (low8 | high8) & geo.two_of_eight      # pot is finite on the used nodes
-            cc, jj, ii = np.nonzero(cand)
-            low, high = low8[cc, jj, ii], high8[cc, jj, ii]
-            nb = padded[cc[:, None], jj[:, None] + Ry + oy[in_rad][None, :],
-                        ii[:, None] + Rx + ox[in_rad][None, :]]
-            here = pot[cc, jj, ii]
-            c_here = comp[cc, jj, ii]
-            sign_low = low_sign[cc]
-            low &= (here < np.fmin.reduce(nb, axis=1)) & (c_here * sign_low > 0)
-            high &= (here > np.fmax.reduce(nb, axis=1)) & (c_here * -sign_low > 0)
-            keep = (low | high) & (np.isfinite(nb).sum(axis=1) >= 2)
-        cc, jj, ii, low = cc[keep], jj[keep], ii[keep], low[keep]
-        cpad = _padded(comp, Ry, Rx, np.nan)
-        c_all = np.full(jj.size, math.nan)
-        if coherence is not None and jj.size:            # one sign over the disc
-            sel = (r_off <= COHERENCE_RADIUS * ell)
-            disc_c = cpad[cc[:, None], jj[:, None] + Ry + oy[sel][None, :],
-                          ii[:, None] + Rx + ox[sel][None, :]]
-            sign = np.sign(comp[cc, jj, ii])
-            total = np.nansum(np.abs(disc_c), axis=1)
-            c_all = np.where(total > 0, sign * np.nansum(disc_c, axis=1) /
+        low8 = pot < lo8                           # False off the used nodes (NaN)
+        flat = ((low8 | (pot > hi8)) & geo.two_of_eight).ravel().nonzero()[0]
+        low = low8.take(flat)                  # else a strict maximum (one of the two)
+        cc, node = np.divmod(flat, ny * nx)
+        jj, ii = np.divmod(node, nx)
+        at = (cc * padded[0].shape[0] + jj + Ry) * padded[0].shape[1] + ii + Rx   # flat
+        c_here = cpad.take(at)
+        # d's speed for phi, r's for psi, by the squares (np.hypot's guard
+        # costs five times as much); the component's sign, tested below,
+        # makes it nonzero
+        fld = np.where((cc == 0)[:, None], lat.curl_free.reshape(-1, 2).take(node, axis=0),
+                       lat.div_free.reshape(-1, 2).take(node, axis=0))
+        speed = np.sqrt(fld[:, 0] * fld[:, 0] + fld[:, 1] * fld[:, 1])
+        size = np.abs(c_here)
+        keep = (size / scale >= threshold) & (speed <= size * rad)
+        if edge is not None and edge > 0:
+            keep &= geo.dist.take(node) >= edge * ell
+        # the candidates' grid, row, column, flat index, minimum (1) or
+        # maximum (0), filtered together from here on
+        nodes = np.array((cc, jj, ii, at, low))[:, keep]
+        cc, jj, ii, at, low = nodes
+        c_here = c_here[keep]
+        nb = padded.take(at[:, None] + geo.in_radius_flat)
+        here = padded.take(at)
+        # div d or curl r positive at phi's or psi's minimum (times -1 at a
+        # maximum, and for psi: exact)
+        sign = np.where((low == 1) == (cc == 0), 1.0, -1.0)
+        keep = np.where(low, here < np.fmin.reduce(nb, axis=1), here > np.fmax.reduce(nb, axis=1))
+        keep &= (c_here * sign > 0) & (np.isfinite(nb).sum(axis=1) >= 2)
+        nodes, c_here = nodes[:, keep], c_here[keep]
+        c_all = np.full(len(c_here), math.nan)
+        if coherence is not None and len(c_here):       # one sign over the disc
+            # the used nodes' values, 0 off them (nansum's sums of the same
+            # values, NaN for 0), one flat gather
+            disc_c = cpad.take(nodes[3][:, None] + geo.coherence_offsets(ell))
+            sign = np.sign(c_here)
+            total = np.abs(disc_c).sum(axis=1)
+            c_all = np.where(total > 0, sign * disc_c.sum(axis=1) /
                              np.maximum(total, 1e-300), 1.0)
             keep = c_all >= coherence
-            cc, jj, ii, low, c_all = cc[keep], jj[keep], ii[keep], low[keep], c_all[keep]
+            nodes, c_all, c_here = nodes[:, keep], c_all[keep], c_here[keep]
         # by component, then by strength (stable: ties in the grid's order)
-        order = np.lexsort((-strength[cc, jj, ii], cc))
-        cc, jj, ii, low, c_all = cc[order], jj[order], ii[order], low[order], c_all[order]
-        z_all = np.full(jj.size, math.nan)
-        if significance is not None and jj.size:
+        strength = np.abs(c_here) / scale
+        order = np.lexsort((-strength, nodes[0]))
+        nodes, c_all, c_here, strength = (nodes[:, order], c_all[order], c_here[order],
+                                          strength[order])
+        z_all = np.full(len(c_here), math.nan)
+        if significance is not None and len(c_here):
             sigma = grid_noise_sigma(lat, geometry=geo)
-            z_all = _grid_significance(geo, comp, cpad, cc, jj, ii, sigma)
+            z_all = _grid_significance(geo, c_here, cpad, nodes, sigma)
             keep = z_all >= significance
-            cc, jj, ii, low, c_all, z_all = (cc[keep], jj[keep], ii[keep], low[keep],
-                                             c_all[keep], z_all[keep])
-        places = _grid_refine(lat, geo, padded, cc, jj, ii, rad)
+            nodes, c_all, z_all, strength = (nodes[:, keep], c_all[keep], z_all[keep],
+                                             strength[keep])
+        cc, jj, ii, at, low = nodes
+        places = _grid_refine(lat, geo, padded, nodes, rad)
         for k in range(jj.size):
             c, j, i = int(cc[k]), int(jj[k]), int(ii[k])
             found.append((places[k], (float(lat.x[i]), float(lat.y[j])),
-                          kinds[c][0] if low[k] else kinds[c][1], strength[c, j, i],
+                          kinds[c][0] if low[k] else kinds[c][1], strength[k],
                           float(z_all[k]), float(c_all[k])))
     if found and lat.domain is not None:
         # a refined place outside the outline falls back to its node (one
-        # vectorised test for all)
-        moved = np.array([f[0] for f in found], dtype=np.float64)
-        inside = _inside_outline(lat.domain, moved, geo.segments)
+        # vectorised test for those not deep inside: a place at most the
+        # radius from a node whose block of nodes reaching a cell past the
+        # radius is inside is inside)
+        inside = geo.deep[jj, ii]
+        if not inside.all():
+            moved = np.array([f[0] for f, ok in zip(found, inside) if not ok], dtype=np.float64)
+            inside[~inside] = _inside_outline(lat.domain, moved, geo.segments)
         found = [(f[0] if ok else f[1],) + f[1:] for f, ok in zip(found, inside)]
     out = [CriticalPoint(float(p[0][0]), float(p[0][1]), p[2], p[3], p[4], p[5])
            for p in found]
@@ -170,15 +199,16 @@ def grid_strength_scale(lat, geo, div_curl, ell: float) -> float:
     the general function."""
     if geo.every_node_used:                 # views: no gathers
         both = div_curl.reshape(2, -1)
-        uv = np.stack([lat.u, lat.v]).reshape(2, -1)
-    else:
-        both = div_curl.reshape(2, -1)[:, geo.used_flat]
-        uv = np.stack([lat.u, lat.v]).reshape(2, -1)[:, geo.used_flat]
+        u, v = lat.u.reshape(-1), lat.v.reshape(-1)
+    else:                                   # np.take: a tenth of fancy indexing's time
+        both = div_curl.reshape(2, -1).take(geo.used_flat, axis=1)
+        u, v = lat.u.take(geo.used_flat), lat.v.take(geo.used_flat)
     if not np.isfinite(both).all():
-        return strength_scale(SimpleNamespace(divergence=both[0], curl=both[1], vectors=uv.T,
+        return strength_scale(SimpleNamespace(divergence=both[0], curl=both[1],
+                                              vectors=np.stack([u, v], axis=1),
                                               stats={"spacing": ell}), geo.edge_distance)
-    sel = both if geo.scale_nodes is None else both[:, geo.scale_nodes]
-    return scale_of(np.abs(sel), uv[0], uv[1], ell)
+    sel = both if geo.scale_nodes is None else both.take(geo.scale_nodes, axis=1)
+    return scale_of(np.abs(sel), u, v, ell)
 
 
 def _inside_outline(domain, points, segments=None) -> np.ndarray:
@@ -187,19 +217,27 @@ def _inside_outline(domain, points, segments=None) -> np.ndarray:
     segments) without the point locator :meth:`Polygon.contains` builds on
     its first query (0.15 s for the staircase outline of a masked 64 x 64
     grid, four times the decomposition).  ``segments``: ``domain.segments()``
-    if made already.  Points on the boundary itself (a set of measure zero)
-    may go either way."""
+    if made already, or :func:`segment_columns` of it.  Points on the
+    boundary itself (a set of measure zero) may go either way."""
     if segments is None:
         segments = getattr(domain, "segments", None)
         segments = None if segments is None else segments()
     if segments is None or len(points) > 256:
         return domain.contains(points)
-    a, b = segments
+    ax, ay, by, dx, dy = segments if len(segments) == 5 else segment_columns(segments)
     px, py = points[:, 0:1], points[:, 1:2]                     # (k, 1) against (S,)
-    crosses = (a[:, 1] > py) != (b[:, 1] > py)
+    crosses = (ay > py) != (by > py)
     with np.errstate(divide="ignore", invalid="ignore"):
-        at = a[:, 0] + (py - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+        at = ax + (py - ay) * dx / dy
     return ((crosses & (px < at)).sum(axis=1) % 2) == 1
+
+
+def segment_columns(segments) -> tuple:
+    """``(ax, ay, by, bx - ax, by - ay)``, contiguous, of the segments
+    ``(a, b)`` ((S, 2) each): what :func:`_inside_outline` reads."""
+    a, b = segments
+    return tuple(np.ascontiguousarray(c) for c in (a[:, 0], a[:, 1], b[:, 1], b[:, 0] - a[:, 0],
+                                                   b[:, 1] - a[:, 1]))
 
 
 @functools.lru_cache(maxsize=16)
@@ -215,15 +253,6 @@ def grid_support(hx: float, hy: float, support_ratio: float) -> float:
     return support_ratio * float(r[k]) * math.sqrt(math.pi / k)     # r[0]: the node itself
 
 
-def window(j, i, Ry, Rx, ny, nx):
-    """``(grid slice, window shape, slice of the full window)`` of the nodes
-    within Ry rows and Rx columns of (j, i), clipped to the grid."""
-    j0, j1 = max(j - Ry, 0), min(j + Ry + 1, ny)
-    i0, i1 = max(i - Rx, 0), min(i + Rx + 1, nx)
-    return ((slice(j0, j1), slice(i0, i1)), (j1 - j0, i1 - i0),
-            (slice(j0 - (j - Ry), j1 - (j - Ry)), slice(i0 - (i - Rx), i1 - (i - Rx))))
-
-
 def _padded(values, Ry, Rx, fill):
     """``values`` (..., ny, nx) with Ry rows and Rx columns of ``fill``
     around (np.pad's work without its per-call overhead, a tenth of a
@@ -234,29 +263,30 @@ def _padded(values, Ry, Rx, fill):
     return out
 
 
-def _grid_significance(geo, comp, padded_comp, cc, jj, ii, sigma) -> np.ndarray:
+def _grid_significance(geo, c_here, padded_comp, nodes, sigma) -> np.ndarray:
     """Per candidate node (jj, ii) (K,), the significance of
     :func:`find_grid_critical_points`: the best over ``SIGNIFICANCE_RADII`` of
     the mean of ``comp`` over the used nodes of the disc (also within the
     radius), signed by the candidate's, over ``sigma`` times the disc mean's
     white-noise spread (:meth:`CriticalGeometry.spreads`).  The sums for all
-    candidates at once (``comp``: (2, ny, nx), the candidates' at cc;
-    ``padded_comp``: ``comp`` padded by the window, NaN off the used
-    nodes)."""
-    g_used = geo.window_gather(geo.padded_used, jj, ii)                 # (K, wy * wx)
-    g_comp = np.where(g_used, geo.window_gather(padded_comp, jj, ii, cc), 0.0)
-    counts = g_used.astype(np.float64) @ geo.disc_weights.T              # (K, 4)
+    candidates at once (``c_here``: (K,) the candidates' components;
+    ``padded_comp``: ``comp`` padded by the window, 0 off the used
+    nodes; ``nodes``: the candidates' grid, row, column and flat index in
+    ``padded_comp`` (4+, K); the discs' counts of used nodes kept per
+    node)."""
+    cc, jj, ii, at = nodes[:4]
+    g_comp = padded_comp.take(at[:, None] + geo.window_flat_offsets)
+    counts, spreads = geo.disc_rows(jj, ii)                             # (K, 4) each
     sums = g_comp @ geo.disc_weights.T
-    sign = np.where(comp[cc, jj, ii] > 0, 1.0, -1.0)
-    means = sign[:, None] * sums / np.maximum(counts, 1)
-    spread = sigma * geo.spreads(jj, ii)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(spread > 0, means / np.where(spread > 0, spread, 1.0),
-                     np.where(means > 0, math.inf, -math.inf))
+    sign = np.where(c_here > 0, 1.0, -1.0)
+    means = sign[:, None] * sums / counts
+    spread = sigma * spreads
+    z = np.where(spread > 0, means / np.where(spread > 0, spread, 1.0),
+                 np.where(means > 0, math.inf, -math.inf))
     return z.max(axis=1) if z.size else np.full(len(jj), -math.inf)
 
 
-def _grid_refine(lat, geo, padded_pot, cc, jj, ii, rad) -> list:
+def _grid_refine(lat, geo, padded_pot, nodes, rad) -> list:
     """Per candidate node (jj, ii), the stationary point of the quadratic
     least-squares fit of its potential (``padded_pot``: the two potentials,
     (2, ny, nx) padded by the window, NaN off the used nodes; the
@@ -264,29 +294,19 @@ def _grid_refine(lat, geo, padded_pot, cc, jj, ii, rad) -> list:
     node kept where the fit has fewer than 6 nodes, is singular, or its
     stationary point falls farther than ``rad``; the caller keeps it where
     it falls outside the domain's outline): all fits at once."""
+    cc, jj, ii, at = nodes[:4]
     if len(jj) == 0:
         return []
-    oy, ox = geo.near_offsets
     here_x, here_y = lat.x[ii], lat.y[jj]
-    rows, cols = jj[:, None] + geo.Ry + oy[None, :], ii[:, None] + geo.Rx + ox[None, :]
-    m = geo.padded_used[rows, cols]                                     # (K, O)
-    A = np.empty(m.shape + (6,))                                        # (K, O, 6)
-    A[..., 0] = m
-    A[..., 1] = X = np.where(m, geo.padded_x[cols] - here_x[:, None], 0.0)
-    A[..., 2] = Y = np.where(m, geo.padded_y[rows] - here_y[:, None], 0.0)
-    np.multiply(X, X, out=A[..., 3])
-    np.multiply(X, Y, out=A[..., 4])
-    np.multiply(Y, Y, out=A[..., 5])
-    P = np.where(m, padded_pot[cc[:, None], rows, cols], 0.0)
-    normal = np.einsum("koa,kob->kab", A, A)
+    # the fits' matrices (the nodes alone: kept per node by the geometry)
+    m, A, normal, fit = geo.fit_rows(jj, ii)
+    P = np.where(m, padded_pot.take(at[:, None] + geo.near_flat_offsets), 0.0)
     rhs = np.einsum("koa,ko->ka", A, P)
-    fit = m.sum(axis=1) >= 6
-    every = bool(fit.all())
-    coef = np.full((len(jj), 6), np.nan)
     try:                                  # the normal equations: no LAPACK least squares
-        if every:
+        if fit.all():
             coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
         else:
+            coef = np.full((len(jj), 6), np.nan)
             coef[fit] = np.linalg.solve(normal[fit], rhs[fit][..., None])[..., 0]
     except np.linalg.LinAlgError:         # one singular: each on its own
         coef = np.full((len(jj), 6), np.nan)
@@ -296,105 +316,17 @@ def _grid_refine(lat, geo, padded_pot, cc, jj, ii, rad) -> list:
             except np.linalg.LinAlgError:
                 pass
     a, b, c = 2 * coef[:, 3], coef[:, 4], 2 * coef[:, 5]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        det = a * c - b * b
-        step_x = -(c * coef[:, 1] - b * coef[:, 2]) / det
-        step_y = -(a * coef[:, 2] - b * coef[:, 1]) / det
-        ok = (det != 0) & np.isfinite(det) & np.isfinite(step_x) & np.isfinite(step_y) & \
-            (np.hypot(step_x, step_y) <= rad)
+    det = a * c - b * b                   # (the caller's errstate: quiet)
+    step_x = -(c * coef[:, 1] - b * coef[:, 2]) / det
+    step_y = -(a * coef[:, 2] - b * coef[:, 1]) / det
+    # a step within the radius is finite (so det is not 0); an infinite det
+    # would make a finite step of 0
+    ok = np.isfinite(det) & (np.hypot(step_x, step_y) <= rad)
     out = []
     for k, good in enumerate(ok.tolist()):
         x, y = float(here_x[k]), float(here_y[k])
         out.append((x + float(step_x[k]), y + float(step_y[k])) if good else (x, y))
     return out
-
-
-def grid_noise_sigma(lat, samples: int = NOISE_SAMPLES, *, geometry=None) -> float:
-    """:func:`noise_sigma` on a grid: the quadratic moving-least-squares fit
-    to each sampled node's 20 nearest nodes (itself left out; Wendland
-    weights on the distance over 1.5 times the 20th), a fixed filter at the
-    nodes whose 20 neighbours are all used; where fewer than a tenth of the
-    samples have them, :func:`noise_sigma` of the used nodes.  ``geometry``:
-    the grid's :class:`CriticalGeometry` if made already."""
-    filt, centre, rows = (geometry.noise_filter(samples) if geometry is not None
-                          else noise_filter(lat.used, lat.hx, lat.hy, samples))
-    if filt is None:
-        flat = np.flatnonzero(lat.used.ravel())
-        nx = lat.used.shape[1]
-        vec = np.stack([lat.u, lat.v], axis=-1).reshape(-1, 2)
-        return noise_sigma(np.c_[lat.x[np.divmod(flat, nx)[1]], lat.y[np.divmod(flat, nx)[0]]],
-                           vec[flat], samples)
-    # the samples' rows by flat indices into the grid itself (made once per
-    # grid), gathered by np.take (a tenth of fancy indexing's time), their
-    # fits by einsum (no BLAS call: its threads would spin beside Taichi's
-    # pinned workers after it)
-    index, weights = noise_rows(lat.used.shape, centre, rows, filt) if geometry is None \
-        else geometry.noise_rows(samples)
-    values = np.take(np.stack([lat.u, lat.v]).reshape(2, -1), index, axis=1)   # (2, S, 21)
-    deviations = np.abs(np.einsum("csk,k->cs", values, weights))
-    return 1.4826 * float(median(deviations.ravel()))
-
-
-def noise_rows(shape, centre, rows, filt) -> tuple:
-    """``(index, weights)``: :func:`noise_filter`'s samples as flat indices
-    into the grid of ``shape`` (ny, nx) itself, each sample's row its node
-    then the filter's 20 (every one a node of the grid: the samples have all
-    their neighbours used), and the weights of a row's values in the
-    deviation from the fit: 1, then minus the filter's."""
-    width = shape[1] + 2 * NOISE_REACH
-    j, i = np.divmod(np.concatenate([centre[:, None], rows], axis=1), width)
-    index = (j - NOISE_REACH) * shape[1] + (i - NOISE_REACH)
-    return np.ascontiguousarray(index, dtype=np.intp), np.concatenate([[1.0], -filt])
-
-
-def median(values: np.ndarray) -> float:
-    """``np.median(values)`` of a flat array without NaN (the same
-    arithmetic: the middle value, or the mean of the two middle ones), by one
-    partition without the general function's per-call cost."""
-    m = len(values)
-    lo, hi = (m - 1) // 2, m // 2
-    part = np.partition(values, (lo, hi))
-    return float(part[lo]) if lo == hi else float(np.mean(part[lo:hi + 1]))
-
-
-#: the noise filter's reach in nodes: its 20 nearest within 3 steps each way
-NOISE_REACH = 3
-
-
-def noise_filter(used: np.ndarray, hx: float, hy: float, samples: int = NOISE_SAMPLES) -> tuple:
-    """``(filter, centres, rows)`` of :func:`grid_noise_sigma`: the fixed
-    filter's weights (20,), and the flat indices (into the grid padded by
-    :data:`NOISE_REACH`) of the sampled nodes whose 20 neighbours are all
-    used and of those neighbours ((S,), (S, 20)); ``(None, None, None)``
-    where fewer than a tenth of the samples have them."""
-    ny, nx = used.shape
-    k = 20
-    R = NOISE_REACH
-    oy, ox = np.mgrid[-R:R + 1, -R:R + 1]
-    oy, ox = oy.ravel(), ox.ravel()
-    r = np.hypot(oy * hy, ox * hx)
-    order = np.argsort(r, kind="stable")[1:k + 1]          # the 20 nearest, not the node
-    oy, ox, r = oy[order], ox[order], r[order]
-    scale = 1.5 * r.max()
-    q = r / scale
-    w = (1 - q) ** 4 * (1 + 4 * q)
-    dx, dy = ox * hx / scale, oy * hy / scale
-    B = np.c_[np.ones(k), dx, dy, dx * dx, dx * dy, dy * dy]
-    M = (B * w[:, None]).T @ B
-    M += 1e-12 * np.trace(M) * np.eye(6)
-    filt = np.linalg.solve(M, (B * w[:, None]).T)[0]        # the constant coefficient's weights
-    flat = np.flatnonzero(used.ravel())
-    step = max(1, -(-len(flat) // samples))
-    at = flat[::step]
-    j, i = np.divmod(at, nx)
-    # flat indices into the grids padded by R (unused, zero): no bounds tests
-    width = nx + 2 * R
-    centre = (j + R) * width + (i + R)
-    near = centre[:, None] + (oy * width + ox)[None, :]
-    full = np.pad(used, R).ravel()[near].all(axis=1)
-    if full.sum() < max(8, 0.1 * len(at)):
-        return None, None, None
-    return filt, centre[full], near[full]
 
 
 class CriticalGeometry:
@@ -408,7 +340,7 @@ class CriticalGeometry:
     them once)."""
 
     def __init__(self, lat, rad: float, far: float):
-        from .natural_grid import outline_distance, smoothing_steps
+        from .natural_grid import eroded, outline_distance, smoothing_steps
         self.used, self.inside = lat.used, lat.inside
         self.data_codes = lat.data_codes
         self.hx, self.hy = lat.hx, lat.hy
@@ -427,20 +359,34 @@ class CriticalGeometry:
         self.scale_nodes = None if far_nodes.sum() < 0.25 * len(far_nodes) else \
             np.flatnonzero(far_nodes)
         self.smoothing = smoothing_steps(self.inside)
+        # the nodes whose block of nodes a cell past the radius is inside: a
+        # place within the radius of one is inside the outline
+        self.deep = eroded(self.inside, int(math.ceil(rad / self.hy)) + 1,
+                           int(math.ceil(rad / self.hx)) + 1)
         self.Ry, self.Rx = int(rad // self.hy), int(rad // self.hx)
         self.oy, self.ox = np.mgrid[-self.Ry:self.Ry + 1, -self.Rx:self.Rx + 1]
         self.r_off = np.hypot(self.oy * self.hy, self.ox * self.hx)
         self.window_offsets = (self.oy.ravel(), self.ox.ravel())
+        self.window_flat_offsets = (self.oy.ravel() * (lat.used.shape[1] + 2 * self.Rx)
+                                    + self.ox.ravel())
         self.discs = np.stack([(self.r_off < rad) & (self.r_off <= radius_i * ell)
                                for radius_i in SIGNIFICANCE_RADII])      # (4, wy, wx)
         self.disc_weights = self.discs.reshape(len(self.discs), -1).astype(np.float64)
         near = self.r_off < rad
         self.near_offsets = (self.oy[near], self.ox[near])
+        self.near_flat_offsets = self.oy[near] * (lat.used.shape[1] + 2 * self.Rx) + \
+            self.ox[near]
+        # the others within the radius (the extremum's test): flat offsets
+        # in the grid padded by the window
+        others = near & (self.r_off > 0)
+        self.in_radius_flat = self.oy[others] * (lat.used.shape[1] + 2 * self.Rx) + \
+            self.ox[others]
         self.padded_used = _padded(self.used, self.Ry, self.Rx, False)
         # the axes padded by the window (clamped: the padding is never used)
         ny, nx = self.used.shape
         self.padded_x = lat.x[np.clip(np.arange(-self.Rx, nx + self.Rx), 0, nx - 1)]
         self.padded_y = lat.y[np.clip(np.arange(-self.Ry, ny + self.Ry), 0, ny - 1)]
+        self.x, self.y = lat.x, lat.y
         # the used nodes with two used nodes or more among their 8 neighbours
         count8 = np.zeros(self.used.shape, dtype=np.int64)
         ry, rx = min(self.Ry, 1), min(self.Rx, 1)
@@ -451,12 +397,18 @@ class CriticalGeometry:
                                                self.Rx + dx:self.Rx + dx + nx]
         self.two_of_eight = count8 >= 2
         segments = getattr(lat.domain, "segments", None)
-        self.segments = None if segments is None else segments()
+        self.segments = None if segments is None else segment_columns(segments())
         self._rows = None
         self._off_centre_area = None
         self._noise = {}
         self._spreads = {}                    # node -> its windows' spreads
         self._clear = None
+        self._disc_slot = {}                  # node -> its row in _discs_kept (disc_rows)
+        self._discs_kept = None
+        self._lock = threading.Lock()         # the per-node rows below, across threads
+        self._fit_slot = {}                   # node -> its row in _fits (fit_rows)
+        self._fits = None
+        self._coherence = None
 
     @classmethod
     def of(cls, lat, rad: float, far: float) -> "CriticalGeometry":
@@ -474,13 +426,75 @@ class CriticalGeometry:
         _GEOMETRIES.put(key, geo)
         return geo
 
-    def window_gather(self, padded, jj, ii, cc=None) -> np.ndarray:
-        """(K, wy * wx): ``padded`` (a grid array padded by the window; with
-        ``cc``, a stack of them, the candidates' at cc) over the window of
-        each node (jj, ii)."""
-        oy, ox = self.window_offsets
-        at = (jj[:, None] + self.Ry + oy[None, :], ii[:, None] + self.Rx + ox[None, :])
-        return padded[at] if cc is None else padded[(cc[:, None],) + at]
+    def coherence_offsets(self, ell: float) -> np.ndarray:
+        """The flat offsets, in the grid padded by the window, of the nodes
+        within :data:`COHERENCE_RADIUS` spacings ``ell`` of a node."""
+        if self._coherence is None:
+            sel = (self.r_off <= COHERENCE_RADIUS * ell).ravel()
+            self._coherence = self.window_flat_offsets[sel]
+        return self._coherence
+
+    def fit_rows(self, jj, ii) -> tuple:
+        """``(m, A, normal, fits)`` of :func:`_grid_refine`'s fits at the
+        nodes (jj, ii) (K,): the used nodes among those within the radius
+        (:attr:`near_offsets`), the quadratic's rows (K, O, 6: 1, X, Y, X^2,
+        XY, Y^2 from the node; 0 off the used nodes), the normal matrices
+        A^T A (K, 6, 6) and whether 6 nodes or more are used; each node's
+        made once and kept in one array per part (einsum's sums per node: the
+        same in any batch)."""
+        with self._lock:                  # the slots and the arrays agree
+            keys = (jj * self.used.shape[1] + ii).tolist()
+            slot = self._fit_slot
+            new = list(dict.fromkeys(key for key in keys if key not in slot))
+            if new:
+                if len(slot) + len(new) > KEPT_FITS:
+                    slot.clear()
+                    self._fits = None
+                nj, ni = np.divmod(np.array(new), self.used.shape[1])
+                oy, ox = self.near_offsets
+                rows = nj[:, None] + self.Ry + oy[None, :]
+                cols = ni[:, None] + self.Rx + ox[None, :]
+                m = np.take(self.padded_used, rows * self.padded_used.shape[1] + cols)  # (k, O)
+                A = np.empty(m.shape + (6,))                                   # (k, O, 6)
+                A[..., 0] = m
+                A[..., 1] = X = np.where(m, self.padded_x[cols] - self.x[ni][:, None], 0.0)
+                A[..., 2] = Y = np.where(m, self.padded_y[rows] - self.y[nj][:, None], 0.0)
+                np.multiply(X, X, out=A[..., 3])
+                np.multiply(X, Y, out=A[..., 4])
+                np.multiply(Y, Y, out=A[..., 5])
+                parts = (m, A, np.einsum("koa,kob->kab", A, A), m.sum(axis=1) >= 6)
+                start = len(slot)
+                self._fits = parts if self._fits is None else \
+                    tuple(np.concatenate(pair) for pair in zip(self._fits, parts))
+                slot.update((key, start + k) for k, key in enumerate(new))
+            at = [slot[key] for key in keys]
+            return tuple(part.take(at, axis=0) for part in self._fits)
+
+    def disc_rows(self, jj, ii) -> tuple:
+        """``(counts, spreads)`` (K, 4) each: per node (jj, ii) the used nodes
+        of its significance discs (1 where none) and their means'
+        white-noise spreads (:meth:`spreads`); each node's made once and kept
+        in one array per part."""
+        with self._lock:                  # the slots and the arrays agree
+            nx = self.used.shape[1]
+            keys = (jj * nx + ii).tolist()
+            slot = self._disc_slot
+            new = list(dict.fromkeys(key for key in keys if key not in slot))
+            if new:
+                if len(slot) + len(new) > KEPT_FITS:
+                    slot.clear()
+                    self._discs_kept = None
+                nj, ni = np.divmod(np.array(new), nx)
+                centre = (nj + self.Ry) * (nx + 2 * self.Rx) + ni + self.Rx
+                used = np.take(self.padded_used, centre[:, None] + self.window_flat_offsets)
+                parts = (np.maximum(used.astype(np.float64) @ self.disc_weights.T, 1),  # exact
+                         self.spreads(nj, ni))
+                start = len(slot)
+                self._discs_kept = parts if self._discs_kept is None else \
+                    tuple(np.concatenate(pair) for pair in zip(self._discs_kept, parts))
+                slot.update((key, start + k) for k, key in enumerate(new))
+            at = [slot[key] for key in keys]
+            return tuple(part.take(at, axis=0) for part in self._discs_kept)
 
     def noise_filter(self, samples: int) -> tuple:
         """:func:`noise_filter` of these nodes (made once per ``samples``)."""
@@ -553,6 +567,10 @@ class CriticalGeometry:
 #: the geometries :meth:`CriticalGeometry.of` keeps (as the layouts,
 #: :data:`~taichi_hh.hhd.grid.KEPT_LAYOUTS`)
 KEPT_GEOMETRIES = 4
+#: the nodes whose fit rows (:meth:`CriticalGeometry.fit_rows`, 2 kB each
+#: at the default radius) and disc rows a geometry keeps: all dropped past
+#: this count (a frame's points are tens of nodes)
+KEPT_FITS = 1024
 #: grids of more nodes keep none (their windows' spreads are a small part of
 #: their critical points' time)
 KEPT_GEOMETRY_NODES = 1_000_000
@@ -563,89 +581,3 @@ def forget_geometries() -> None:
     """Drop the kept :class:`CriticalGeometry` (their memory, or to time a
     grid seen for the first time)."""
     _GEOMETRIES.clear()
-
-
-class GridRows:
-    """The rows of the operator the critical points read on a grid: the
-    difference stencils of the vectors (:mod:`taichi_hh.hhd.natural_grid`,
-    along x on u, along y on v), smoothed by the binomial filter
-    (:func:`~taichi_hh.hhd.natural_grid.smoothed`): the white-noise spread of
-    a mean over a disc of nodes."""
-
-    def __init__(self, geo):
-        from .natural_grid import PAD, STENCILS
-        self.cx, self.cy = geo.data_codes
-        self.inside = geo.inside
-        self.table, self.pad = STENCILS, PAD
-        self.hx, self.hy = geo.hx, geo.hy
-        self._interior = {}          # discs' shape -> the norms of an interior window
-
-    def cached_mean_row_norms(self, discs, win, used) -> np.ndarray:
-        """:meth:`mean_row_norms`, computed once for every window of the
-        grid's interior: a window of used nodes, unclipped, whose nodes and
-        the filter's reach around them are inside and take the central
-        stencils has the same discs and the same rows wherever it lies."""
-        gs = win[0]
-        ny, nx = self.inside.shape
-        j0, j1, i0, i1 = gs[0].start - 1, gs[0].stop + 1, gs[1].start - 1, gs[1].stop + 1
-        interior = (win[1] == discs.shape[1:] and j0 >= 0 and i0 >= 0 and j1 <= ny
-                    and i1 <= nx and used[gs].all())
-        if interior:
-            grown = (slice(j0, j1), slice(i0, i1))
-            interior = (self.inside[grown].all() and not self.cx[grown].any()
-                        and not self.cy[grown].any())
-        if not interior:
-            return self.mean_row_norms(discs, win)
-        key = discs.shape
-        if key not in self._interior:
-            self._interior[key] = self.mean_row_norms(discs, win)
-        return self._interior[key]
-
-    def mean_row_norms(self, discs, win) -> np.ndarray:
-        """2-norms of the means of the smoothed divergence rows of the nodes
-        of each of ``discs`` (bool (k, wy, wx) over the window ``win``,
-        :func:`window`): each disc's indicator smeared by the binomial
-        filter weighs the rows of the nodes it reaches; the central stencils
-        (nearly every node's) by shifted sums, the others node by node."""
-        P = self.pad
-        k = discs.shape[0]
-        m = discs.reshape(k, -1).sum(axis=1)
-        ny, nx = self.inside.shape
-        # the window grown by the filter's reach (one node), clipped to the grid
-        gs = win[0]
-        j0, j1 = max(gs[0].start - 1, 0), min(gs[0].stop + 1, ny)
-        i0, i1 = max(gs[1].start - 1, 0), min(gs[1].stop + 1, nx)
-        wy, wx = j1 - j0, i1 - i0
-        ind = np.zeros((k, wy + 2, wx + 2))
-        oj, oi = gs[0].start - j0 + 1, gs[1].start - i0 + 1
-        ind[:, oj:oj + discs.shape[1], oi:oi + discs.shape[2]] = discs
-        ind = 0.25 * ind[:, :, :-2] + 0.5 * ind[:, :, 1:-1] + 0.25 * ind[:, :, 2:]
-        sl = (slice(j0, j1), slice(i0, i1))
-        weight = (0.25 * ind[:, :-2] + 0.5 * ind[:, 1:-1] + 0.25 * ind[:, 2:]) \
-            * self.inside[sl]                                           # (k, wy, wx)
-        total = np.zeros(k)
-        for codes, h, axis in ((self.cx, self.hx, 1), (self.cy, self.hy, 0)):
-            c = codes[sl]
-            acc = np.zeros((k, wy + 2 * P, wx + 2 * P))
-            central = weight * ((c == 0) / h)
-            for o in (-2, -1, 1, 2):
-                w = self.table[0, o + P]
-                if axis == 1:
-                    acc[:, P:P + wy, P + o:P + o + wx] += w * central
-                else:
-                    acc[:, P + o:P + o + wy, P:P + wx] += w * central
-            other = (c != 0) & (weight > 0).any(axis=0)
-            if other.any():
-                gj, gi = np.nonzero(other)
-                co = c[other].astype(np.intp)
-                wo = weight[:, other] / h                              # (k, n)
-                for o in range(-P, P + 1):
-                    wgt = self.table[co, o + P][None, :] * wo
-                    if axis == 1:
-                        idx = (slice(None), gj + P, gi + P + o)
-                    else:
-                        idx = (slice(None), gj + P + o, gi + P)
-                    np.add.at(acc, (np.arange(k)[:, None], idx[1][None, :], idx[2][None, :]),
-                              wgt)
-            total += np.einsum("kij,kij->k", acc, acc)
-        return np.sqrt(total) / np.maximum(m, 1)

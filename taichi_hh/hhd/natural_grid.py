@@ -84,12 +84,14 @@ class NodeGrid(Grid):
 
 def smoothing_steps(avail: np.ndarray) -> list:
     """What :func:`smoothed` takes from the nodes ``avail`` alone: per axis
-    (x, then y) the slices of a node's lower and upper neighbours in a (k,
-    ny, nx) stack and the renormalisation (one over the weight of the
-    available nodes the filter reaches; 0 off ``avail``)."""
+    (x, then y) the shift between a node and its neighbour along it in the
+    grid grown by one row and one column (flat indices) and the
+    renormalisation there (one over the weight of the available nodes the
+    filter reaches; 0 off ``avail`` and on the added row and column)."""
+    ny, nx = avail.shape
     w = avail.astype(np.float64)
-    steps = []                          # (lo, hi, the renormalisation)
-    for axis in (1, 0):
+    steps = []                          # (shift, the renormalisation (ny + 1) * (nx + 1))
+    for axis, shift in ((1, 1), (0, nx + 1)):
         n = avail.shape[axis]
         if n < 2:
             continue
@@ -98,46 +100,70 @@ def smoothing_steps(avail: np.ndarray) -> list:
         den = 2.0 * w
         den[hi] += w[lo]
         den[lo] += w[hi]
-        steps.append(((slice(None),) + lo, (slice(None),) + hi,
-                      np.where(avail, 1.0 / np.maximum(den, 1e-300), 0.0)))
+        scale = np.zeros((ny + 1, nx + 1))
+        scale[:ny, :nx] = np.where(avail, 1.0 / np.maximum(den, 1e-300), 0.0)
+        steps.append((shift, scale.ravel()))
     return steps
 
 
-def smoothed(F: np.ndarray, avail: np.ndarray, passes=1, steps: list | None = None) \
-        -> np.ndarray:
-    """``F`` (ny, nx), or a stack of fields (k, ny, nx), smoothed over the
-    nodes ``avail`` by the binomial filter [1, 2, 1] / 4 along x, then along
-    y (each pass renormalised by the weight of the available nodes; NaN off
-    ``avail``), ``passes`` times (or per field: k counts); ``steps``:
-    :func:`smoothing_steps` of ``avail`` if made already.  One pass is what
-    the scattered path's cubic moving-least-squares divergence does to a
-    field's differences: on pivpy's noisy samples the differences smoothed
-    so differ from it by 16-22% (wing tip, soap film; 31-54% unsmoothed).
-    Fields first: each field's rows contiguous, the shifted sums 1.5 times
-    as fast as over interleaved fields."""
-    F = np.asarray(F, dtype=np.float64)
-    one = F.ndim == 2
-    Z = np.where(avail, F[None] if one else F, 0.0)
+def smoothed(F, avail: np.ndarray, passes=1, steps: list | None = None,
+             outside=np.nan) -> np.ndarray:
+    """``F`` (ny, nx), or a stack of fields (k, ny, nx) (or a list of k
+    (ny, nx) arrays), smoothed over the nodes ``avail`` by the binomial
+    filter [1, 2, 1] / 4 along x, then along y (each pass renormalised by the
+    weight of the available nodes; NaN off ``avail``), ``passes`` times (or
+    per field: k counts); ``steps``: :func:`smoothing_steps` of ``avail`` if
+    made already; ``outside``: the value off ``avail`` (None: left as the
+    passes leave it, 0, for a caller that reads the available nodes only).
+    One pass is what the scattered path's cubic moving-least-squares
+    divergence does to a field's differences: on pivpy's noisy samples the
+    differences smoothed so differ from it by 16-22% (wing tip, soap film;
+    31-54% unsmoothed).
+
+    Each step is (2 p + lower) + upper times the renormalisation, node by
+    node, as sums of shifted flat arrays: each field grown by a row and a
+    column of zeros (a node's neighbour off the grid, or in the next row or
+    field, adds 0), one contiguous sum per shift over all the fields at
+    once rather than one short row at a time, and one work array for every
+    pass.  Returns views (ny, nx) of the grown fields."""
+    ny, nx = avail.shape
+    if isinstance(F, (list, tuple)):          # no stack: the fields copied in once
+        one, k = False, len(F)
+        Z = np.zeros((k, ny + 1, nx + 1))
+        for z, values in zip(Z, F):
+            np.copyto(z[:ny, :nx], values, where=avail)
+    else:
+        F = np.asarray(F, dtype=np.float64)
+        one = F.ndim == 2
+        k = 1 if one else len(F)
+        Z = np.zeros((k, ny + 1, nx + 1))
+        np.copyto(Z[:, :ny, :nx], F[None] if one else F, where=avail)
     if steps is None:
         steps = smoothing_steps(avail)
     # per field, in plain ints (a handful of fields: numpy's per-call cost
     # would outweigh the work on a small grid)
-    counts = [int(passes)] * len(Z) if np.ndim(passes) == 0 else [int(c) for c in passes]
-    if len(counts) != len(Z):
-        raise ValueError(f"passes: one count per field ({len(Z)}), got {len(counts)}")
+    counts = [int(passes)] * k if np.ndim(passes) == 0 else [int(c) for c in passes]
+    if len(counts) != k:
+        raise ValueError(f"passes: one count per field ({k}), got {len(counts)}")
+    flat = Z.reshape(k, -1)
+    work = np.empty_like(flat)
     for done in range(max(counts, default=0)):
         sel = [f for f, c in enumerate(counts) if c > done]
         run = sel[-1] - sel[0] + 1 == len(sel)          # a range of fields: a view
-        part = Z[sel[0]:sel[-1] + 1] if run else Z[sel]
-        for lo, hi, scale in steps:
-            num = 2.0 * part
-            num[hi] += part[lo]
-            num[lo] += part[hi]
+        part = flat[sel[0]:sel[-1] + 1] if run else flat[sel]
+        num = work[:len(sel)]
+        line, total = part.reshape(-1), num.reshape(-1)
+        for shift, scale in steps:
+            np.multiply(line, 2.0, out=total)
+            total[shift:] += line[:-shift]
+            total[:-shift] += line[shift:]
             np.multiply(num, scale, out=part)
         if not run:
-            Z[sel] = part
-    Z[:, ~avail] = np.nan
-    return Z[0] if one else Z
+            flat[sel] = part
+    out = Z[:, :ny, :nx]
+    if outside is not None:
+        out[:, ~avail] = outside
+    return out[0] if one else out
 
 
 def mls_gradient_stencil(hx: float, hy: float, support: float) -> tuple:
