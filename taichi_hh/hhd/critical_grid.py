@@ -329,6 +329,36 @@ def _grid_refine(lat, geo, padded_pot, nodes, rad) -> list:
     return out
 
 
+class KeptRows:
+    """Rows made per grid node once and kept, in one array per part: ``make(nj,
+    ni)`` gives a tuple of arrays with a row per node asked; :meth:`rows`
+    makes the nodes not kept yet and gathers every node's rows.  At most
+    :data:`KEPT_FITS` nodes (then it begins again); safe across threads."""
+
+    def __init__(self, make, nx: int):
+        self._make, self._nx = make, nx
+        self._slot = {}                  # node (flat index) -> its row in the parts
+        self._parts = None
+        self._lock = threading.Lock()    # the slots and the parts agree
+
+    def rows(self, jj, ii) -> tuple:
+        with self._lock:
+            keys = (jj * self._nx + ii).tolist()
+            slot = self._slot
+            new = list(dict.fromkeys(key for key in keys if key not in slot))
+            if new:
+                if len(slot) + len(new) > KEPT_FITS:
+                    slot.clear()
+                    self._parts = None
+                parts = self._make(*np.divmod(np.array(new), self._nx))
+                start = len(slot)
+                self._parts = parts if self._parts is None else \
+                    tuple(np.concatenate(pair) for pair in zip(self._parts, parts))
+                slot.update((key, start + k) for k, key in enumerate(new))
+            at = [slot[key] for key in keys]
+            return tuple(part.take(at, axis=0) for part in self._parts)
+
+
 class CriticalGeometry:
     """What :func:`find_grid_critical_points` takes from a grid's nodes
     alone (the nodes used and inside, the steps, the spacing, the radius and
@@ -403,11 +433,9 @@ class CriticalGeometry:
         self._noise = {}
         self._spreads = {}                    # node -> its windows' spreads
         self._clear = None
-        self._disc_slot = {}                  # node -> its row in _discs_kept (disc_rows)
-        self._discs_kept = None
-        self._lock = threading.Lock()         # the per-node rows below, across threads
-        self._fit_slot = {}                   # node -> its row in _fits (fit_rows)
-        self._fits = None
+        nx = self.used.shape[1]
+        self._discs = KeptRows(self._make_disc_rows, nx)     # disc_rows
+        self._fits = KeptRows(self._make_fit_rows, nx)       # fit_rows
         self._coherence = None
 
     @classmethod
@@ -440,61 +468,37 @@ class CriticalGeometry:
         (:attr:`near_offsets`), the quadratic's rows (K, O, 6: 1, X, Y, X^2,
         XY, Y^2 from the node; 0 off the used nodes), the normal matrices
         A^T A (K, 6, 6) and whether 6 nodes or more are used; each node's
-        made once and kept in one array per part (einsum's sums per node: the
+        made once and kept (:class:`KeptRows`; einsum's sums per node: the
         same in any batch)."""
-        with self._lock:                  # the slots and the arrays agree
-            keys = (jj * self.used.shape[1] + ii).tolist()
-            slot = self._fit_slot
-            new = list(dict.fromkeys(key for key in keys if key not in slot))
-            if new:
-                if len(slot) + len(new) > KEPT_FITS:
-                    slot.clear()
-                    self._fits = None
-                nj, ni = np.divmod(np.array(new), self.used.shape[1])
-                oy, ox = self.near_offsets
-                rows = nj[:, None] + self.Ry + oy[None, :]
-                cols = ni[:, None] + self.Rx + ox[None, :]
-                m = np.take(self.padded_used, rows * self.padded_used.shape[1] + cols)  # (k, O)
-                A = np.empty(m.shape + (6,))                                   # (k, O, 6)
-                A[..., 0] = m
-                A[..., 1] = X = np.where(m, self.padded_x[cols] - self.x[ni][:, None], 0.0)
-                A[..., 2] = Y = np.where(m, self.padded_y[rows] - self.y[nj][:, None], 0.0)
-                np.multiply(X, X, out=A[..., 3])
-                np.multiply(X, Y, out=A[..., 4])
-                np.multiply(Y, Y, out=A[..., 5])
-                parts = (m, A, np.einsum("koa,kob->kab", A, A), m.sum(axis=1) >= 6)
-                start = len(slot)
-                self._fits = parts if self._fits is None else \
-                    tuple(np.concatenate(pair) for pair in zip(self._fits, parts))
-                slot.update((key, start + k) for k, key in enumerate(new))
-            at = [slot[key] for key in keys]
-            return tuple(part.take(at, axis=0) for part in self._fits)
+        return self._fits.rows(jj, ii)
+
+    def _make_fit_rows(self, nj, ni) -> tuple:
+        oy, ox = self.near_offsets
+        rows = nj[:, None] + self.Ry + oy[None, :]
+        cols = ni[:, None] + self.Rx + ox[None, :]
+        m = np.take(self.padded_used, rows * self.padded_used.shape[1] + cols)  # (k, O)
+        A = np.empty(m.shape + (6,))                                   # (k, O, 6)
+        A[..., 0] = m
+        A[..., 1] = X = np.where(m, self.padded_x[cols] - self.x[ni][:, None], 0.0)
+        A[..., 2] = Y = np.where(m, self.padded_y[rows] - self.y[nj][:, None], 0.0)
+        np.multiply(X, X, out=A[..., 3])
+        np.multiply(X, Y, out=A[..., 4])
+        np.multiply(Y, Y, out=A[..., 5])
+        return m, A, np.einsum("koa,kob->kab", A, A), m.sum(axis=1) >= 6
 
     def disc_rows(self, jj, ii) -> tuple:
         """``(counts, spreads)`` (K, 4) each: per node (jj, ii) the used nodes
         of its significance discs (1 where none) and their means'
         white-noise spreads (:meth:`spreads`); each node's made once and kept
-        in one array per part."""
-        with self._lock:                  # the slots and the arrays agree
-            nx = self.used.shape[1]
-            keys = (jj * nx + ii).tolist()
-            slot = self._disc_slot
-            new = list(dict.fromkeys(key for key in keys if key not in slot))
-            if new:
-                if len(slot) + len(new) > KEPT_FITS:
-                    slot.clear()
-                    self._discs_kept = None
-                nj, ni = np.divmod(np.array(new), nx)
-                centre = (nj + self.Ry) * (nx + 2 * self.Rx) + ni + self.Rx
-                used = np.take(self.padded_used, centre[:, None] + self.window_flat_offsets)
-                parts = (np.maximum(used.astype(np.float64) @ self.disc_weights.T, 1),  # exact
-                         self.spreads(nj, ni))
-                start = len(slot)
-                self._discs_kept = parts if self._discs_kept is None else \
-                    tuple(np.concatenate(pair) for pair in zip(self._discs_kept, parts))
-                slot.update((key, start + k) for k, key in enumerate(new))
-            at = [slot[key] for key in keys]
-            return tuple(part.take(at, axis=0) for part in self._discs_kept)
+        (:class:`KeptRows`)."""
+        return self._discs.rows(jj, ii)
+
+    def _make_disc_rows(self, nj, ni) -> tuple:
+        nx = self.used.shape[1]
+        centre = (nj + self.Ry) * (nx + 2 * self.Rx) + ni + self.Rx
+        used = np.take(self.padded_used, centre[:, None] + self.window_flat_offsets)
+        return (np.maximum(used.astype(np.float64) @ self.disc_weights.T, 1),  # exact
+                self.spreads(nj, ni))
 
     def noise_filter(self, samples: int) -> tuple:
         """:func:`noise_filter` of these nodes (made once per ``samples``)."""
