@@ -302,7 +302,7 @@ def test_kept_geometry_changes_nothing():
     another mask's geometry made and kept in between; and the significance's
     spreads of the windows clear of the outline, shared by all of them, are
     those computed window by window."""
-    from taichi_hh.hhd import critical_grid
+    from taichi_hh.hhd import critical_grid, grid_noise
     from taichi_hh.hhd.grid import forget_layouts
     x, y, X, pts = _grid(64)
     v = _noisy_max(_vortices(pts), 0.05, seed=3)
@@ -328,11 +328,11 @@ def test_kept_geometry_changes_nothing():
     spreads = geo.spreads(jj, ii)
     clear = geo.clear_windows()[jj, ii]
     assert 0 < clear.sum() < len(jj)
-    rows = critical_grid.GridRows(geo)
+    rows = grid_noise.GridRows(geo)
     ny, nx = lat.used.shape
     for k in np.flatnonzero(clear)[::97]:
         j, i = int(jj[k]), int(ii[k])
-        win = critical_grid.window(j, i, geo.Ry, geo.Rx, ny, nx)
+        win = grid_noise.window(j, i, geo.Ry, geo.Rx, ny, nx)
         mine = geo.discs[:, win[2][0], win[2][1]] & lat.used[win[0]][None]
         np.testing.assert_allclose(spreads[k], rows.mean_row_norms(mine, win), rtol=1e-12)
 
@@ -449,9 +449,9 @@ def test_linear_percentile_is_numpys():
 
 
 def test_median_is_numpys():
-    """critical_grid.median (one partition) is np.median bit for bit, odd
+    """grid_noise.median (one partition) is np.median bit for bit, odd
     and even lengths, with ties."""
-    from taichi_hh.hhd.critical_grid import median
+    from taichi_hh.hhd.grid_noise import median
     rng = np.random.default_rng(1)
     for m in list(range(1, 40)) + [660, 1321, 4000]:
         a = rng.standard_normal(m) * 10.0 ** rng.uniform(-5, 5)

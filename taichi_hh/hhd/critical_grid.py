@@ -13,10 +13,8 @@ import numpy as np
 
 from .critical import (COHERENCE, COHERENCE_RADIUS, EDGE, POT_PASSES, SCALE_EDGE, SIGNIFICANCE,
                        SIGNIFICANCE_RADII, THRESHOLD, CriticalPoint, scale_of, strength_scale)
-# the noise and the spreads' rows (grid_noise); median, GridRows and window
-# as the tests read them here
-from .grid_noise import (GridRows, grid_noise_sigma, median, noise_filter,  # noqa: F401
-                         noise_rows, window)
+# the noise and the spreads' rows
+from .grid_noise import GridRows, grid_noise_sigma, noise_filter, noise_rows, window
 from .recent import Recent
 
 
