@@ -483,10 +483,15 @@ def release_launch_arguments(n_particles: int) -> None:
     which may be long after: a 1M-point decomposition left 1.1 GB so, and
     the next one allocated beside it, slower (docs/notes/scattered.md, "What
     a call leaves behind").  For calls on at least
-    :data:`RELEASE_MIN_PARTICLES` particles, runs the collector."""
+    :data:`RELEASE_MIN_PARTICLES` particles, runs the collector on its two
+    young generations: a warm call's launches are found there (a full
+    collection after it finds nothing more) for 0.1 ms, where a full one
+    walks every object of the process (Taichi's included: 30 ms).  What a
+    first call's compilation leaves older waits for Python's own full
+    collections."""
     if n_particles >= RELEASE_MIN_PARTICLES:
         import gc
-        gc.collect()
+        gc.collect(1)
 
 
 def array(dtype, shape, vector: int | None = None, *, zeroed: bool = True):

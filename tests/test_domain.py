@@ -606,3 +606,27 @@ def test_query_and_sampler_validation():
         b.sample_interior(100, margin=0.6)
     with pytest.raises(InputError, match="n must be"):
         Polygon.circle(n=2)
+
+
+@pytest.mark.parametrize("radius, lo, hi", [
+    (0.0, -np.inf, None), (0.0, -np.inf, -0.01), (0.0, -np.inf, 0.2), (0.0, 1e-3, np.inf),
+    (0.0, -0.1, 0.2), (0.05, -np.inf, 0.0), (0.02, -0.1, 0.1), (0.3, 0.01, 0.2)])
+def test_box_classifies_discs_as_the_polygon_of_its_corners(radius, lo, hi):
+    """Box.classify_discs (closed form, no locator) gives the polygon's answer
+    on the same rectangle for points inside, outside, on the sides, on the
+    corners and in the grown corners' quarter discs."""
+    box = Box((-0.5, 0.25), (1.5, 1.25))
+    poly = Polygon(np.array([[-0.5, 0.25], [1.5, 0.25], [1.5, 1.25], [-0.5, 1.25]]))
+    rng = np.random.default_rng(4)
+    p = rng.uniform([-0.9, -0.15], [1.9, 1.65], (20000, 2))
+    p[:400] = rng.uniform([-0.5, 0.25], [1.5, 1.25], (400, 2))
+    p[:100, 0], p[100:200, 0], p[200:300, 1], p[300:400, 1] = -0.5, 1.5, 0.25, 1.25
+    p[400:404] = [[-0.5, 0.25], [1.5, 0.25], [1.5, 1.25], [-0.5, 1.25]]
+    angle = rng.uniform(0.0, 0.5 * np.pi, 400)
+    p[404:804] = [1.5, 1.25] + rng.uniform(0.0, 0.25, 400)[:, None] * np.c_[np.cos(angle),
+                                                                             np.sin(angle)]
+    hi = box.boundary_tolerance if hi is None else hi
+    got = box.classify_discs(p, radius, lo, hi)
+    np.testing.assert_array_equal(got, poly.classify_discs(p, radius, lo, hi))
+    assert len(np.unique(got)) > 1
+    np.testing.assert_array_equal(box.contains(p), poly.contains(p))

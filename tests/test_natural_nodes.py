@@ -278,3 +278,81 @@ def test_a_kept_natural_setup_splits_as_a_call():
         # rounding (1e-9 of |h| above): the ratios, in units of the field's
         # derivative (about 1e-3 here), move by as much
         assert np.allclose(a.harmonic_ratios(), b.harmonic_ratios(), rtol=0, atol=1e-9)
+
+
+def _numpy_cell_counts(grid, frac, binned):
+    """The set-up's per-cell quantities written out in numpy (summed-area
+    tables, bincounts): the reference of hhd/cell_counts.py's kernels."""
+    from taichi_hh.hhd import cell_counts
+    pts = binned.points
+    tx = np.clip((pts[:, 0] - grid.origin[0]) / grid.hx, 0, grid.nx - 1)
+    ty = np.clip((pts[:, 1] - grid.origin[1]) / grid.hy, 0, grid.ny - 1)
+    lx = np.minimum(np.floor(tx).astype(int), grid.nx - 2)
+    ly = np.minimum(np.floor(ty).astype(int), grid.ny - 2)
+    fx, fy = tx - lx, ty - ly
+    count = np.zeros(grid.nx * grid.ny)
+    for di, wx in ((0, 1 - fx), (1, fx)):
+        for dj, wy in ((0, 1 - fy), (1, fy)):
+            count += np.bincount((lx + di) * grid.ny + ly + dj, wx * wy, grid.nx * grid.ny)
+    count = count.reshape(grid.shape)
+
+    def box(a, k):
+        c = np.pad(a, ((k + 1, k), (k + 1, k))).cumsum(0).cumsum(1)
+        w = 2 * k + 1
+        return c[w:, w:] - c[:grid.nx, w:] - c[w:, :grid.ny] + c[:grid.nx, :grid.ny]
+
+    f = frac.reshape(grid.shape)
+    area = np.maximum(box(f, cell_counts.LOCAL_CELLS), 0) * grid.hx * grid.hy
+    h = np.sqrt(area / np.maximum(box(count, cell_counts.LOCAL_CELLS), 1))
+    cell = max(grid.hx, grid.hy)
+    spacing = np.where(h > cell_counts.SPARSE_RATIO * cell, h, cell)
+    edge = box((f < 1).astype(float), cell_counts.EDGE_CELLS) > 0.5
+    binned_count = np.diff(binned.start).reshape(grid.shape).astype(float)
+
+    def box3(a):                     # summed directly: no summed-area table's rounding
+        p = np.pad(a, 1)
+        s = p[:-2] + p[1:-1] + p[2:]
+        return s[:, :-2] + s[:, 1:-1] + s[:, 2:]
+
+    per = box3(f * grid.hx * grid.hy) / np.maximum(box3(binned_count), 1)
+    cell_of = np.repeat(np.arange(grid.nx * grid.ny), np.diff(binned.start))
+    volume = np.empty(len(pts))
+    volume[binned.order] = per.ravel()[cell_of]
+    return count, spacing.ravel(), edge.ravel(), volume
+
+
+@pytest.mark.parametrize("layout", ["uniform", "clustered", "holed"])
+def test_cell_counts_are_the_numpy_sums(layout):
+    """The set-up's kernels (cloud-in-cell counts by gathers, box sums slid
+    along y then summed along x, the points' areas) against the same sums in
+    numpy: uniform points in a box, clustered points (sparse regions, where
+    the local spacing exceeds a cell), points in a domain with a hole (cut
+    cells, fractions below 1); points on the box's sides and corners."""
+    from taichi_hh.hhd import cell_counts
+    rng = np.random.default_rng(7)
+    domain = BOX
+    if layout == "uniform":
+        pts = rng.random((6000, 2)) * [2.0, 1.0]
+        pts[:4] = [[0, 0], [2, 0], [2, 1], [0, 1]]
+    elif layout == "clustered":
+        pts = np.clip(np.r_[rng.normal([0.5, 0.5], 0.08, (4000, 2)),
+                            rng.random((300, 2)) * [2.0, 1.0]], [0, 0], [2, 1])
+    else:
+        domain = thh.Polygon(np.array([[0, 0], [2, 0], [2, 1], [0, 1.0]]),
+                             holes=[np.array([[0.8, 0.3], [0.8, 0.7], [1.2, 0.7], [1.2, 0.3]])])
+        pts = rng.random((8000, 2)) * [2.0, 1.0]
+        pts = pts[domain.contains(pts)]
+    cells = natural._Cells(domain, math.sqrt(2.0 / len(pts)))
+    grid = cells.grid
+    binned = node_fits.PointBins(grid, pts)
+    count, spacing, edge, volume = _numpy_cell_counts(grid, cells.frac, binned)
+    np.testing.assert_allclose(cell_counts.shared_counts(grid, binned), count, rtol=0,
+                               atol=1e-13)
+    got_spacing, got_edge, got_volume = cell_counts.spacing_edge_volume(grid, cells.frac,
+                                                                        binned)
+    np.testing.assert_allclose(got_spacing, spacing, rtol=1e-12)
+    np.testing.assert_array_equal(got_edge, edge)
+    np.testing.assert_allclose(got_volume, volume, rtol=1e-13)
+    assert got_edge.any() and not got_edge.all()
+    if layout == "clustered":
+        assert (got_spacing > max(grid.hx, grid.hy)).any()        # the sparse rule taken

@@ -114,7 +114,7 @@ def boundary_flow(points: np.ndarray, vectors: np.ndarray, domain, spacing: floa
     point).  ``near``: :func:`flux_band`'s answer for these points, if made
     already."""
     idx, normal = flux_band(points, domain, spacing, band) if near is None else near
-    size = float(np.mean(np.einsum("ij,ij->i", vectors, vectors)))   # mean abs(v)^2
+    size = float(np.einsum("ij,ij->", vectors, vectors)) / max(len(vectors), 1)  # mean abs(v)^2
     return band_flow(vectors[idx], normal, size)
 
 

@@ -107,10 +107,10 @@ def check_energy(stats, v, d, r, h, vol, opts, *, stacklevel: int = 4) -> None:
     random points).  ``stats["energy_ratio"]``; above :data:`ENERGY_LIMIT`
     flagged."""
     def energy(x):
-        # |x|^2 per row by einsum (numpy's sum over an axis of two is slow);
-        # no np.dot: a BLAS call this long wakes OpenBLAS's threads, which then
-        # spin beside Taichi's pinned workers (docs/notes/series.md)
-        return float((vol * np.einsum("ij,ij->i", x, x)).sum())
+        # one pass of einsum, no temporaries (numpy's sum over an axis of two
+        # is slow); no np.dot: a BLAS call this long wakes OpenBLAS's threads,
+        # which then spin beside Taichi's pinned workers (docs/notes/series.md)
+        return float(np.einsum("i,ij,ij->", vol, x, x))
 
     total = energy(v)
     ratio = (energy(d) + energy(r) + energy(h)) / total if total > 0 else 1.0

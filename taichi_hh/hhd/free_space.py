@@ -61,11 +61,20 @@ class Grid:
     def shape(self):
         return self.nx, self.ny
 
-    def centres(self) -> np.ndarray:
+    def centres(self, cells=None) -> np.ndarray:
         """(nx * ny, 2) cell centres, x fastest within each row of constant ... index
-        order ``[i * ny + j]`` for cell (i, j)."""
-        i, j = np.meshgrid(np.arange(self.nx), np.arange(self.ny), indexing="ij")
-        return np.c_[self.origin[0] + i.ravel() * self.hx, self.origin[1] + j.ravel() * self.hy]
+        order ``[i * ny + j]`` for cell (i, j); ``cells`` (flat indices): those
+        cells' only."""
+        if cells is None:
+            i, j = np.meshgrid(np.arange(self.nx), np.arange(self.ny), indexing="ij")
+            i, j = i.ravel(), j.ravel()
+        else:
+            i = np.asarray(cells) // self.ny
+            j = cells - i * self.ny
+        out = np.empty((len(i), 2))
+        out[:, 0] = self.origin[0] + i * self.hx
+        out[:, 1] = self.origin[1] + j * self.hy
+        return out
 
     def cell_index(self, points) -> np.ndarray:
         """(N,) flat index ``i * ny + j`` of the cell holding each point (points
@@ -93,7 +102,7 @@ class Grid:
         rect = axis_rectangle(domain)
         if rect is not None:
             frac, offset, centre_in = self._rectangle_coverage(rect, domain.boundary_tolerance,
-                                                               sub)
+                                                               sub, centroids)
         else:
             frac, offset, centre_in = self._polygon_coverage(domain, sub)
         out = (frac.reshape(self.shape),)
@@ -107,12 +116,12 @@ class Grid:
         s = (np.arange(sub) + 0.5) / sub - 0.5
         return s * self.hx, s * self.hy
 
-    def _rectangle_coverage(self, rect, eps: float, sub: int):
+    def _rectangle_coverage(self, rect, eps: float, sub: int, centroids: bool = True):
         """Rectangle ``((x0, y0), (x1, y1))``: a subsample is inside when its x
         and its y are (within ``eps``, the domain's boundary tolerance), so a
         cell's inside subsamples are the product of its inside columns and rows:
         the fraction is the product of the two counts, the centroid the pair of
-        the two means."""
+        the two means (None without ``centroids``: 30% of this at 1M cells)."""
         (x0, y0), (x1, y1) = rect
         sx, sy = self._subsample_offsets(sub)
         parts = []
@@ -128,11 +137,14 @@ class Grid:
             parts.append((count, mean, centre_in))
         (cx, mx, ix), (cy, my, iy) = parts
         frac = (cx[:, None] * cy[None, :]).astype(np.float64) / (sub * sub)
+        inside = (ix[:, None] & iy[None, :]).ravel()
+        if not centroids:
+            return frac.ravel(), None, inside
         offset = np.zeros(self.shape + (2,))
         offset[..., 0] = np.where(frac > 0, mx[:, None], 0.0)
         offset[..., 1] = np.where(frac > 0, my[None, :], 0.0)
         offset[frac == 1.0] = 0.0
-        return frac.ravel(), offset.reshape(-1, 2), (ix[:, None] & iy[None, :]).ravel()
+        return frac.ravel(), offset.reshape(-1, 2), inside
 
     def _polygon_coverage(self, domain, sub: int):
         c = self.centres()

@@ -36,6 +36,8 @@ import time
 
 import numpy as np
 
+from ..geometry.box import Box
+from .cell_counts import spacing_edge_volume
 from .cut_cells import (MULTIPOLE_ORDER, cut_cells, multipole_density, multipole_patches,
                         near_field_correction, part_moments)
 from .free_space import (Grid, axis_rectangle, convolve_direct, convolve_fft,
@@ -256,21 +258,22 @@ class NaturalSetup:
         lap("coverage")
         self.binned = binned = PointBins(grid, points)
         lap("bins")
-        self.nodes = np.take(grid.centres(), live, axis=0)
-        self.scale, self.edge = _local_spacing(cells, binned)
+        self.nodes = grid.centres(live)
+        self.scale, self.edge, self.volume = spacing_edge_volume(grid, cells.frac, binned)
         self.near = _near_points(cells, binned, domain)
-        self.near_cell = np.repeat(np.arange(grid.nx * grid.ny), np.diff(binned.start))[self.near]
+        # the near points' cells: the bins holding their sorted positions
+        self.near_cell = np.searchsorted(binned.start, self.near, side="right") - 1
         check = cells.inside.ravel()[live]
         if not check.any():
             check = np.ones(len(live), dtype=bool)
         # at most about CHECK_NODES of them: every k-th node along each axis
         k = max(1, math.ceil(math.sqrt(check.sum() / CHECK_NODES)))
         if k > 1:
-            i, j = np.divmod(live, grid.ny)
-            check &= (i % k == 0) & (j % k == 0)
+            every = np.zeros(grid.shape, dtype=bool)
+            every[::k, ::k] = True
+            check &= np.take(every.ravel(), live)
         self.check = check
         self.check_rows = np.flatnonzero(check)
-        self.volume = _volumes(cells, binned)
         lap("setup")
         self.fits = self.one_sided = None
         if reuse_fits and 24 * 45 * (len(live) + len(self.near)) <= FIT_WEIGHTS_BYTES:
@@ -407,93 +410,12 @@ def natural_decomposition(points, vectors, domain, spacing: float, *,
     return split
 
 
-def _box_sum(a: np.ndarray, k: int) -> np.ndarray:
-    """(nx, ny) the sums of ``a`` over the (2k + 1) x (2k + 1) cells around each
-    (zero beyond the grid), from the summed-area table."""
-    nx, ny = a.shape
-    c = np.pad(np.asarray(a, dtype=np.float64), ((k + 1, k), (k + 1, k))).cumsum(0).cumsum(1)
-    w = 2 * k + 1
-    return c[w:, w:] - c[:nx, w:] - c[w:, :ny] + c[:nx, :ny]
-
-
-#: the local spacing of the fits: sqrt(inside area / points) over the
-#: (2 LOCAL_CELLS + 1)^2 cells around a cell, where it exceeds SPARSE_RATIO
-#: cells (sparse data), else the cell (the block counts' fluctuations on
-#: uniform data would only add noise)
-LOCAL_CELLS = 3
-SPARSE_RATIO = 1.3
-
-
-def _local_spacing(cells: _Cells, binned: "PointBins") -> tuple:
-    """``(spacing, edge)``, (nx * ny,) each: the data's local spacing at each
-    cell where the points are sparse, else the cell (the fits' radii are in
-    these units: about 38 points in 3.5 of them where the data are uniform
-    or sparse, as the SPH operators' adaptive supports); ``edge``: the cells within
-    LOCAL_CELLS + 2 of a cell not wholly inside the domain."""
-    grid = cells.grid
-    count = _shared_counts(grid, binned.points)
-    frac = cells.frac.reshape(grid.shape)
-    # clipped: the summed-area table's differences round below 0 where all is 0
-    area = np.maximum(_box_sum(frac, LOCAL_CELLS), 0.0) * (grid.hx * grid.hy)
-    spacing = np.sqrt(area / np.maximum(_box_sum(count, LOCAL_CELLS), 1.0))
-    cell = max(grid.hx, grid.hy)
-    spacing = np.where(spacing > SPARSE_RATIO * cell, spacing, cell)
-    edge = _box_sum((frac < 1.0).astype(np.float64), LOCAL_CELLS + 2) > 0.5
-    return spacing.ravel(), edge.ravel()
-
-
-def _shared_counts(grid: "Grid", points) -> np.ndarray:
-    """(nx, ny) the points per cell, each point shared between the four cell
-    centres around it bilinearly (cloud in cell): a count that moves
-    continuously with the points.  Binned whole, a point on a cell's edge (the
-    extreme points of data whose bounding box is the domain lie on the
-    outermost cells' edges) moved the local spacing by 4% under a move of
-    1e-16, and the fits' radii with it (the fuzz suite's units property)."""
-    points = np.asarray(points, dtype=np.float64)
-    # by columns: numpy's broadcasts and reductions over an axis of two are slow
-    tx = (points[:, 0] - grid.origin[0]) / grid.hx
-    ty = (points[:, 1] - grid.origin[1]) / grid.hy
-    lowx, lowy = np.floor(tx), np.floor(ty)
-    fx, fy = tx - lowx, ty - lowy
-    lowx, lowy = lowx.astype(np.int64), lowy.astype(np.int64)
-    out = np.zeros(grid.nx * grid.ny)
-    for di in (0, 1):
-        ii = np.clip(lowx + di, 0, grid.nx - 1)
-        wx = fx if di else 1.0 - fx
-        for dj in (0, 1):
-            jj = np.clip(lowy + dj, 0, grid.ny - 1)
-            wy = fy if dj else 1.0 - fy
-            out += np.bincount(ii * grid.ny + jj, weights=wx * wy, minlength=out.size)
-    return out.reshape(grid.shape)
-
-
-def _volumes(cells: _Cells, binned: "PointBins") -> np.ndarray:
-    """(N,) each point's area (input order): the inside area of the 3 x 3 cells
-    around its own over the points in them."""
-    grid = cells.grid
-    count = np.diff(binned.start).reshape(grid.shape).astype(np.float64)
-    area = (cells.frac * (grid.hx * grid.hy)).reshape(grid.shape)
-
-    def box3(a):
-        p = np.pad(a, 1)
-        s = p[:-2] + p[1:-1] + p[2:]
-        return s[:, :-2] + s[:, 1:-1] + s[:, 2:]
-
-    per = box3(area) / np.maximum(box3(count), 1.0)
-    cell_of = np.repeat(np.arange(grid.nx * grid.ny), np.diff(binned.start))
-    out = np.empty(len(binned.order))
-    out[binned.order] = np.take(per.ravel(), cell_of)
-    return out
-
-
 def _near_boundary(domain, points, width: float) -> np.ndarray:
     """Indices of ``points`` whose signed distance exceeds ``-width`` (within
-    ``width`` of the boundary, or outside): a rectangle in closed form, other
-    polygons through the locator (exact distances only near the boundary)."""
+    ``width`` of the boundary, or outside): a rectangle in closed form
+    (:meth:`Box.within <taichi_hh.geometry.box.Box.within>`), other polygons
+    through the locator (exact distances only near the boundary)."""
     rect = axis_rectangle(domain)
-    if rect is None:
-        return np.flatnonzero(domain.classify_discs(points, 0.0, -np.inf, -width) != 1)
-    (x0, y0), (x1, y1) = rect
-    x, y = points[:, 0], points[:, 1]
-    gap = np.minimum(np.minimum(x - x0, x1 - x), np.minimum(y - y0, y1 - y))
-    return np.flatnonzero(gap < width)
+    if rect is not None:
+        return np.flatnonzero(~Box(*rect).within(points, -width))
+    return np.flatnonzero(domain.classify_discs(points, 0.0, -np.inf, -width) != 1)

@@ -261,7 +261,7 @@ def reconstruct_on_grid(grid: "Grid", points, values, live, *, binned=None) -> n
 #: quadratic's errs 4-8x more: windows at 15k random points d 0.039% against
 #: 0.011%)
 FIT_DEGREE = 3
-#: the fit's radius in local spacings (:func:`_local_spacing`; cells on
+#: the fit's radius in local spacings (:func:`~.cell_counts.spacing_edge_volume`; cells on
 #: uniform data): the first of these that holds FIT_MIN_POINTS data points
 #: (about 38 inside at 3.5; more radius near the boundary and corners).  3.5 cells: the noise of PIV-like data (2% noise: d 1.37%
 #: at 3 cells, 1.27% at 3.5, 1.16% at 4.5) against the bias on smooth data
