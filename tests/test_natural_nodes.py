@@ -342,9 +342,9 @@ def test_cell_counts_are_the_numpy_sums(layout):
                              holes=[np.array([[0.8, 0.3], [0.8, 0.7], [1.2, 0.7], [1.2, 0.3]])])
         pts = rng.random((8000, 2)) * [2.0, 1.0]
         pts = pts[domain.contains(pts)]
-    cells = natural._Cells(domain, math.sqrt(2.0 / len(pts)))
+    setup = natural.NaturalSetup(pts, domain, math.sqrt(2.0 / len(pts)))
+    cells, binned = setup.cells, setup.binned
     grid = cells.grid
-    binned = node_fits.PointBins(grid, pts)
     count, spacing, edge, volume = _numpy_cell_counts(grid, cells.frac, binned)
     np.testing.assert_allclose(cell_counts.shared_counts(grid, binned), count, rtol=0,
                                atol=1e-13)
@@ -353,6 +353,7 @@ def test_cell_counts_are_the_numpy_sums(layout):
     np.testing.assert_allclose(got_spacing, spacing, rtol=1e-12)
     np.testing.assert_array_equal(got_edge, edge)
     np.testing.assert_allclose(got_volume, volume, rtol=1e-13)
+    np.testing.assert_array_equal(setup.volume, got_volume)
     assert got_edge.any() and not got_edge.all()
     if layout == "clustered":
         assert (got_spacing > max(grid.hx, grid.hy)).any()        # the sparse rule taken
