@@ -236,3 +236,39 @@ def test_copies_refused_by_pointset_in_any_number():
         with pytest.raises(thh.InputError, match=rf"{copies} copies") as info:
             thh.PointSet(more, support_neighbours=12)
         no_internal_names(str(info.value))
+
+
+def test_close_screen_finds_every_planted_pair_and_agrees_with_the_sort(monkeypatch):
+    """The O(N) screen that close_pair asks first from SCREEN_MIN_POINTS points
+    on: no pair on distinct random points; a pair planted within the
+    tolerance found wherever it lies, across a cell's side or corner
+    included; close_pair's answer the same with the screen and without it;
+    a cluster (a cell of more than MAX_CELL_POINTS) left to the sort."""
+    from taichi_hh.arrays import bounds
+    from taichi_hh.sph import close_screen, pointset
+    rng = np.random.default_rng(11)
+    n = 60_000
+    pts = 1e3 + rng.random((n, 2)) * [2.0, 1.0]              # any offset
+    lo, hi = bounds(pts)
+    h = math.sqrt(float(np.prod(hi - lo)) / n)                 # the screen's cells
+    tol = DUPLICATE_FRACTION * h
+    assert close_screen.screen(pts, lo, hi, tol) is False
+    for k in range(24):
+        q = pts.copy()
+        a, b = rng.choice(n, 2, replace=False)
+        if k % 3 == 1:                                         # on a cell's corner
+            q[a] = lo + np.round((q[a] - lo) / h) * h
+        elif k % 3 == 2:                                       # on a cell's side
+            q[a, 0] = lo[0] + np.round((q[a, 0] - lo[0]) / h) * h
+        step = rng.normal(size=2)
+        q[b] = q[a] + step / np.linalg.norm(step) * tol * rng.uniform(0.0, 0.99)
+        lo_q, hi_q = bounds(q)
+        assert close_screen.screen(q, lo_q, hi_q, tol) is True
+        with_screen = close_pair(q, tol)
+        monkeypatch.setattr(pointset, "SCREEN_MIN_POINTS", 10 ** 12)
+        assert close_pair(q, tol) == with_screen == (min(a, b), max(a, b))
+        monkeypatch.undo()
+    cluster = pts.copy()
+    cluster[:100] = pts[0] + rng.random((100, 2)) * 1e-3 * h
+    assert close_screen.screen(cluster, *bounds(cluster), 0.0) is None
+    assert close_pair(cluster, 0.0) is None

@@ -35,6 +35,11 @@ _GOLDEN = (1.0 + 5.0 ** 0.5) / 2.0
 _SORT_DIRECTION = np.array([1.0, _GOLDEN]) / math.hypot(1.0, _GOLDEN)
 
 
+#: from this many points on, :func:`close_pair` screens them in O(N) first
+#: (:func:`~.close_screen.screen`) and sorts only where the screen finds a pair
+SCREEN_MIN_POINTS = 50_000
+
+
 def close_pair(points, tolerance: float = 0.0):
     """``(i, j)``, ``i < j``: a pair of ``points`` at most ``tolerance`` apart
     (0: exact copies), the one with the lowest first index among those found
@@ -48,11 +53,18 @@ def close_pair(points, tolerance: float = 0.0):
     few, but for copies) are sorted by run, then across the direction, and
     the pairs k apart in that order tested for k = 1, 2, ... while any is in
     one run and that close across (O(N log N); a lattice whose rows lie
-    across the direction costs one more sort)."""
+    across the direction costs one more sort).  From
+    :data:`SCREEN_MIN_POINTS` points on, an O(N) screen on a grid of cells
+    answers None first where no pair is that close."""
     pts = np.asarray(points, dtype=np.float64)
     n = len(pts)
     if n < 2:
         return None
+    if n >= SCREEN_MIN_POINTS:
+        from .close_screen import screen
+        lo, hi = bounds(pts)
+        if screen(pts, lo, hi, tolerance) is False:
+            return None
     # elementwise, not pts @ direction: a BLAS call this long wakes
     # OpenBLAS's threads, which spin beside Taichi's pinned workers after it
     proj = pts[:, 0] * _SORT_DIRECTION[0] + pts[:, 1] * _SORT_DIRECTION[1]
