@@ -24,7 +24,9 @@ gather, harmonic (the harmonic check's fits of h); from
 against the expected split (% of mean |v|), and the load average when the
 size started (the machines are shared: compare rows of one run, and CPU
 seconds across runs).  ``--kernels`` also times every Taichi kernel launch
-(wall and CPU) and prints the largest.
+(wall and CPU), sums the bytes of the numpy arrays each launch takes (a GPU
+arch copies them to the device and back at every launch) and prints the
+largest.
 
 Writes ``outputs/benchmarks/natural_scale.csv``.
 """
@@ -47,9 +49,12 @@ STAGES = ("setup", "divergence", "natural", "checks")
 
 
 def _kernel_timer():
-    """Wrap Taichi's kernel launches: name -> [calls, wall s, CPU s]."""
+    """Wrap Taichi's kernel launches: name -> [calls, wall s, CPU s, bytes of
+    numpy arguments] (on a GPU arch Taichi 1.7 copies each numpy argument to
+    the device before the launch and back after it)."""
+    import numpy as np
     from taichi.lang import kernel_impl
-    times = collections.defaultdict(lambda: [0, 0.0, 0.0])
+    times = collections.defaultdict(lambda: [0, 0.0, 0.0, 0])
     call = kernel_impl.Kernel.__call__
 
     def timed(self, *args, **kwargs):
@@ -61,6 +66,7 @@ def _kernel_timer():
             entry[0] += 1
             entry[1] += time.perf_counter() - t
             entry[2] += time.process_time() - c
+            entry[3] += sum(a.nbytes for a in args if isinstance(a, np.ndarray))
 
     kernel_impl.Kernel.__call__ = timed
     return times
@@ -120,17 +126,20 @@ def main(argv=None) -> int:
         if kern:
             row["kernels_s"] = sum(v[1] for v in kern.values())
             row["kernels_cpu_s"] = sum(v[2] for v in kern.values())
+            row["numpy_args_mb"] = sum(v[3] for v in kern.values()) / 1e6
         row.update(zip(("err_d_pct", "err_r_pct", "err_h_pct"), err))
         rows.append(row)
         print({k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()},
               flush=True)
         if kern:
-            for name, (calls, w, c) in sorted(kern.items(), key=lambda kv: -kv[1][1])[:12]:
-                print(f"    {w:7.3f} s wall {c:7.3f} s cpu {calls:3d}x {name}")
+            print(f"    {len(kern)} kernels, {sum(v[0] for v in kern.values())} launches, "
+                  f"{row['numpy_args_mb']:.0f} MB of numpy arguments")
+            for name, (calls, w, c, nb) in sorted(kern.items(), key=lambda kv: -kv[1][1])[:12]:
+                print(f"    {w:7.3f} s wall {c:7.3f} s cpu {calls:3d}x {nb / 1e6:6.0f} MB {name}")
     names = ["n", "condition", "grid", "load", "first_s", "warm_median_s", "warm_min_s", "cpu_s"] \
         + [f"{k}_s" for k in STAGES] + ["other_s"] \
         + [f"nat_{k}_s" for k in NATURAL_STAGES] \
-        + (["kernels_s", "kernels_cpu_s"] if kernels is not None else []) \
+        + (["kernels_s", "kernels_cpu_s", "numpy_args_mb"] if kernels is not None else []) \
         + ["err_d_pct", "err_r_pct", "err_h_pct"]
     header = ["N", "grid", "load", "first s", "warm s", "cpu s", "setup", "div", "natural",
               "checks", "other", "err d, r, h %"]
