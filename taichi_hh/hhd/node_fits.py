@@ -11,7 +11,7 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
-from ..sph.cell_sort import counting_sort
+from ..sph.cell_sort import cells_of, counting_sort
 from ..sph.knn import KNearest
 from .free_space import Grid
 
@@ -195,17 +195,6 @@ def _mls_nodes(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, x0: float, y
         out[t, 1] = x[0, 1]
 
 
-@ti.kernel
-def _cells_of(pts: ti.types.ndarray(), lx: ti.f64, ly: ti.f64, hx: ti.f64, hy: ti.f64,
-              nx: ti.i32, ny: ti.i32, cell: ti.types.ndarray()):
-    """cell[p]: the flat index of the grid cell holding point p (as
-    :meth:`Grid.cell_index`)."""
-    for p in range(pts.shape[0]):
-        fx = ti.math.clamp(ti.floor((pts[p, 0] - lx) / hx), 0.0, ti.cast(nx - 1, ti.f64))
-        fy = ti.math.clamp(ti.floor((pts[p, 1] - ly) / hy), 0.0, ti.cast(ny - 1, ti.f64))
-        cell[p] = ti.cast(fx, ti.i32) * ny + ti.cast(fy, ti.i32)
-
-
 class PointBins:
     """Points sorted by the grid's cells (a counting sort, stable):
     ``order`` (sorted -> input index), ``start`` (nx * ny + 1 offsets into the
@@ -214,12 +203,8 @@ class PointBins:
     def __init__(self, grid: "Grid", points):
         runtime.ensure_init()
         pts = np.ascontiguousarray(points, dtype=np.float64)
-        n = len(pts)
         lower = grid.origin - 0.5 * np.array([grid.hx, grid.hy])
-        cell = np.empty(n, dtype=np.int32)
-        if n:
-            _cells_of(pts, float(lower[0]), float(lower[1]), grid.hx, grid.hy, grid.nx,
-                      grid.ny, cell)
+        cell = cells_of(pts, lower, grid.hx, grid.hy, grid.nx, grid.ny)
         order, self.start = counting_sort(cell, grid.nx * grid.ny)
         self.order = order.astype(np.int64)
         self.points = np.take(pts, self.order, axis=0)      # 10x fancy indexing's speed

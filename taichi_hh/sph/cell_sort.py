@@ -1,13 +1,36 @@
 """The counting sort of points by grid cell: the one piece every binned search
 shares (the k-nearest search of :mod:`taichi_hh.sph.knn`, the natural
-decomposition's node fits).  The caller bins its points (each its own grid
-and its own rounding); this sorts them, stable: the order of
+decomposition's node fits, the close-point screen).  The caller bins its
+points (each its own grid and its own rounding; :func:`cells_of` for a
+plain grid of cells); this sorts them, stable: the order of
 ``np.argsort(cell, kind="stable")`` in O(N).
 """
 import numpy as np
 import taichi as ti
 
 from .. import runtime
+
+
+@ti.kernel
+def _cells_of(pts: ti.types.ndarray(), lx: ti.f64, ly: ti.f64, hx: ti.f64, hy: ti.f64,
+              nx: ti.i32, ny: ti.i32, cell: ti.types.ndarray()):
+    for p in range(pts.shape[0]):
+        fx = ti.math.clamp(ti.floor((pts[p, 0] - lx) / hx), 0.0, ti.cast(nx - 1, ti.f64))
+        fy = ti.math.clamp(ti.floor((pts[p, 1] - ly) / hy), 0.0, ti.cast(ny - 1, ti.f64))
+        cell[p] = ti.cast(fx, ti.i32) * ny + ti.cast(fy, ti.i32)
+
+
+def cells_of(points: np.ndarray, lower, hx: float, hy: float, nx: int, ny: int) -> np.ndarray:
+    """(N,) int32: the flat index ``i * ny + j`` of the cell of a grid of nx x ny
+    cells of hx x hy from ``lower`` holding each of the (N, 2) float64
+    ``points`` (points beyond the grid in its edge cells)."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    cell = np.empty(len(pts), dtype=np.int32)
+    if len(pts):
+        runtime.ensure_init()
+        _cells_of(pts, float(lower[0]), float(lower[1]), float(hx), float(hy), int(nx),
+                  int(ny), cell)
+    return cell
 
 
 @ti.func

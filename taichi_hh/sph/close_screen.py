@@ -12,20 +12,11 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
-from .cell_sort import counting_sort
+from .cell_sort import cells_of, counting_sort
 
 #: a cell holding more points than this (a cluster, whose pairs are
 #: quadratic in its points) leaves the question to the sort
 MAX_CELL_POINTS = 64
-
-
-@ti.kernel
-def _cells(pos: ti.types.ndarray(), lx: ti.f64, ly: ti.f64, h: ti.f64, nx: ti.i32,
-           ny: ti.i32, cell: ti.types.ndarray()):
-    for p in range(pos.shape[0]):
-        i = ti.math.clamp(ti.floor((pos[p, 0] - lx) / h), 0.0, ti.cast(nx - 1, ti.f64))
-        j = ti.math.clamp(ti.floor((pos[p, 1] - ly) / h), 0.0, ti.cast(ny - 1, ti.f64))
-        cell[p] = ti.cast(i, ti.i32) * ny + ti.cast(j, ti.i32)
 
 
 @ti.func
@@ -110,9 +101,8 @@ def screen(points: np.ndarray, lo, hi, tolerance: float):
         return None
     runtime.ensure_init()
     pos = np.ascontiguousarray(points, dtype=np.float64)
-    cell = np.empty(n, dtype=np.int32)
     lx, ly = float(lo[0]), float(lo[1])
-    _cells(pos, lx, ly, h, nx, ny, cell)
+    cell = cells_of(pos, (lx, ly), h, h, nx, ny)
     order, start = counting_sort(cell, nx * ny)
     if int(np.diff(start).max()) > MAX_CELL_POINTS:
         return None
