@@ -630,3 +630,22 @@ def test_box_classifies_discs_as_the_polygon_of_its_corners(radius, lo, hi):
     np.testing.assert_array_equal(got, poly.classify_discs(p, radius, lo, hi))
     assert len(np.unique(got)) > 1
     np.testing.assert_array_equal(box.contains(p), poly.contains(p))
+
+
+@pytest.mark.parametrize("radius, lo, hi", [
+    (0.0, -np.inf, None), (0.0, -np.inf, -0.01), (0.05, -np.inf, 0.0), (0.0, 1e-3, np.inf),
+    (0.02, -0.1, 0.1), (0.3, 0.01, 0.2)])
+def test_polygon_classification_kernel_is_the_numpy_steps(monkeypatch, radius, lo, hi):
+    """The whole-cell decisions of classify_discs as a Taichi kernel (taken
+    from cell_decisions.KERNEL_MIN_POINTS points on) give the numpy steps'
+    answer, point for point, on a holed polygon; points beyond the locator's
+    grid included."""
+    from taichi_hh.geometry import cell_decisions
+    holed = Polygon(UNIT, holes=[HOLE_A, HOLE_B])
+    p = np.random.default_rng(5).uniform(-0.6, 1.6, (30000, 2))
+    hi = holed.boundary_tolerance if hi is None else hi
+    monkeypatch.setattr(cell_decisions, "KERNEL_MIN_POINTS", 1)
+    got = holed.classify_discs(p, radius, lo, hi)
+    monkeypatch.setattr(cell_decisions, "KERNEL_MIN_POINTS", 10 ** 12)
+    np.testing.assert_array_equal(got, holed.classify_discs(p, radius, lo, hi))
+    assert len(np.unique(got)) > 1

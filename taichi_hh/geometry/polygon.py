@@ -32,7 +32,7 @@ import numpy as np
 
 from ..checks import check_points, check_real
 from ..errors import InputError
-from . import sampling
+from . import cell_decisions, sampling
 from .locator import Locator
 from .rings import check_holes_placed, check_no_crossing, check_ring, orient_rings, ring_area
 from .segments import Segments
@@ -326,15 +326,19 @@ class Polygon:
         if n == 0:
             return status
         loc = self.locator()
-        cell, ing = loc.cell_of(p)
-        sdc = np.where(ing, loc.sd[np.where(ing, cell, 0)], np.nan)
         R = loc.half_diag + radius
-        with np.errstate(invalid="ignore"):
-            out = (sdc + R <= lo) | (sdc - R > hi)
-            full = (sdc - R > lo) & (sdc + R <= hi)
-        status[out] = 0
-        status[full] = 1
-        und = np.flatnonzero(~(out | full))
+        if n >= cell_decisions.KERNEL_MIN_POINTS and lo < np.inf and hi > -np.inf:
+            status = cell_decisions.decide_cells(p, loc, R, lo, hi)
+            und = np.flatnonzero(status == 2)
+        else:
+            cell, ing = loc.cell_of(p)
+            sdc = np.where(ing, loc.sd[np.where(ing, cell, 0)], np.nan)
+            with np.errstate(invalid="ignore"):
+                out = (sdc + R <= lo) | (sdc - R > hi)
+                full = (sdc - R > lo) & (sdc + R <= hi)
+            status[out] = 0
+            status[full] = 1
+            und = np.flatnonzero(~(out | full))
         if und.size:
             sd = self.signed_distance(p[und])
             st = np.full(und.size, 2, dtype=np.int8)
