@@ -42,9 +42,9 @@ from .free_space import (Grid, axis_rectangle, convolve_direct, convolve_fft,
                          values_and_gradients)
 from .grid_sampling import (ONE_SIDED_CELLS, SPLINE_PAD, lagrange_at, one_sided_gradient,
                             one_sided_weights, prefilter, spline_values)
+from .natural_assemble import assemble, row_index
 from .node_fits import FitWeights, PointBins, fit_gradients, reconstruct_on_grid
 from .options import NATURAL_EVALUATIONS
-from .rotation import J
 
 #: subsamples per side of a cell the boundary may cross, for its inside fraction
 CUT_SUBSAMPLES = 16
@@ -137,13 +137,15 @@ def _near_points(cells: _Cells, binned: "PointBins", domain) -> np.ndarray:
 
 
 def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap,
-               one_sided=None) -> np.ndarray:
+               one_sided=None, apart: bool = False):
     """(N, m, 3) each potential of ``u`` (m, nx, ny) and its gradient at the
     points (input order): the cubic spline of the potentials and their
     fourth-order grid gradients, the gradient at the points ``near`` the
     boundary (:func:`_near_points`) from the one-sided fit
     (:func:`one_sided_gradient`; ``one_sided``: those fits kept as weights,
-    :func:`~.grid_sampling.one_sided_weights`)."""
+    :func:`~.grid_sampling.one_sided_weights`).  ``apart``: ``(the spline's
+    (N, m, 3), the fits (len(near), m, 2), the near points fitted)``, the
+    fits not yet written over the spline's gradients."""
     grid = cells.grid
     m = len(u)
     # every potential and its grid gradient, one spline through them all: the
@@ -161,8 +163,11 @@ def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap,
     else:
         weights, ok = one_sided
         fitted = weights.gradients(u.reshape(m, -1).T)
-    rows = binned.order[near[ok]]
     at = at.reshape(len(sp), m, 3)
+    if apart:
+        lap("boundary_fit")
+        return at, fitted, ok
+    rows = binned.order[near[ok]]
     at[rows, :, 1:] = fitted[ok]
     lap("boundary_fit")
     return at
@@ -208,9 +213,11 @@ CHECK_NODES = 65536
 class NaturalSplit:
     """The natural decomposition of a field at scattered points
     (:func:`natural_decomposition`), in the points' input order: ``phi``,
-    ``psi`` (N,), ``d`` = grad phi, ``grad_psi`` (N, 2); ``divergence``,
-    ``curl`` (N,) div v and curl v at the points; ``volume`` (N,) each point's
-    share of the domain's area; ``grid``; ``mean_fit_points``: the mean
+    ``psi`` (N,), ``d`` = grad phi, ``grad_psi``, ``div_free`` = J grad psi,
+    ``harmonic`` = v - d - r (N, 2); ``divergence``, ``curl`` (N,) div v and
+    curl v at the points; ``volume`` (N,) each point's share of the domain's
+    area; ``energies``: the volume-weighted sums of |v|^2, |d|^2, |r|^2 and
+    |h|^2 (the energy check's); ``grid``; ``mean_fit_points``: the mean
     number of data points in a node's fit; ``seconds`` by stage."""
 
     def __init__(self, **kw):
@@ -339,47 +346,54 @@ class NaturalSetup:
         dens = np.empty((len(live), 2 * k))
         dens[:, 0::2], dens[:, 1::2] = div, -curl
         u = _grid_potentials(cells, dens, self.evaluation, lap)
-        at = _at_points(cells, u, binned, self.near, lap, self.one_sided)  # (N, 2k, 3)
+        at, fitted, ok = _at_points(cells, u, binned, self.near, lap, self.one_sided,
+                                    apart=True)                       # (N, 2k, 3)
         # div v and curl v at the points: the nodes' values inside, the fit at
         # the point near the boundary (the nodes around it partly outside)
         # (every field's two columns in one interpolation)
-        dc_grid = np.zeros((grid.nx * grid.ny, k, 2))
-        dc_grid[live, :, 0], dc_grid[live, :, 1] = div, curl
-        dc = lagrange_at(grid, dc_grid.reshape(grid.shape + (2 * k,)), binned.points,
-                         binned.order).reshape(len(binned.order), k, 2)
-        if self.near.size:
-            gn = self.gradients("near", vs).reshape(len(self.near), k, 2, 2)
-            rows = binned.order[self.near]
-            dc[rows, :, 0] = gn[:, :, 0, 0] + gn[:, :, 1, 1]
-            dc[rows, :, 1] = gn[:, :, 1, 0] - gn[:, :, 0, 1]
+        dc_live = np.empty((len(live), 2 * k))
+        dc_live[:, 0::2], dc_live[:, 1::2] = div, curl
+        dc_grid = np.zeros((grid.nx * grid.ny, 2 * k))
+        dc_grid[live] = dc_live
+        lag = lagrange_at(grid, dc_grid.reshape(grid.shape + (2 * k,)), binned.points,
+                          binned.order)                               # (N, 2k)
+        gn = self.gradients("near", vs) if self.near.size else np.zeros((0, 2 * k, 2))
         lap("divergence")
-        # each quantity of every field in one copy, field-major (each field's
-        # rows contiguous)
-        phi = np.ascontiguousarray(at[:, 0::2, 0].T)                    # (k, N)
-        psi = np.ascontiguousarray(at[:, 1::2, 0].T)
-        d = np.ascontiguousarray(at[:, 0::2, 1:].transpose(1, 0, 2))     # (k, N, 2)
-        grad_psi = np.ascontiguousarray(at[:, 1::2, 1:].transpose(1, 0, 2))
-        dc = np.ascontiguousarray(dc.transpose(1, 2, 0))                 # (k, 2, N)
+        # every output of every field in one pass (natural_assemble): phi,
+        # psi, d, grad psi, r, h (and h in the bins' order for the check's
+        # fits), div v, curl v and the energy check's rows
+        n = len(binned.order)
+        kept = getattr(self, "_rows", None)    # made by the first split
+        if kept is None:
+            order = np.empty(n, dtype=np.int32)          # each point's place in the bins
+            order[binned.order] = np.arange(n, dtype=np.int32)
+            near_of = row_index(n, binned.order[self.near])
+            fit_of = None if self.one_sided is None else \
+                row_index(n, binned.order[self.near[ok]], np.flatnonzero(ok))
+            kept = self._rows = (order, near_of, fit_of)
+        order, near_of, fit_of = kept
+        if fit_of is None:                 # the one-sided fits made per call
+            fit_of = row_index(n, binned.order[self.near[ok]], np.flatnonzero(ok))
+        v = np.stack([np.asarray(vec, dtype=np.float64) for vec in snapshots])   # (k, N, 2)
+        out = assemble(at, v, order, fit_of, fitted, near_of, gn, lag, self.volume)
+        pot, grads, comps, dc = out["pot"], out["grads"], out["comps"], out["dc"]
+        energies = out["energies"]                                       # (4, k)
         # the check's scale: mean sqrt(div v^2 + curl v^2) over its nodes
         at_check = self.check_rows
         check_scale = np.sqrt(div[at_check] ** 2 + curl[at_check] ** 2).sum(axis=0) \
             / max(len(at_check), 1)                                     # (k,)
         mean_fit_points = float(count.mean()) if count.size else 0.0
         lap("gather")
-        # h = v - d - r of every field, and the harmonic check's fits of h at
-        # the check nodes for all of them in one gather
-        v = np.stack([np.asarray(vec, dtype=np.float64) for vec in snapshots])   # (k, N, 2)
-        harmonic = v - d - J(grad_psi)
-        hs = np.empty((len(binned.order), 2 * k))
-        for s in range(k):
-            hs[:, 2 * s:2 * s + 2] = np.take(harmonic[s], binned.order, axis=0)
-        gh = self.gradients("check", hs).reshape(-1, k, 2, 2)
+        # the harmonic check's fits of h at the check nodes, every field in one gather
+        gh = self.gradients("check", out["hs"]).reshape(-1, k, 2, 2)
         n_check = max(len(gh), 1)
         div_h = np.abs(gh[:, :, 0, 0] + gh[:, :, 1, 1]).sum(axis=0) / n_check   # (k,)
         curl_h = np.abs(gh[:, :, 1, 0] - gh[:, :, 0, 1]).sum(axis=0) / n_check
-        splits = [NaturalSplit(phi=phi[s], d=d[s], psi=psi[s], grad_psi=grad_psi[s],
-                               divergence=dc[s, 0], curl=dc[s, 1], harmonic=harmonic[s],
+        splits = [NaturalSplit(phi=pot[s, 0], d=grads[s, 0], psi=pot[s, 1],
+                               grad_psi=grads[s, 1], div_free=comps[s, 0],
+                               divergence=dc[s, 0], curl=dc[s, 1], harmonic=comps[s, 1],
                                volume=self.volume, grid=grid, mean_fit_points=mean_fit_points,
+                               energies=tuple(float(e) for e in energies[:, s]),
                                _check_scale=float(check_scale[s]),
                                _harmonic_means=(float(div_h[s]), float(curl_h[s])))
                   for s in range(k)]
