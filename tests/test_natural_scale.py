@@ -2,8 +2,8 @@
 a rectangle's closed-form coverage against the polygon subsamples, the
 Taichi spline prefilter and boundary fit against numpy, the batched FFT
 against single convolutions (and its helper thread against none), the batch's
-assembled outputs against numpy's steps, the k-nearest search's counting sort against
-numpy's stable sort."""
+node densities and assembled outputs against numpy's steps, the k-nearest
+search's counting sort against numpy's stable sort."""
 import numpy as np
 
 import taichi_hh as thh
@@ -191,6 +191,33 @@ def test_assembled_outputs_are_the_numpy_steps():
         for q, x in enumerate((v[s], d[s], J(gp[s]), h[s])):
             e = float((vol * np.einsum("ij,ij->i", x, x)).sum())
             assert abs(out["energies"][q, s] - e) < 1e-14 * e
+
+
+def test_node_densities_are_the_numpy_steps():
+    """natural_assemble.node_densities against the numpy it replaced: div v
+    and -curl v on the grid (0 off the live cells), the charges (times the
+    inside fraction), the Lagrange grid of div v and curl v, and the check's
+    scale (to rounding: its sum in another order)."""
+    from taichi_hh.hhd.natural_assemble import node_densities, row_index
+    rng = np.random.default_rng(7)
+    cells, k = 400, 3
+    live = np.sort(rng.choice(cells, 250, replace=False))
+    frac = np.zeros(cells)
+    frac[live] = rng.random(250) + 0.01
+    g = rng.standard_normal((250, 2 * k, 2)).reshape(250, k, 2, 2)
+    check = np.sort(rng.choice(250, 90, replace=False))
+    out = node_densities(g.reshape(250, 2 * k, 2), row_index(cells, live), frac, check)
+    div = g[:, :, 0, 0] + g[:, :, 1, 1]
+    curl = g[:, :, 1, 0] - g[:, :, 0, 1]
+    values = np.zeros((2 * k, cells))
+    values[0::2, live], values[1::2, live] = div.T, -curl.T
+    assert np.array_equal(out["values"], values)
+    assert np.array_equal(out["dens"], values * frac)
+    dc = np.zeros((cells, 2 * k))
+    dc[live, 0::2], dc[live, 1::2] = div, curl
+    assert np.array_equal(out["dc"], dc)
+    scale = np.sqrt(div[check] ** 2 + curl[check] ** 2).sum(axis=0) / len(check)
+    assert np.abs(out["check_scale"] - scale).max() < 1e-14 * scale.max()
 
 
 def _one_sided_numpy(grid, u, inside, pts):

@@ -42,7 +42,7 @@ from .free_space import (Grid, axis_rectangle, convolve_direct, convolve_fft,
                          values_and_gradients)
 from .grid_sampling import (ONE_SIDED_CELLS, SPLINE_PAD, lagrange_at, one_sided_gradient,
                             one_sided_weights, prefilter, spline_values)
-from .natural_assemble import assemble, row_index
+from .natural_assemble import assemble, node_densities, row_index
 from .node_fits import FitWeights, PointBins, fit_gradients, reconstruct_on_grid
 from .options import NATURAL_EVALUATIONS
 
@@ -97,25 +97,32 @@ class _Cells:
 
 
 def _grid_potentials(cells: _Cells, at_cells: np.ndarray, evaluation: str,
-                     lap) -> np.ndarray:
+                     lap, grids=None) -> np.ndarray:
     """(m, nx, ny) the free-space potentials of the densities ``at_cells``
     (len(live), m) at the live cells' centres: each cell's charge its value
     times its inside area at its centre, a cut cell's part's moments up to
     MULTIPOLE_ORDER as charges on the nodes around it
     (:func:`~.cut_cells.multipole_density`), summed against G by
     ``evaluation``; next to the cut cells, their charges' exact potentials
-    (:func:`~.cut_cells.near_field_correction`)."""
+    (:func:`~.cut_cells.near_field_correction`).  ``grids``: ``(values,
+    charges)`` on the whole grid, (m, nx * ny) each, made already (then
+    ``at_cells`` is not read; :func:`.natural_assemble.node_densities`)."""
     grid, live = cells.grid, cells.live
-    m = at_cells.shape[1]
-    dens = np.zeros((m, grid.nx * grid.ny))
-    charge = at_cells * np.take(cells.frac, live)[:, None]
-    for c in range(m):              # a row at a time: 4x a transposed scatter
-        dens[c, live] = charge[:, c]
-    values = None
+    if grids is not None:
+        values, dens = grids
+        m = len(dens)
+    else:
+        m = at_cells.shape[1]
+        dens = np.zeros((m, grid.nx * grid.ny))
+        charge = at_cells * np.take(cells.frac, live)[:, None]
+        for c in range(m):              # a row at a time: 4x a transposed scatter
+            dens[c, live] = charge[:, c]
+        values = None
+        if cells.cut is not None:
+            values = np.zeros((m, grid.nx * grid.ny))
+            for c in range(m):
+                values[c, live] = at_cells[:, c]
     if cells.cut is not None:
-        values = np.zeros((m, grid.nx * grid.ny))
-        for c in range(m):
-            values[c, live] = at_cells[:, c]
         dens += multipole_density(grid, cells.cut, cells.patches, values)
     dens = dens.reshape((m,) + grid.shape)
     lap("density")
@@ -338,50 +345,43 @@ class NaturalSetup:
             # np.take: a tenth of fancy indexing's time for rows
             vs[:, 2 * s:2 * s + 2] = np.take(np.asarray(vec, dtype=np.float64), binned.order,
                                              axis=0)
-        g, count = self.gradients("nodes", vs, counts=True)
-        g = g.reshape(len(live), k, 2, 2)
-        div = g[:, :, 0, 0] + g[:, :, 1, 1]                       # (live, k)
-        curl = g[:, :, 1, 0] - g[:, :, 0, 1]
+        g, count = self.gradients("nodes", vs, counts=True)            # (live, 2k, 2)
         lap("fit")
-        dens = np.empty((len(live), 2 * k))
-        dens[:, 0::2], dens[:, 1::2] = div, -curl
-        u = _grid_potentials(cells, dens, self.evaluation, lap)
+        kept = getattr(self, "_rows", None)    # made by the first split
+        if kept is None:
+            n = len(binned.order)
+            pos = np.empty(n, dtype=np.int32)           # each point's place in the bins
+            pos[binned.order] = np.arange(n, dtype=np.int32)
+            near_of = row_index(n, binned.order[self.near])
+            fit_of = None if self.one_sided is None else row_index(
+                n, binned.order[self.near[self.one_sided[1]]],
+                np.flatnonzero(self.one_sided[1]))
+            kept = self._rows = (row_index(grid.nx * grid.ny, live), pos, near_of, fit_of)
+        live_of, pos, near_of, fit_of = kept
+        # div v and curl v at the nodes, their charges on the grid, their grid
+        # for the interpolation to the points, the harmonic check's scale
+        nodes = node_densities(g, live_of, cells.frac, self.check_rows)
+        u = _grid_potentials(cells, None, self.evaluation, lap,
+                             grids=(nodes["values"], nodes["dens"]))
         at, fitted, ok = _at_points(cells, u, binned, self.near, lap, self.one_sided,
                                     apart=True)                       # (N, 2k, 3)
         # div v and curl v at the points: the nodes' values inside, the fit at
         # the point near the boundary (the nodes around it partly outside)
         # (every field's two columns in one interpolation)
-        dc_live = np.empty((len(live), 2 * k))
-        dc_live[:, 0::2], dc_live[:, 1::2] = div, curl
-        dc_grid = np.zeros((grid.nx * grid.ny, 2 * k))
-        dc_grid[live] = dc_live
-        lag = lagrange_at(grid, dc_grid.reshape(grid.shape + (2 * k,)), binned.points,
+        lag = lagrange_at(grid, nodes["dc"].reshape(grid.shape + (2 * k,)), binned.points,
                           binned.order)                               # (N, 2k)
         gn = self.gradients("near", vs) if self.near.size else np.zeros((0, 2 * k, 2))
         lap("divergence")
         # every output of every field in one pass (natural_assemble): phi,
         # psi, d, grad psi, r, h (and h in the bins' order for the check's
         # fits), div v, curl v and the energy check's rows
-        n = len(binned.order)
-        kept = getattr(self, "_rows", None)    # made by the first split
-        if kept is None:
-            order = np.empty(n, dtype=np.int32)          # each point's place in the bins
-            order[binned.order] = np.arange(n, dtype=np.int32)
-            near_of = row_index(n, binned.order[self.near])
-            fit_of = None if self.one_sided is None else \
-                row_index(n, binned.order[self.near[ok]], np.flatnonzero(ok))
-            kept = self._rows = (order, near_of, fit_of)
-        order, near_of, fit_of = kept
         if fit_of is None:                 # the one-sided fits made per call
-            fit_of = row_index(n, binned.order[self.near[ok]], np.flatnonzero(ok))
+            fit_of = row_index(len(pos), binned.order[self.near[ok]], np.flatnonzero(ok))
         v = np.stack([np.asarray(vec, dtype=np.float64) for vec in snapshots])   # (k, N, 2)
-        out = assemble(at, v, order, fit_of, fitted, near_of, gn, lag, self.volume)
+        out = assemble(at, v, pos, fit_of, fitted, near_of, gn, lag, self.volume)
         pot, grads, comps, dc = out["pot"], out["grads"], out["comps"], out["dc"]
         energies = out["energies"]                                       # (4, k)
-        # the check's scale: mean sqrt(div v^2 + curl v^2) over its nodes
-        at_check = self.check_rows
-        check_scale = np.sqrt(div[at_check] ** 2 + curl[at_check] ** 2).sum(axis=0) \
-            / max(len(at_check), 1)                                     # (k,)
+        check_scale = nodes["check_scale"]                              # (k,)
         mean_fit_points = float(count.mean()) if count.size else 0.0
         lap("gather")
         # the harmonic check's fits of h at the check nodes, every field in one gather

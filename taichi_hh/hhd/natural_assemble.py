@@ -1,6 +1,10 @@
-"""The last step of a batch of natural splits (:meth:`.natural.NaturalSetup.split_many`):
-every field's outputs from the interpolated columns, in one kernel.
+"""The glue of a batch of natural splits (:meth:`.natural.NaturalSetup.split_many`)
+in two kernels: what the node fits' gradients give (:func:`node_densities`)
+and every field's outputs from the interpolated columns (:func:`assemble`).
 
+Each node's div v and curl v, the charges they make on the whole grid (and
+the values a polygon's cut cells read), their grid for the Lagrange
+interpolant and the harmonic check's scale terms: one pass over the grid.
 Each point's potentials and gradients (the spline, or the one-sided fit near
 the boundary), div v and curl v (the Lagrange interpolant, or the fit of v
 at the point near the boundary), r = J grad psi, h = v - d - r, h again in
@@ -74,6 +78,61 @@ def _assemble(at: ti.types.ndarray(), v: ti.types.ndarray(), pos: ti.types.ndarr
             sq[1, s, i] = w * (dx * dx + dy * dy)
             sq[2, s, i] = w * (rx * rx + ry * ry)
             sq[3, s, i] = w * (hx * hx + hy * hy)
+
+
+@ti.kernel
+def _node_densities(g: ti.types.ndarray(), live_of: ti.types.ndarray(),
+                    frac: ti.types.ndarray(), check_rows: ti.types.ndarray(),
+                    values: ti.types.ndarray(), dens: ti.types.ndarray(),
+                    dcg: ti.types.ndarray(), chk: ti.types.ndarray()):
+    """For each cell c (``live_of[c]`` its row of ``g``, the node fits'
+    (L, 2k, 2) gradients of the fields' components, or -1) and field s:
+    values[2 s|2 s + 1, c] div v, -curl v (0 off the live cells), dens[...]
+    those times the cell's inside fraction, dcg[c, 2 s|2 s + 1] div v, curl
+    v; for each check node j: chk[s, j] sqrt(div v^2 + curl v^2)."""
+    k = g.shape[1] // 2
+    for c in range(live_of.shape[0]):
+        r = live_of[c]
+        w = frac[c]
+        for s in range(k):
+            a, b = 2 * s, 2 * s + 1
+            dv = ti.cast(0.0, ti.f64)
+            cu = ti.cast(0.0, ti.f64)
+            if r >= 0:
+                dv = g[r, a, 0] + g[r, b, 1]
+                cu = g[r, b, 0] - g[r, a, 1]
+            values[a, c] = dv
+            values[b, c] = -cu
+            dens[a, c] = dv * w
+            dens[b, c] = -cu * w
+            dcg[c, a] = dv
+            dcg[c, b] = cu
+    for j in range(check_rows.shape[0]):
+        r = check_rows[j]
+        for s in range(k):
+            dv = g[r, 2 * s, 0] + g[r, 2 * s + 1, 1]
+            cu = g[r, 2 * s + 1, 0] - g[r, 2 * s, 1]
+            chk[s, j] = ti.sqrt(dv * dv + cu * cu)
+
+
+def node_densities(g, live_of, frac, check_rows) -> dict:
+    """:func:`_node_densities` of the node fits' gradients ``g`` (L, 2k, 2):
+    a dict of ``values``, ``dens`` (2k, cells), ``dc`` (cells, 2k) and
+    ``check_scale`` (k,), the mean of sqrt(div v^2 + curl v^2) over the
+    nodes ``check_rows``."""
+    runtime.ensure_init()
+    m, cells = g.shape[1], len(live_of)
+    out = {"values": np.empty((m, cells)), "dens": np.empty((m, cells)),
+           "dc": np.empty((cells, m))}
+    chk = np.empty((m // 2, len(check_rows)))
+    if cells and m:
+        _node_densities(np.ascontiguousarray(g, dtype=np.float64), live_of,
+                        np.ascontiguousarray(frac, dtype=np.float64),
+                        np.ascontiguousarray(check_rows, dtype=np.int32) if len(check_rows)
+                        else np.zeros(0, dtype=np.int32),
+                        out["values"], out["dens"], out["dc"], chk)
+    out["check_scale"] = chk.sum(axis=-1) / max(len(check_rows), 1)
+    return out
 
 
 _NONE_ROWS = np.zeros((1, 2, 2))
