@@ -168,7 +168,8 @@ def test_assembled_outputs_are_the_numpy_steps():
     gn = rng.standard_normal((90, 2 * k, 2))
     lag = rng.standard_normal((n, 2 * k))
     vol = rng.random(n)
-    out = assemble(at, v, pos, row_index(n, near[ok], np.flatnonzero(ok)), fitted,
+    vs = v[:, order].transpose(1, 0, 2).reshape(n, 2 * k)          # the bins' order
+    out = assemble(at, vs, pos, row_index(n, near[ok], np.flatnonzero(ok)), fitted,
                    row_index(n, near), gn, lag, vol)
     ref = at.copy()
     ref[near[ok], :, 1:] = fitted[ok]

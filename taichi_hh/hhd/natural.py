@@ -377,8 +377,7 @@ class NaturalSetup:
         # fits), div v, curl v and the energy check's rows
         if fit_of is None:                 # the one-sided fits made per call
             fit_of = row_index(len(pos), binned.order[self.near[ok]], np.flatnonzero(ok))
-        v = np.stack([np.asarray(vec, dtype=np.float64) for vec in snapshots])   # (k, N, 2)
-        out = assemble(at, v, pos, fit_of, fitted, near_of, gn, lag, self.volume)
+        out = assemble(at, vs, pos, fit_of, fitted, near_of, gn, lag, self.volume)
         pot, grads, comps, dc = out["pot"], out["grads"], out["comps"], out["dc"]
         energies = out["energies"]                                       # (4, k)
         check_scale = nodes["check_scale"]                              # (k,)

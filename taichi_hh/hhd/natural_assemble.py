@@ -21,7 +21,7 @@ from .. import runtime
 
 
 @ti.kernel
-def _assemble(at: ti.types.ndarray(), v: ti.types.ndarray(), pos: ti.types.ndarray(),
+def _assemble(at: ti.types.ndarray(), vs: ti.types.ndarray(), pos: ti.types.ndarray(),
               fit_of: ti.types.ndarray(), fitted: ti.types.ndarray(),
               near_of: ti.types.ndarray(), near_grad: ti.types.ndarray(),
               lag: ti.types.ndarray(), pot: ti.types.ndarray(), grads: ti.types.ndarray(),
@@ -35,8 +35,9 @@ def _assemble(at: ti.types.ndarray(), v: ti.types.ndarray(), pos: ti.types.ndarr
     (N, 2k, 3): each potential's value and gradient; ``fit_of[i]`` the row
     of ``fitted`` (n, 2k, 2) that replaces the gradients, or -1;
     ``near_of[i]`` the row of ``near_grad`` (n, 2k, 2) (the gradients of v's
-    components) that gives div v and curl v, or -1, else ``lag`` (N, 2k)."""
-    k = v.shape[0]
+    components) that gives div v and curl v, or -1, else ``lag`` (N, 2k);
+    ``vs`` (N, 2k) the fields in the bins' order (the node fits' columns)."""
+    k = vs.shape[1] // 2
     # by input rows: all but hs written in order (by the bins' order, a grid's
     # rows came 3-4x slower: each write another cache line)
     for i in range(pos.shape[0]):
@@ -61,7 +62,7 @@ def _assemble(at: ti.types.ndarray(), v: ti.types.ndarray(), pos: ti.types.ndarr
             rx, ry = gy, -gx
             comps[s, 0, i, 0] = rx
             comps[s, 0, i, 1] = ry
-            vx, vy = v[s, i, 0], v[s, i, 1]
+            vx, vy = vs[p, a], vs[p, b]
             hx = (vx - dx) - rx
             hy = (vy - dy) - ry
             comps[s, 1, i, 0] = hx
@@ -146,10 +147,11 @@ def row_index(n: int, rows, values=None) -> np.ndarray:
     return out
 
 
-def assemble(at, v, pos, fit_of, fitted, near_of, near_grad, lag, vol) -> dict:
+def assemble(at, vs, pos, fit_of, fitted, near_of, near_grad, lag, vol) -> dict:
     """The batch's outputs (:func:`_assemble`) from ``at`` (N, 2k, 3), the
-    fields ``v`` (k, N, 2, input order), ``pos`` (N,) each point's position in
-    the bins' order (the inverse of their ``order``), the one-sided
+    fields ``vs`` (N, 2k: field s's components in columns 2 s, 2 s + 1) in the
+    bins' order, ``pos`` (N,) each point's position in the bins' order (the
+    inverse of their ``order``), the one-sided
     fits ``fitted`` (rows ``fit_of``), the fits of v near the boundary
     ``near_grad`` (rows ``near_of``) and the Lagrange interpolant ``lag``
     (N, 2k) of div v and curl v, the points' areas ``vol`` (N,): a dict of
@@ -158,14 +160,14 @@ def assemble(at, v, pos, fit_of, fitted, near_of, near_grad, lag, vol) -> dict:
     ``energies`` (4, k): the volume-weighted sums of |v|^2, |d|^2, |r|^2,
     |h|^2 (each a sum over the rows in order, as numpy sums a 1-d array)."""
     runtime.ensure_init()
-    k, n = v.shape[0], v.shape[1]
+    k, n = vs.shape[1] // 2, vs.shape[0]
     out = {"pot": np.empty((k, 2, n)), "grads": np.empty((k, 2, n, 2)),
            "comps": np.empty((k, 2, n, 2)), "dc": np.empty((k, 2, n)),
            "hs": np.empty((n, 2 * k))}
     sq = np.empty((4, k, n))
     if n and k:
         _assemble(np.ascontiguousarray(at, dtype=np.float64),
-                  np.ascontiguousarray(v, dtype=np.float64),
+                  np.ascontiguousarray(vs, dtype=np.float64),
                   np.ascontiguousarray(pos, dtype=np.int32), fit_of,
                   np.ascontiguousarray(fitted, dtype=np.float64) if len(fitted) else _NONE_ROWS,
                   near_of,
