@@ -11,6 +11,7 @@ the same sum), the cell's own integral of G on the diagonal; the potentials'
 gradients by fourth-order differences on the grid (:func:`grid_gradient`; with
 the values, padded for the spline, in one kernel: :func:`values_and_gradients`).
 """
+import itertools
 import math
 import os
 
@@ -401,9 +402,15 @@ def convolve_fft(grid: Grid, density: np.ndarray, threads: bool = True) -> np.nd
     if pool is None:
         run(range(len(d)))
     else:
-        half = len(d) // 2
-        helper = pool.submit(run, range(half, len(d)))
-        run(range(half))
+        # both threads take the next density from one counter (next() on it
+        # holds the GIL): where the helper gets no core (a loaded machine)
+        # this thread does the rest instead of waiting for a fixed half
+        todo = itertools.count()
+
+        def mine():
+            return itertools.takewhile(lambda k: k < len(d), todo)
+        helper = pool.submit(lambda: run(mine()))
+        run(mine())
         helper.result()
     return out[0] if one else out
 
