@@ -214,6 +214,9 @@ def test_node_densities_are_the_numpy_steps():
     values[0::2, live], values[1::2, live] = div.T, -curl.T
     assert np.array_equal(out["values"], values)
     assert np.array_equal(out["dens"], values * frac)
+    alone = node_densities(g.reshape(250, 2 * k, 2), row_index(cells, live), frac, check,
+                           with_values=False)
+    assert alone["values"] is None and np.array_equal(alone["dens"], out["dens"])
     dc = np.zeros((cells, 2 * k))
     dc[live, 0::2], dc[live, 1::2] = div, curl
     assert np.array_equal(out["dc"], dc)

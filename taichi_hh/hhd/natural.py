@@ -360,7 +360,8 @@ class NaturalSetup:
         live_of, pos, near_of, fit_of = kept
         # div v and curl v at the nodes, their charges on the grid, their grid
         # for the interpolation to the points, the harmonic check's scale
-        nodes = node_densities(g, live_of, cells.frac, self.check_rows)
+        nodes = node_densities(g, live_of, cells.frac, self.check_rows,
+                               with_values=cells.cut is not None)
         u = _grid_potentials(cells, None, self.evaluation, lap,
                              grids=(nodes["values"], nodes["dens"]))
         at, fitted, ok = _at_points(cells, u, binned, self.near, lap, self.one_sided,

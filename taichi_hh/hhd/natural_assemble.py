@@ -19,6 +19,10 @@ import taichi as ti
 
 from .. import runtime
 
+# stand-ins for the arrays a call has no rows of (Taichi takes no empty ndarray)
+_NONE_ROWS = np.zeros((1, 2, 2))
+_NO_VALUES = np.zeros((1, 1))
+
 
 @ti.kernel
 def _assemble(at: ti.types.ndarray(), vs: ti.types.ndarray(), pos: ti.types.ndarray(),
@@ -85,12 +89,14 @@ def _assemble(at: ti.types.ndarray(), vs: ti.types.ndarray(), pos: ti.types.ndar
 def _node_densities(g: ti.types.ndarray(), live_of: ti.types.ndarray(),
                     frac: ti.types.ndarray(), check_rows: ti.types.ndarray(),
                     values: ti.types.ndarray(), dens: ti.types.ndarray(),
-                    dcg: ti.types.ndarray(), chk: ti.types.ndarray()):
+                    dcg: ti.types.ndarray(), chk: ti.types.ndarray(),
+                    with_values: ti.template()):
     """For each cell c (``live_of[c]`` its row of ``g``, the node fits'
     (L, 2k, 2) gradients of the fields' components, or -1) and field s:
-    values[2 s|2 s + 1, c] div v, -curl v (0 off the live cells), dens[...]
-    those times the cell's inside fraction, dcg[c, 2 s|2 s + 1] div v, curl
-    v; for each check node j: chk[s, j] sqrt(div v^2 + curl v^2)."""
+    values[2 s|2 s + 1, c] div v, -curl v (0 off the live cells; only
+    ``with_values``), dens[...] those times the cell's inside fraction,
+    dcg[c, 2 s|2 s + 1] div v, curl v; for each check node j: chk[s, j]
+    sqrt(div v^2 + curl v^2)."""
     k = g.shape[1] // 2
     for c in range(live_of.shape[0]):
         r = live_of[c]
@@ -102,8 +108,9 @@ def _node_densities(g: ti.types.ndarray(), live_of: ti.types.ndarray(),
             if r >= 0:
                 dv = g[r, a, 0] + g[r, b, 1]
                 cu = g[r, b, 0] - g[r, a, 1]
-            values[a, c] = dv
-            values[b, c] = -cu
+            if ti.static(with_values):
+                values[a, c] = dv
+                values[b, c] = -cu
             dens[a, c] = dv * w
             dens[b, c] = -cu * w
             dcg[c, a] = dv
@@ -116,27 +123,27 @@ def _node_densities(g: ti.types.ndarray(), live_of: ti.types.ndarray(),
             chk[s, j] = ti.sqrt(dv * dv + cu * cu)
 
 
-def node_densities(g, live_of, frac, check_rows) -> dict:
+def node_densities(g, live_of, frac, check_rows, with_values: bool = True) -> dict:
     """:func:`_node_densities` of the node fits' gradients ``g`` (L, 2k, 2):
-    a dict of ``values``, ``dens`` (2k, cells), ``dc`` (cells, 2k) and
+    a dict of ``values`` (None without ``with_values``: only a polygon's cut
+    cells read them), ``dens`` (2k, cells), ``dc`` (cells, 2k) and
     ``check_scale`` (k,), the mean of sqrt(div v^2 + curl v^2) over the
     nodes ``check_rows``."""
     runtime.ensure_init()
     m, cells = g.shape[1], len(live_of)
-    out = {"values": np.empty((m, cells)), "dens": np.empty((m, cells)),
-           "dc": np.empty((cells, m))}
+    out = {"values": np.empty((m, cells)) if with_values else None,
+           "dens": np.empty((m, cells)), "dc": np.empty((cells, m))}
     chk = np.empty((m // 2, len(check_rows)))
     if cells and m:
         _node_densities(np.ascontiguousarray(g, dtype=np.float64), live_of,
                         np.ascontiguousarray(frac, dtype=np.float64),
                         np.ascontiguousarray(check_rows, dtype=np.int32) if len(check_rows)
                         else np.zeros(0, dtype=np.int32),
-                        out["values"], out["dens"], out["dc"], chk)
+                        out["values"] if with_values else _NO_VALUES, out["dens"], out["dc"],
+                        chk, bool(with_values))
     out["check_scale"] = chk.sum(axis=-1) / max(len(check_rows), 1)
     return out
 
-
-_NONE_ROWS = np.zeros((1, 2, 2))
 
 
 def row_index(n: int, rows, values=None) -> np.ndarray:
