@@ -1,8 +1,9 @@
 """The natural HHD's fast paths (hhd/natural.py) against their references:
 a rectangle's closed-form coverage against the polygon subsamples, the
 Taichi spline prefilter and boundary fit against numpy, the batched FFT
-against single convolutions, the k-nearest search's counting sort against
-numpy's stable sort."""
+against single convolutions (and its helper thread against none), the batch's
+node densities and assembled outputs against numpy's steps, the k-nearest
+search's counting sort against numpy's stable sort."""
 import numpy as np
 
 import taichi_hh as thh
@@ -132,6 +133,95 @@ def test_batched_fft_convolution_is_each_single_one():
     for m in range(2):
         one = free_space.convolve_fft(grid, d[m])
         assert np.abs(both[m] - one).max() < 1e-13 * np.abs(one).max()
+
+
+def test_threaded_fft_convolution_is_the_serial_one_bit_for_bit():
+    """From FFT_THREAD_DENSITIES densities on, half go through a helper thread:
+    the same transforms, the same bits, for odd counts and repeated calls."""
+    grid = free_space.Grid(RECT, 0.04)
+    rng = np.random.default_rng(5)
+    for count in (2, 3, 8):
+        d = rng.standard_normal((count,) + grid.shape)
+        serial = free_space.convolve_fft(grid, d, threads=False)
+        for _ in range(3):
+            assert np.array_equal(free_space.convolve_fft(grid, d), serial)
+        assert np.array_equal(serial[-1], free_space.convolve_fft(grid, d[-1]))
+
+
+def test_assembled_outputs_are_the_numpy_steps():
+    """natural_assemble's kernel against the numpy it replaced: the one-sided
+    fits over the spline's gradients, the fits of v near the boundary over
+    the Lagrange interpolant, r = J grad psi, h = v - d - r, h in the bins'
+    order and the energy check's sums (to rounding)."""
+    from taichi_hh.hhd.natural_assemble import assemble, row_index
+    from taichi_hh.hhd.rotation import J
+    rng = np.random.default_rng(6)
+    n, k = 700, 3
+    at = rng.standard_normal((n, 2 * k, 3))
+    v = rng.standard_normal((k, n, 2))
+    order = rng.permutation(n)
+    pos = np.empty(n, dtype=np.int32)
+    pos[order] = np.arange(n)
+    near = rng.choice(n, 90, replace=False)
+    ok = rng.random(90) < 0.8
+    fitted = rng.standard_normal((90, 2 * k, 2))
+    gn = rng.standard_normal((90, 2 * k, 2))
+    lag = rng.standard_normal((n, 2 * k))
+    vol = rng.random(n)
+    vs = v[:, order].transpose(1, 0, 2).reshape(n, 2 * k)          # the bins' order
+    out = assemble(at, vs, pos, row_index(n, near[ok], np.flatnonzero(ok)), fitted,
+                   row_index(n, near), gn, lag, vol)
+    ref = at.copy()
+    ref[near[ok], :, 1:] = fitted[ok]
+    d = ref[:, 0::2, 1:].transpose(1, 0, 2)
+    gp = ref[:, 1::2, 1:].transpose(1, 0, 2)
+    h = v - d - J(gp)
+    dc = lag.reshape(n, k, 2).copy()
+    g = gn.reshape(90, k, 2, 2)
+    dc[near, :, 0] = g[:, :, 0, 0] + g[:, :, 1, 1]
+    dc[near, :, 1] = g[:, :, 1, 0] - g[:, :, 0, 1]
+    assert np.array_equal(out["pot"][:, 0], ref[:, 0::2, 0].T)
+    assert np.array_equal(out["pot"][:, 1], ref[:, 1::2, 0].T)
+    assert np.array_equal(out["grads"][:, 0], d)
+    assert np.array_equal(out["grads"][:, 1], gp)
+    assert np.array_equal(out["comps"][:, 0], J(gp))
+    assert np.abs(out["comps"][:, 1] - h).max() < 1e-15 * np.abs(h).max()
+    assert np.array_equal(out["dc"], dc.transpose(1, 2, 0))
+    assert np.array_equal(out["hs"].reshape(n, k, 2), out["comps"][:, 1][:, order].transpose(1, 0, 2))
+    for s in range(k):
+        for q, x in enumerate((v[s], d[s], J(gp[s]), h[s])):
+            e = float((vol * np.einsum("ij,ij->i", x, x)).sum())
+            assert abs(out["energies"][q, s] - e) < 1e-14 * e
+
+
+def test_node_densities_are_the_numpy_steps():
+    """natural_assemble.node_densities against the numpy it replaced: div v
+    and -curl v on the grid (0 off the live cells), the charges (times the
+    inside fraction), the Lagrange grid of div v and curl v, and the check's
+    scale (to rounding: its sum in another order)."""
+    from taichi_hh.hhd.natural_assemble import node_densities, row_index
+    rng = np.random.default_rng(7)
+    cells, k = 400, 3
+    live = np.sort(rng.choice(cells, 250, replace=False))
+    frac = np.zeros(cells)
+    frac[live] = rng.random(250) + 0.01
+    g = rng.standard_normal((250, 2 * k, 2)).reshape(250, k, 2, 2)
+    check = np.sort(rng.choice(250, 90, replace=False))
+    out = node_densities(g.reshape(250, 2 * k, 2), row_index(cells, live), frac, check)
+    div = g[:, :, 0, 0] + g[:, :, 1, 1]
+    curl = g[:, :, 1, 0] - g[:, :, 0, 1]
+    values = np.zeros((2 * k, cells))
+    values[0::2, live], values[1::2, live] = div.T, -curl.T
+    assert np.array_equal(out["values"], values)
+    assert np.array_equal(out["dens"], values * frac)
+    alone = node_densities(g.reshape(250, 2 * k, 2), row_index(cells, live), frac, check,
+                           with_values=False)
+    assert alone["values"] is None and np.array_equal(alone["dens"], out["dens"])
+    dc = np.zeros((cells, 2 * k))
+    dc[live, 0::2], dc[live, 1::2] = div, curl
+    assert np.array_equal(out["dc"], dc)
+    scale = np.sqrt(div[check] ** 2 + curl[check] ** 2).sum(axis=0) / len(check)
+    assert np.abs(out["check_scale"] - scale).max() < 1e-14 * scale.max()
 
 
 def _one_sided_numpy(grid, u, inside, pts):

@@ -98,22 +98,24 @@ def flag_harmonic(stats, ratios: dict, opts: HHDOptions, *, stacklevel: int = 5)
         warnings.warn(msg, AccuracyWarning, stacklevel=stacklevel)
 
 
-def check_energy(stats, v, d, r, h, vol, opts, *, stacklevel: int = 4) -> None:
+def check_energy(stats, v, d, r, h, vol, opts, *, stacklevel: int = 4,
+                 energies=None) -> None:
     """The decomposition is L2-orthogonal (Petronetto Eq. 16), so
     |d|^2 + |r|^2 + |h|^2 = |v|^2 (volume-weighted sums) for an exact one; an
     accurate discrete one stays within a few percent (docs/notes/hhd.md).
     Components carrying several times the field's energy cancel each other: the
     operators are inconsistent on these points (e.g. the symmetric gradient on
     random points).  ``stats["energy_ratio"]``; above :data:`ENERGY_LIMIT`
-    flagged."""
+    flagged.  ``energies``: the four volume-weighted sums (v, d, r, h) made
+    already (a batch of natural splits: :class:`~.natural.NaturalSplit`)."""
     def energy(x):
         # one pass of einsum, no temporaries (numpy's sum over an axis of two
         # is slow); no np.dot: a BLAS call this long wakes OpenBLAS's threads,
         # which then spin beside Taichi's pinned workers (docs/notes/series.md)
         return float(np.einsum("i,ij,ij->", vol, x, x))
 
-    total = energy(v)
-    ratio = (energy(d) + energy(r) + energy(h)) / total if total > 0 else 1.0
+    total, ed, er, eh = energies if energies is not None else map(energy, (v, d, r, h))
+    ratio = (ed + er + eh) / total if total > 0 else 1.0
     stats["energy_ratio"] = ratio
     stats.setdefault("flags", [])
     if not np.isfinite(ratio) or ratio > ENERGY_LIMIT:

@@ -415,8 +415,9 @@ def _natural_unit(data: Data, opts: HHDOptions, progress,
     stats["mean_neighbours"] = split.mean_fit_points
     say("checks")
     t = time.perf_counter()
-    d, r, h = split.d, J(split.grad_psi), split.harmonic        # h = v - d - r
-    check_energy(stats, vec, d, r, h, split.volume, opts, stacklevel=6)
+    d, r, h = split.d, split.div_free, split.harmonic           # h = v - d - r
+    check_energy(stats, vec, d, r, h, split.volume, opts, stacklevel=6,
+                 energies=split.energies)
     flag_harmonic(stats, dict(zip(("divergence", "curl"), split.harmonic_ratios())), opts,
                   stacklevel=6)
     seconds["checks"] = time.perf_counter() - t

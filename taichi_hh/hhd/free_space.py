@@ -11,6 +11,7 @@ the same sum), the cell's own integral of G on the diagonal; the potentials'
 gradients by fourth-order differences on the grid (:func:`grid_gradient`; with
 the values, padded for the spline, in one kernel: :func:`values_and_gradients`).
 """
+import itertools
 import math
 import os
 
@@ -357,13 +358,37 @@ def _kernel_spectrum(grid: Grid, shape, fft, kw) -> np.ndarray:
     return K
 
 
-def convolve_fft(grid: Grid, density: np.ndarray) -> np.ndarray:
+#: densities per convolution from which numpy.fft's passes run on two threads
+#: (pocketfft releases the GIL; Taichi's workers sit idle meanwhile): each
+#: density's transforms are the same calls either way, so the same bits
+FFT_THREAD_DENSITIES = 2
+_FFT_POOL = []
+
+
+def _fft_pool():
+    """The one helper thread of :func:`convolve_fft` (made on first use, kept:
+    a thread's start costs more than a density's transforms), or None where
+    this process may use one core."""
+    if not _FFT_POOL:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
+            else (os.cpu_count() or 1)
+        if cores < 2:
+            _FFT_POOL.append(None)
+        else:
+            from concurrent.futures import ThreadPoolExecutor
+            _FFT_POOL.append(ThreadPoolExecutor(1, thread_name_prefix="taichi_hh_fft"))
+    return _FFT_POOL[0]
+
+
+def convolve_fft(grid: Grid, density: np.ndarray, threads: bool = True) -> np.ndarray:
     """(nx, ny) sum over cells of G(x_a - x_b) density_b (times the cell area),
     by zero-padded FFT (the padding makes the circular convolution free-space);
     ``density`` (k, nx, ny) gives (k, nx, ny).  The padded sides are lengths
     the FFT factors well (:func:`fast_length`, at least 2 n - 1), the
     transforms skip the padding's zero rows on the way in and the unused rows
-    on the way out."""
+    on the way out.  ``threads``: from :data:`FFT_THREAD_DENSITIES` densities
+    on, half of them transformed on a helper thread (numpy.fft's sizes; the
+    same answer bit for bit)."""
     nx, ny = grid.shape
     d = np.asarray(density, dtype=np.float64)
     one = d.ndim == 2
@@ -375,12 +400,30 @@ def convolve_fft(grid: Grid, density: np.ndarray) -> np.ndarray:
     # megabyte at 120 x 120 cells) stays in cache through the four passes,
     # where a stack of eight ran 3.5x slower (docs/notes/series.md)
     out = np.empty(d.shape)
-    for k in range(len(d)):
-        A = fft.rfft(d[k], n=L2, axis=1, **kw)
-        A = fft.fft(A, n=L1, axis=0, **kw)
-        A *= K
-        A = fft.ifft(A, axis=0, **kw)[:nx]
-        out[k] = fft.irfft(A, n=L2, axis=1, **kw)[:, :ny]
+
+    def run(ks):
+        for k in ks:
+            A = fft.rfft(d[k], n=L2, axis=1, **kw)
+            A = fft.fft(A, n=L1, axis=0, **kw)
+            A *= K
+            A = fft.ifft(A, axis=0, **kw)[:nx]
+            out[k] = fft.irfft(A, n=L2, axis=1, **kw)[:, :ny]
+
+    pool = _fft_pool() if threads and fft is np.fft and len(d) >= FFT_THREAD_DENSITIES \
+        else None
+    if pool is None:
+        run(range(len(d)))
+    else:
+        # both threads take the next density from one counter (next() on it
+        # holds the GIL): where the helper gets no core (a loaded machine)
+        # this thread does the rest instead of waiting for a fixed half
+        todo = itertools.count()
+
+        def mine():
+            return itertools.takewhile(lambda k: k < len(d), todo)
+        helper = pool.submit(lambda: run(mine()))
+        run(mine())
+        helper.result()
     return out[0] if one else out
 
 

@@ -159,15 +159,16 @@ def _cubic_weights(t):
 @ti.kernel
 def _tensor_gather(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64, y0: ti.f64,
                    hx: ti.f64, hy: ti.f64, pad: ti.template(), weights: ti.template(),
-                   m: ti.template(), col0: ti.i32, scatter: ti.template(),
+                   m: ti.template(), blocks: ti.i32, scatter: ti.template(),
                    dest: ti.types.ndarray(), out: ti.types.ndarray()):
-    """out[p, col0:col0 + m] (with ``scatter``: row dest[p]) = the
-    tensor-product 4 x 4 interpolant of the columns col0 .. col0 + m - 1 of
+    """out[p, :blocks * m] (with ``scatter``: row dest[p]) = the
+    tensor-product 4 x 4 interpolant of the first blocks * m columns of
     ``coef`` (NX, NY, M) at point p: ``weights(t)`` of
     the fractional position along each axis, the knots offset by ``pad``
-    cells (indices clamped: ``nearest``); the ``m`` columns of a knot read
-    together.  The cubic B-spline (:func:`_cubic_weights`, SPLINE_PAD) and
-    the cubic Lagrange interpolant (:func:`_lagrange_weights`, 0)."""
+    cells (indices clamped: ``nearest``); the ``m`` columns of a block read
+    together, the blocks one after another (the point's weights and knots
+    found once for them all).  The cubic B-spline (:func:`_cubic_weights`,
+    SPLINE_PAD) and the cubic Lagrange interpolant (:func:`_lagrange_weights`, 0)."""
     NX, NY = coef.shape[0], coef.shape[1]
     for p in range(pts.shape[0]):
         x = (pts[p, 0] - x0) / hx + pad
@@ -179,20 +180,22 @@ def _tensor_gather(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64
         # clamp in floating point: far-away points would overflow i32
         ix = ti.cast(ti.math.clamp(fx, -2.0, ti.cast(NX, ti.f64)), ti.i32)
         iy = ti.cast(ti.math.clamp(fy, -2.0, ti.cast(NY, ti.f64)), ti.i32)
-        acc = ti.Vector.zero(ti.f64, m)
-        for a in ti.static(range(4)):
-            i = ti.math.clamp(ix + a - 1, 0, NX - 1)
-            row = ti.Vector.zero(ti.f64, m)
-            for b in ti.static(range(4)):
-                j = ti.math.clamp(iy + b - 1, 0, NY - 1)
-                for col in ti.static(range(m)):
-                    row[col] += wy[b] * coef[i, j, col0 + col]
-            acc += wx[a] * row
         row_out = p
         if ti.static(scatter):
             row_out = ti.cast(dest[p], ti.i32)
-        for col in ti.static(range(m)):
-            out[row_out, col0 + col] = acc[col]
+        for blk in range(blocks):
+            col0 = blk * m
+            acc = ti.Vector.zero(ti.f64, m)
+            for a in ti.static(range(4)):
+                i = ti.math.clamp(ix + a - 1, 0, NX - 1)
+                row = ti.Vector.zero(ti.f64, m)
+                for b in ti.static(range(4)):
+                    j = ti.math.clamp(iy + b - 1, 0, NY - 1)
+                    for col in ti.static(range(m)):
+                        row[col] += wy[b] * coef[i, j, col0 + col]
+                acc += wx[a] * row
+            for col in ti.static(range(m)):
+                out[row_out, col0 + col] = acc[col]
 
 
 
@@ -221,8 +224,9 @@ def spline_values(grid: Grid, coef: np.ndarray, points, *, dest=None) -> np.ndar
 
 def _tensor_at(grid: Grid, c3: np.ndarray, points, pad, weights, dest) -> np.ndarray:
     """(N, m) :func:`_tensor_gather` of the columns of ``c3`` (NX, NY, m),
-    SPLINE_COLUMNS a launch (the kernel compiles once per width; a series'
-    many columns go through in blocks of them, read in place)."""
+    in one launch: blocks of SPLINE_COLUMNS, 2 or 1 of them (the widest that
+    divides m: the kernel compiles once per width; a series' many columns go
+    through in blocks, read in place)."""
     runtime.ensure_init()
     c3 = np.ascontiguousarray(c3, dtype=np.float64)
     pts = np.ascontiguousarray(points, dtype=np.float64)
@@ -231,10 +235,9 @@ def _tensor_at(grid: Grid, c3: np.ndarray, points, pad, weights, dest) -> np.nda
     if len(pts):
         scatter = dest is not None
         rows = np.ascontiguousarray(dest, dtype=np.int64) if scatter else np.zeros(1, np.int64)
-        for a in range(0, m, SPLINE_COLUMNS):
-            b = min(a + SPLINE_COLUMNS, m)
-            _tensor_gather(c3, pts, float(grid.origin[0]), float(grid.origin[1]), grid.hx,
-                           grid.hy, pad, weights, b - a, a, scatter, rows, out)
+        width = next(w for w in (SPLINE_COLUMNS, 2, 1) if m % w == 0)
+        _tensor_gather(c3, pts, float(grid.origin[0]), float(grid.origin[1]), grid.hx,
+                       grid.hy, pad, weights, width, m // width, scatter, rows, out)
     return out
 
 

@@ -44,9 +44,9 @@ from .free_space import (Grid, axis_rectangle, convolve_direct, convolve_fft,
                          values_and_gradients)
 from .grid_sampling import (ONE_SIDED_CELLS, SPLINE_PAD, lagrange_at, one_sided_gradient,
                             one_sided_weights, prefilter, spline_values)
+from .natural_assemble import assemble, node_densities, row_index
 from .node_fits import FitWeights, PointBins, fit_gradients, reconstruct_on_grid
 from .options import NATURAL_EVALUATIONS
-from .rotation import J
 
 #: subsamples per side of a cell a rectangle's side may cross, for its inside
 #: fraction (a polygon's cut cells have theirs exact: :func:`~.cut_cells.cut_cells`)
@@ -106,25 +106,32 @@ class _Cells:
 
 
 def _grid_potentials(cells: _Cells, at_cells: np.ndarray, evaluation: str,
-                     lap) -> np.ndarray:
+                     lap, grids=None) -> np.ndarray:
     """(m, nx, ny) the free-space potentials of the densities ``at_cells``
     (len(live), m) at the live cells' centres: each cell's charge its value
     times its inside area at its centre, a cut cell's part's moments up to
     MULTIPOLE_ORDER as charges on the nodes around it
     (:func:`~.cut_cells.multipole_density`), summed against G by
     ``evaluation``; next to the cut cells, their charges' exact potentials
-    (:func:`~.cut_cells.near_field_correction`)."""
+    (:func:`~.cut_cells.near_field_correction`).  ``grids``: ``(values,
+    charges)`` on the whole grid, (m, nx * ny) each, made already (then
+    ``at_cells`` is not read; :func:`.natural_assemble.node_densities`)."""
     grid, live = cells.grid, cells.live
-    m = at_cells.shape[1]
-    dens = np.zeros((m, grid.nx * grid.ny))
-    charge = at_cells * np.take(cells.frac, live)[:, None]
-    for c in range(m):              # a row at a time: 4x a transposed scatter
-        dens[c, live] = charge[:, c]
-    values = None
+    if grids is not None:
+        values, dens = grids
+        m = len(dens)
+    else:
+        m = at_cells.shape[1]
+        dens = np.zeros((m, grid.nx * grid.ny))
+        charge = at_cells * np.take(cells.frac, live)[:, None]
+        for c in range(m):              # a row at a time: 4x a transposed scatter
+            dens[c, live] = charge[:, c]
+        values = None
+        if cells.cut is not None:
+            values = np.zeros((m, grid.nx * grid.ny))
+            for c in range(m):
+                values[c, live] = at_cells[:, c]
     if cells.cut is not None:
-        values = np.zeros((m, grid.nx * grid.ny))
-        for c in range(m):
-            values[c, live] = at_cells[:, c]
         dens += multipole_density(grid, cells.cut, cells.patches, values)
     dens = dens.reshape((m,) + grid.shape)
     lap("density")
@@ -146,13 +153,15 @@ def _near_points(cells: _Cells, binned: "PointBins", domain) -> np.ndarray:
 
 
 def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap,
-               one_sided=None) -> np.ndarray:
+               one_sided=None, apart: bool = False):
     """(N, m, 3) each potential of ``u`` (m, nx, ny) and its gradient at the
     points (input order): the cubic spline of the potentials and their
     fourth-order grid gradients, the gradient at the points ``near`` the
     boundary (:func:`_near_points`) from the one-sided fit
     (:func:`one_sided_gradient`; ``one_sided``: those fits kept as weights,
-    :func:`~.grid_sampling.one_sided_weights`)."""
+    :func:`~.grid_sampling.one_sided_weights`).  ``apart``: ``(the spline's
+    (N, m, 3), the fits (len(near), m, 2), the near points fitted)``, the
+    fits not yet written over the spline's gradients."""
     grid = cells.grid
     m = len(u)
     # every potential and its grid gradient, one spline through them all: the
@@ -170,8 +179,11 @@ def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap,
     else:
         weights, ok = one_sided
         fitted = weights.gradients(u.reshape(m, -1).T)
-    rows = binned.order[near[ok]]
     at = at.reshape(len(sp), m, 3)
+    if apart:
+        lap("boundary_fit")
+        return at, fitted, ok
+    rows = binned.order[near[ok]]
     at[rows, :, 1:] = fitted[ok]
     lap("boundary_fit")
     return at
@@ -217,9 +229,11 @@ CHECK_NODES = 65536
 class NaturalSplit:
     """The natural decomposition of a field at scattered points
     (:func:`natural_decomposition`), in the points' input order: ``phi``,
-    ``psi`` (N,), ``d`` = grad phi, ``grad_psi`` (N, 2); ``divergence``,
-    ``curl`` (N,) div v and curl v at the points; ``volume`` (N,) each point's
-    share of the domain's area; ``grid``; ``mean_fit_points``: the mean
+    ``psi`` (N,), ``d`` = grad phi, ``grad_psi``, ``div_free`` = J grad psi,
+    ``harmonic`` = v - d - r (N, 2); ``divergence``, ``curl`` (N,) div v and
+    curl v at the points; ``volume`` (N,) each point's share of the domain's
+    area; ``energies``: the volume-weighted sums of |v|^2, |d|^2, |r|^2 and
+    |h|^2 (the energy check's); ``grid``; ``mean_fit_points``: the mean
     number of data points in a node's fit; ``seconds`` by stage."""
 
     def __init__(self, **kw):
@@ -341,55 +355,55 @@ class NaturalSetup:
             # np.take: a tenth of fancy indexing's time for rows
             vs[:, 2 * s:2 * s + 2] = np.take(np.asarray(vec, dtype=np.float64), binned.order,
                                              axis=0)
-        g, count = self.gradients("nodes", vs, counts=True)
-        g = g.reshape(len(live), k, 2, 2)
-        div = g[:, :, 0, 0] + g[:, :, 1, 1]                       # (live, k)
-        curl = g[:, :, 1, 0] - g[:, :, 0, 1]
+        g, count = self.gradients("nodes", vs, counts=True)            # (live, 2k, 2)
         lap("fit")
-        dens = np.empty((len(live), 2 * k))
-        dens[:, 0::2], dens[:, 1::2] = div, -curl
-        u = _grid_potentials(cells, dens, self.evaluation, lap)
-        at = _at_points(cells, u, binned, self.near, lap, self.one_sided)  # (N, 2k, 3)
+        kept = getattr(self, "_rows", None)    # made by the first split
+        if kept is None:
+            n = len(binned.order)
+            pos = np.empty(n, dtype=np.int32)           # each point's place in the bins
+            pos[binned.order] = np.arange(n, dtype=np.int32)
+            near_of = row_index(n, binned.order[self.near])
+            fit_of = None if self.one_sided is None else row_index(
+                n, binned.order[self.near[self.one_sided[1]]],
+                np.flatnonzero(self.one_sided[1]))
+            kept = self._rows = (row_index(grid.nx * grid.ny, live), pos, near_of, fit_of)
+        live_of, pos, near_of, fit_of = kept
+        # div v and curl v at the nodes, their charges on the grid, their grid
+        # for the interpolation to the points, the harmonic check's scale
+        nodes = node_densities(g, live_of, cells.frac, self.check_rows,
+                               with_values=cells.cut is not None)
+        u = _grid_potentials(cells, None, self.evaluation, lap,
+                             grids=(nodes["values"], nodes["dens"]))
+        at, fitted, ok = _at_points(cells, u, binned, self.near, lap, self.one_sided,
+                                    apart=True)                       # (N, 2k, 3)
         # div v and curl v at the points: the nodes' values inside, the fit at
         # the point near the boundary (the nodes around it partly outside)
         # (every field's two columns in one interpolation)
-        dc_grid = np.zeros((grid.nx * grid.ny, k, 2))
-        dc_grid[live, :, 0], dc_grid[live, :, 1] = div, curl
-        dc = lagrange_at(grid, dc_grid.reshape(grid.shape + (2 * k,)), binned.points,
-                         binned.order).reshape(len(binned.order), k, 2)
-        if self.near.size:
-            gn = self.gradients("near", vs).reshape(len(self.near), k, 2, 2)
-            rows = binned.order[self.near]
-            dc[rows, :, 0] = gn[:, :, 0, 0] + gn[:, :, 1, 1]
-            dc[rows, :, 1] = gn[:, :, 1, 0] - gn[:, :, 0, 1]
+        lag = lagrange_at(grid, nodes["dc"].reshape(grid.shape + (2 * k,)), binned.points,
+                          binned.order)                               # (N, 2k)
+        gn = self.gradients("near", vs) if self.near.size else np.zeros((0, 2 * k, 2))
         lap("divergence")
-        # each quantity of every field in one copy, field-major (each field's
-        # rows contiguous)
-        phi = np.ascontiguousarray(at[:, 0::2, 0].T)                    # (k, N)
-        psi = np.ascontiguousarray(at[:, 1::2, 0].T)
-        d = np.ascontiguousarray(at[:, 0::2, 1:].transpose(1, 0, 2))     # (k, N, 2)
-        grad_psi = np.ascontiguousarray(at[:, 1::2, 1:].transpose(1, 0, 2))
-        dc = np.ascontiguousarray(dc.transpose(1, 2, 0))                 # (k, 2, N)
-        # the check's scale: mean sqrt(div v^2 + curl v^2) over its nodes
-        at_check = self.check_rows
-        check_scale = np.sqrt(div[at_check] ** 2 + curl[at_check] ** 2).sum(axis=0) \
-            / max(len(at_check), 1)                                     # (k,)
+        # every output of every field in one pass (natural_assemble): phi,
+        # psi, d, grad psi, r, h (and h in the bins' order for the check's
+        # fits), div v, curl v and the energy check's rows
+        if fit_of is None:                 # the one-sided fits made per call
+            fit_of = row_index(len(pos), binned.order[self.near[ok]], np.flatnonzero(ok))
+        out = assemble(at, vs, pos, fit_of, fitted, near_of, gn, lag, self.volume)
+        pot, grads, comps, dc = out["pot"], out["grads"], out["comps"], out["dc"]
+        energies = out["energies"]                                       # (4, k)
+        check_scale = nodes["check_scale"]                              # (k,)
         mean_fit_points = float(count.mean()) if count.size else 0.0
         lap("gather")
-        # h = v - d - r of every field, and the harmonic check's fits of h at
-        # the check nodes for all of them in one gather
-        v = np.stack([np.asarray(vec, dtype=np.float64) for vec in snapshots])   # (k, N, 2)
-        harmonic = v - d - J(grad_psi)
-        hs = np.empty((len(binned.order), 2 * k))
-        for s in range(k):
-            hs[:, 2 * s:2 * s + 2] = np.take(harmonic[s], binned.order, axis=0)
-        gh = self.gradients("check", hs).reshape(-1, k, 2, 2)
+        # the harmonic check's fits of h at the check nodes, every field in one gather
+        gh = self.gradients("check", out["hs"]).reshape(-1, k, 2, 2)
         n_check = max(len(gh), 1)
         div_h = np.abs(gh[:, :, 0, 0] + gh[:, :, 1, 1]).sum(axis=0) / n_check   # (k,)
         curl_h = np.abs(gh[:, :, 1, 0] - gh[:, :, 0, 1]).sum(axis=0) / n_check
-        splits = [NaturalSplit(phi=phi[s], d=d[s], psi=psi[s], grad_psi=grad_psi[s],
-                               divergence=dc[s, 0], curl=dc[s, 1], harmonic=harmonic[s],
+        splits = [NaturalSplit(phi=pot[s, 0], d=grads[s, 0], psi=pot[s, 1],
+                               grad_psi=grads[s, 1], div_free=comps[s, 0],
+                               divergence=dc[s, 0], curl=dc[s, 1], harmonic=comps[s, 1],
                                volume=self.volume, grid=grid, mean_fit_points=mean_fit_points,
+                               energies=tuple(float(e) for e in energies[:, s]),
                                _check_scale=float(check_scale[s]),
                                _harmonic_means=(float(div_h[s]), float(curl_h[s])))
                   for s in range(k)]

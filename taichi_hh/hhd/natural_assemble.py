@@ -1,0 +1,187 @@
+"""The glue of a batch of natural splits (:meth:`.natural.NaturalSetup.split_many`)
+in two kernels: what the node fits' gradients give (:func:`node_densities`)
+and every field's outputs from the interpolated columns (:func:`assemble`).
+
+Each node's div v and curl v, the charges they make on the whole grid (and
+the values a polygon's cut cells read), their grid for the Lagrange
+interpolant and the harmonic check's scale terms: one pass over the grid.
+Each point's potentials and gradients (the spline, or the one-sided fit near
+the boundary), div v and curl v (the Lagrange interpolant, or the fit of v
+at the point near the boundary), r = J grad psi, h = v - d - r, h again in
+the bins' order (what the harmonic check's fits read) and the squared norms
+of v, d, r and h (the energy check's rows): the same arithmetic numpy did
+on the batch's arrays, one copy of each output instead of a dozen strided
+copies, transposes and fancy-indexed assignments (about 2 ms of a 13k-point
+snapshot's glue; docs/notes/series.md).
+"""
+import numpy as np
+import taichi as ti
+
+from .. import runtime
+
+# stand-ins for the arrays a call has no rows of (Taichi takes no empty ndarray)
+_NONE_ROWS = np.zeros((1, 2, 2))
+_NO_VALUES = np.zeros((1, 1))
+
+
+@ti.kernel
+def _assemble(at: ti.types.ndarray(), vs: ti.types.ndarray(), pos: ti.types.ndarray(),
+              fit_of: ti.types.ndarray(), fitted: ti.types.ndarray(),
+              near_of: ti.types.ndarray(), near_grad: ti.types.ndarray(),
+              lag: ti.types.ndarray(), pot: ti.types.ndarray(), grads: ti.types.ndarray(),
+              comps: ti.types.ndarray(), dc: ti.types.ndarray(), hs: ti.types.ndarray(),
+              vol: ti.types.ndarray(), sq: ti.types.ndarray()):
+    """For each point (input row i, bins' position p = pos[i]) and field s:
+    pot[s, 0|1, i] phi, psi; grads[s, 0|1, i, :] d, grad psi; comps[s, 0|1, i, :]
+    r = J grad psi, h = v - d - r; dc[s, 0|1, i] div v, curl v;
+    hs[p, 2 s:2 s + 2] h; sq[0..3, s, i] |v|^2, |d|^2, |r|^2, |h|^2 times
+    the point's area vol[i] (the energy check's terms).  ``at``
+    (N, 2k, 3): each potential's value and gradient; ``fit_of[i]`` the row
+    of ``fitted`` (n, 2k, 2) that replaces the gradients, or -1;
+    ``near_of[i]`` the row of ``near_grad`` (n, 2k, 2) (the gradients of v's
+    components) that gives div v and curl v, or -1, else ``lag`` (N, 2k);
+    ``vs`` (N, 2k) the fields in the bins' order (the node fits' columns)."""
+    k = vs.shape[1] // 2
+    # by input rows: all but hs written in order (by the bins' order, a grid's
+    # rows came 3-4x slower: each write another cache line)
+    for i in range(pos.shape[0]):
+        p = pos[i]
+        f = fit_of[i]
+        q = near_of[i]
+        w = vol[i]
+        for s in range(k):
+            a, b = 2 * s, 2 * s + 1
+            pot[s, 0, i] = at[i, a, 0]
+            pot[s, 1, i] = at[i, b, 0]
+            dx, dy = at[i, a, 1], at[i, a, 2]
+            gx, gy = at[i, b, 1], at[i, b, 2]
+            if f >= 0:
+                dx, dy = fitted[f, a, 0], fitted[f, a, 1]
+                gx, gy = fitted[f, b, 0], fitted[f, b, 1]
+            grads[s, 0, i, 0] = dx
+            grads[s, 0, i, 1] = dy
+            grads[s, 1, i, 0] = gx
+            grads[s, 1, i, 1] = gy
+            # r = J grad psi = (d psi/dy, -d psi/dx) (rotation.J)
+            rx, ry = gy, -gx
+            comps[s, 0, i, 0] = rx
+            comps[s, 0, i, 1] = ry
+            vx, vy = vs[p, a], vs[p, b]
+            hx = (vx - dx) - rx
+            hy = (vy - dy) - ry
+            comps[s, 1, i, 0] = hx
+            comps[s, 1, i, 1] = hy
+            hs[p, a] = hx
+            hs[p, b] = hy
+            if q >= 0:
+                dc[s, 0, i] = near_grad[q, a, 0] + near_grad[q, b, 1]
+                dc[s, 1, i] = near_grad[q, b, 0] - near_grad[q, a, 1]
+            else:
+                dc[s, 0, i] = lag[i, a]
+                dc[s, 1, i] = lag[i, b]
+            sq[0, s, i] = w * (vx * vx + vy * vy)
+            sq[1, s, i] = w * (dx * dx + dy * dy)
+            sq[2, s, i] = w * (rx * rx + ry * ry)
+            sq[3, s, i] = w * (hx * hx + hy * hy)
+
+
+@ti.kernel
+def _node_densities(g: ti.types.ndarray(), live_of: ti.types.ndarray(),
+                    frac: ti.types.ndarray(), check_rows: ti.types.ndarray(),
+                    values: ti.types.ndarray(), dens: ti.types.ndarray(),
+                    dcg: ti.types.ndarray(), chk: ti.types.ndarray(),
+                    with_values: ti.template()):
+    """For each cell c (``live_of[c]`` its row of ``g``, the node fits'
+    (L, 2k, 2) gradients of the fields' components, or -1) and field s:
+    values[2 s|2 s + 1, c] div v, -curl v (0 off the live cells; only
+    ``with_values``), dens[...] those times the cell's inside fraction,
+    dcg[c, 2 s|2 s + 1] div v, curl v; for each check node j: chk[s, j]
+    sqrt(div v^2 + curl v^2)."""
+    k = g.shape[1] // 2
+    for c in range(live_of.shape[0]):
+        r = live_of[c]
+        w = frac[c]
+        for s in range(k):
+            a, b = 2 * s, 2 * s + 1
+            dv = ti.cast(0.0, ti.f64)
+            cu = ti.cast(0.0, ti.f64)
+            if r >= 0:
+                dv = g[r, a, 0] + g[r, b, 1]
+                cu = g[r, b, 0] - g[r, a, 1]
+            if ti.static(with_values):
+                values[a, c] = dv
+                values[b, c] = -cu
+            dens[a, c] = dv * w
+            dens[b, c] = -cu * w
+            dcg[c, a] = dv
+            dcg[c, b] = cu
+    for j in range(check_rows.shape[0]):
+        r = check_rows[j]
+        for s in range(k):
+            dv = g[r, 2 * s, 0] + g[r, 2 * s + 1, 1]
+            cu = g[r, 2 * s + 1, 0] - g[r, 2 * s, 1]
+            chk[s, j] = ti.sqrt(dv * dv + cu * cu)
+
+
+def node_densities(g, live_of, frac, check_rows, with_values: bool = True) -> dict:
+    """:func:`_node_densities` of the node fits' gradients ``g`` (L, 2k, 2):
+    a dict of ``values`` (None without ``with_values``: only a polygon's cut
+    cells read them), ``dens`` (2k, cells), ``dc`` (cells, 2k) and
+    ``check_scale`` (k,), the mean of sqrt(div v^2 + curl v^2) over the
+    nodes ``check_rows``."""
+    runtime.ensure_init()
+    m, cells = g.shape[1], len(live_of)
+    out = {"values": np.empty((m, cells)) if with_values else None,
+           "dens": np.empty((m, cells)), "dc": np.empty((cells, m))}
+    chk = np.empty((m // 2, len(check_rows)))
+    if cells and m:
+        _node_densities(np.ascontiguousarray(g, dtype=np.float64), live_of,
+                        np.ascontiguousarray(frac, dtype=np.float64),
+                        np.ascontiguousarray(check_rows, dtype=np.int32) if len(check_rows)
+                        else np.zeros(0, dtype=np.int32),
+                        out["values"] if with_values else _NO_VALUES, out["dens"], out["dc"],
+                        chk, bool(with_values))
+    out["check_scale"] = chk.sum(axis=-1) / max(len(check_rows), 1)
+    return out
+
+
+
+def row_index(n: int, rows, values=None) -> np.ndarray:
+    """(n,) int32: ``values`` (default 0, 1, ...) at ``rows``, -1 elsewhere
+    (:func:`assemble`'s ``fit_of`` and ``near_of``)."""
+    out = np.full(n, -1, dtype=np.int32)
+    out[rows] = np.arange(len(rows)) if values is None else values
+    return out
+
+
+def assemble(at, vs, pos, fit_of, fitted, near_of, near_grad, lag, vol) -> dict:
+    """The batch's outputs (:func:`_assemble`) from ``at`` (N, 2k, 3), the
+    fields ``vs`` (N, 2k: field s's components in columns 2 s, 2 s + 1) in the
+    bins' order, ``pos`` (N,) each point's position in the bins' order (the
+    inverse of their ``order``), the one-sided
+    fits ``fitted`` (rows ``fit_of``), the fits of v near the boundary
+    ``near_grad`` (rows ``near_of``) and the Lagrange interpolant ``lag``
+    (N, 2k) of div v and curl v, the points' areas ``vol`` (N,): a dict of
+    ``pot`` (k, 2, N) phi and psi, ``grads`` (k, 2, N, 2) d and grad psi,
+    ``comps`` (k, 2, N, 2) r and h, ``dc`` (k, 2, N), ``hs`` (N, 2k) and
+    ``energies`` (4, k): the volume-weighted sums of |v|^2, |d|^2, |r|^2,
+    |h|^2 (each a sum over the rows in order, as numpy sums a 1-d array)."""
+    runtime.ensure_init()
+    k, n = vs.shape[1] // 2, vs.shape[0]
+    out = {"pot": np.empty((k, 2, n)), "grads": np.empty((k, 2, n, 2)),
+           "comps": np.empty((k, 2, n, 2)), "dc": np.empty((k, 2, n)),
+           "hs": np.empty((n, 2 * k))}
+    sq = np.empty((4, k, n))
+    if n and k:
+        _assemble(np.ascontiguousarray(at, dtype=np.float64),
+                  np.ascontiguousarray(vs, dtype=np.float64),
+                  np.ascontiguousarray(pos, dtype=np.int32), fit_of,
+                  np.ascontiguousarray(fitted, dtype=np.float64) if len(fitted) else _NONE_ROWS,
+                  near_of,
+                  np.ascontiguousarray(near_grad, dtype=np.float64) if len(near_grad)
+                  else _NONE_ROWS,
+                  np.ascontiguousarray(lag, dtype=np.float64), out["pot"], out["grads"],
+                  out["comps"], out["dc"], out["hs"], np.ascontiguousarray(vol, dtype=np.float64),
+                  sq)
+    out["energies"] = sq.sum(axis=-1)
+    return out
