@@ -371,15 +371,19 @@ def one_sided_weights(grid: Grid, inside: np.ndarray, points) -> tuple:
         use = (np.asarray(inside)[ii, jj] != 0) & (q < 1.0)
         w = np.where(use, (1.0 - q) ** 4 * (1.0 + 4.0 * q), 0.0)
         fit = (use & (w > 0.0)).sum(axis=1) >= ONE_SIDED_MIN_NODES
-        B = np.stack([np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy], axis=2)
-        M = np.einsum("pn,pni,pnj->pij", w, B, B)
+        # the basis (P, 6, nodes): each product below runs over contiguous
+        # nodes (three-operand einsum and (P, nodes, 6) were 3x and 20x slower)
+        B = np.stack([np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy], axis=1)
+        M = np.einsum("pin,pjn->pij", B * w[:, None, :], B)
         # the kernel's Cholesky raises the diagonal by 1e-12 of the trace
         M += 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(6)
         M[~fit] = np.eye(6)
         unit = np.zeros((6, 2))
         unit[1, 0] = unit[2, 1] = 1.0
         X = np.linalg.solve(M, np.broadcast_to(unit, (len(P), 6, 2)))      # (P, 6, 2)
-        g = np.einsum("pni,pic->pnc", B, X) * w[..., None] / np.array([grid.hx, grid.hy])
+        # (P, 2, 6) @ (P, 6, nodes): small products, one thread of BLAS each
+        g = np.matmul(X.transpose(0, 2, 1), B).transpose(0, 2, 1) * w[..., None] \
+            / np.array([grid.hx, grid.hy])
         keep = use & fit[:, None]
         starts.append(keep.sum(axis=1))
         index.append((ii * ny + jj)[keep])
