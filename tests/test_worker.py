@@ -111,7 +111,9 @@ def test_a_call_through_the_worker_loads_neither_numpy_nor_taichi(tmp_path, work
 @pytest.mark.slow
 def test_ctrl_c_stops_the_call_in_the_worker_as_in_its_own_process(tmp_path, worker_env):
     env = worker_env
-    files = [_field(tmp_path / f"s{t:02d}.npz", n=3000, shift=0.002 * t) for t in range(40)]
+    # long enough to be interrupted: a warm series takes about 10 ms a file of
+    # these (40 of them were done within the half second this waited)
+    files = [_field(tmp_path / f"s{t:03d}.npz", n=3000, shift=0.0005 * t) for t in range(400)]
     assert _run(["worker", "start", "--no-warm-up"], env, tmp_path).returncode == 0
     child = subprocess.Popen(CLI + ["decompose", *files, "-o", "series", "--figures", "none"],
                              env=env, cwd=tmp_path, stdout=subprocess.PIPE,
@@ -119,7 +121,7 @@ def test_ctrl_c_stops_the_call_in_the_worker_as_in_its_own_process(tmp_path, wor
     for line in child.stderr:                              # the series has started
         if "snapshot" in line or "decompos" in line:
             break
-    time.sleep(0.5)
+    time.sleep(0.1)
     child.send_signal(signal.SIGINT)
     out, err = child.communicate(timeout=600)
     assert child.returncode == 130, err
