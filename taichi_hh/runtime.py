@@ -47,6 +47,7 @@ class RuntimeState:
     pinned: tuple = ()       # CPUs Taichi's worker threads were bound to, in order
     device: str = ""         # the Vulkan device's name where known ("" otherwise)
     software: bool = False   # a CPU behind the Vulkan API (Mesa's lavapipe)
+    refused: bool = False    # a GPU request found no device: Taichi started and was reset
 
 
 _state = RuntimeState()
@@ -231,6 +232,7 @@ def _start(ti, arch, precision, offline_cache_dir, threads, debug, pin_threads) 
         software = arch == "gpu" and _software_vulkan_only()
         _state.initialized = False          # Taichi was reset: nothing is running
         _state.generation += 1              # and every array made before is gone
+        _state.refused = True
         raise InputError(
             f"arch={arch!r} asks for a GPU backend, but Taichi found no usable "
             f"{' or '.join(tried)} device on this machine (no driver, or no device "
@@ -541,3 +543,13 @@ def array(dtype, shape, vector: int | None = None, *, zeroed: bool = True):
         if vector is None:
             return ti.ndarray(dtype, shape=shape)
         return ti.Vector.ndarray(int(vector), dtype, shape=shape)
+
+
+def gpu_refused() -> bool:
+    """Whether a GPU backend was asked for and refused in this process (Taichi
+    started on it, found no device, and was reset): a process that ends then
+    has nothing of Taichi's to keep, and Taichi's teardown after such a start
+    has crashed (SIGSEGV, about one exit in six on a loaded machine with a
+    Vulkan loader and no device) after the error was reported."""
+    return _state.refused
+

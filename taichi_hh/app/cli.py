@@ -677,5 +677,19 @@ def main(argv=None, worker: bool = True) -> int:
                          error_hint=_solver_hint, rewrite=option_rewriter(parser))
 
 
+def entry() -> None:
+    """The ``taichi-hh`` command: :func:`main`, then exit with its status.  Where
+    a GPU request was refused, at once (``os._exit``, the streams flushed):
+    Taichi's teardown after its failed start has crashed the exit
+    (:func:`taichi_hh.runtime.gpu_refused`)."""
+    code = main()
+    from .. import runtime
+    if runtime.gpu_refused():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()
