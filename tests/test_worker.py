@@ -115,9 +115,13 @@ def test_ctrl_c_stops_the_call_in_the_worker_as_in_its_own_process(tmp_path, wor
     # these (40 of them were done within the half second this waited)
     files = [_field(tmp_path / f"s{t:03d}.npz", n=3000, shift=0.0005 * t) for t in range(400)]
     assert _run(["worker", "start", "--no-warm-up"], env, tmp_path).returncode == 0
+    # SIGINT at its default in the child whatever this process inherited (a
+    # test run started in the background by a shell ignores it, and so would
+    # the child's Python)
     child = subprocess.Popen(CLI + ["decompose", *files, "-o", "series", "--figures", "none"],
                              env=env, cwd=tmp_path, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
+                             stderr=subprocess.PIPE, text=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     for line in child.stderr:                              # the series has started
         if "snapshot" in line or "decompos" in line:
             break

@@ -349,6 +349,11 @@ def main(argv=None) -> int:
         raise SystemExit(0)
 
     signal.signal(signal.SIGTERM, stop)
+    # a caller's Ctrl-C reaches a call through _thread.interrupt_main, which
+    # does nothing where SIGINT is ignored: a worker started from a shell's
+    # background job inherits that (SIGINT itself reaches the worker only
+    # through its callers)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     worker = Worker(args.socket, args.idle_timeout, args.arch, args.precision)
     print(f"taichi-hh worker {os.getpid()}: listening on {args.socket}", flush=True)
     worker.serve(warm_up=not args.no_warm_up)
