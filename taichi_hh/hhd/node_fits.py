@@ -478,62 +478,72 @@ _NO_INDEX = np.zeros(1, dtype=np.int32)
 _NO_WEIGHTS = np.zeros((1, 2))
 
 
-#: the column widths :func:`_apply_weights` compiles (each once): a call's
-#: columns go through in blocks of the widest that fits, the rest narrower
-APPLY_WIDTHS = (8, 4, 2, 1)
-#: blocks at least this wide sum each column in slot order, narrower ones
-#: let LLVM's loop vectorizer split the sum over slots into partial sums
-#: (at 1-2 columns 1.5-2x faster that way, at 4-8 2-3x slower: it loads
-#: the values one at a time; docs/notes/series.md)
-APPLY_IN_ORDER = 4
+#: the widest column block :func:`_apply_weights` sums at once, and the
+#: columns one launch takes at most (more go through in launches of this many)
+APPLY_WIDTH = 8
+APPLY_COLUMNS = 16
 
 
-@ti.func
-def _add_slot(s, widx: ti.template(), wval: ti.template(), values: ti.template(), c0, ref,
-              gx, gy, width: ti.template()):
-    """One slot's terms: its weights times the block's values less ``ref``."""
-    k = widx[s]
-    ax = wval[s, 0]
-    ay = wval[s, 1]
-    for w in ti.static(range(width)):
-        v = values[k, c0 + w] - ref[w]
-        gx[w] += ax * v
-        gy[w] += ay * v
-    return k, gx, gy
+def gather_stride(m: int) -> int:
+    """The row length a gather of ``m`` columns reads its values in: ``m``
+    up to 2, else ``m`` rounded up to a multiple of 4 (at most
+    APPLY_COLUMNS).  A compile-time row length lets LLVM load a slot's
+    columns as vectors; with the row length a runtime value (a 2-d ndarray's
+    shape) the gather ran 3x slower, and a row of 6 or 12 doubles (rows
+    straddling cache lines) 2-3x slower than the same columns in rows of 8
+    or 16 (docs/notes/series.md)."""
+    return m if m <= 2 else min(APPLY_COLUMNS, 4 * -(-m // 4))
+
+
+def _column_blocks(stride: int) -> tuple:
+    """(first column, width) of the blocks a row of ``stride`` values is
+    summed in: APPLY_WIDTH wide, then 4."""
+    blocks, c = [], 0
+    for width in (APPLY_WIDTH, 4, 2, 1):
+        while stride - c >= width:
+            blocks.append((c, width))
+            c += width
+    return tuple(blocks)
 
 
 @ti.kernel
 def _apply_weights(wstart: ti.types.ndarray(), widx: ti.types.ndarray(),
                    wval: ti.types.ndarray(), wref: ti.types.ndarray(),
-                   values: ti.types.ndarray(), out: ti.types.ndarray(), width: ti.template(),
-                   col0: ti.i32, blocks: ti.i32):
-    """out[t, c, :] = the sum over target t's slots of the weights times
-    column c of ``values`` (N, m) less its value at the fit's reference
-    point (as the fit subtracts it: the same rounding), for the ``blocks``
-    blocks of ``width`` columns from ``col0``: one gather per target and
-    block, a slot's index and weights read once for the block's columns
-    (adjacent in a row of ``values``)."""
-    for t, blk in ti.ndrange(out.shape[0], blocks):
-        c0 = col0 + blk * width
-        gx = ti.Vector.zero(ti.f64, width)
-        gy = ti.Vector.zero(ti.f64, width)
-        ref = ti.Vector.zero(ti.f64, width)
-        kref = wref[t]
-        for w in ti.static(range(width)):
-            ref[w] = values[kref, c0 + w]
-        if ti.static(width >= APPLY_IN_ORDER):
+                   values: ti.types.ndarray(), out: ti.types.ndarray(), stride: ti.template(),
+                   m: ti.i32):
+    """out[(t m + c) 2 + j] = the sum over target t's slots of the weights
+    ``wval[2 s + j]`` times column c of ``values`` (rows of ``stride``,
+    flat) less its value at the fit's reference point (as the fit subtracts
+    it: the same rounding), for the first ``m`` columns: one gather per
+    target, a slot's index and weights read once for a block's columns
+    (adjacent in a row), each column summed in slot order (the loop's step
+    written so that the vectorizer cannot split the sum)."""
+    for t in range(wstart.shape[0] - 1):
+        for c0, width in ti.static(_column_blocks(stride)):
+            gx = ti.Vector.zero(ti.f64, width)
+            gy = ti.Vector.zero(ti.f64, width)
+            ref = ti.Vector.zero(ti.f64, width)
+            kref = wref[t] * stride + c0
+            for w in ti.static(range(width)):
+                ref[w] = values[kref + w]
             s = wstart[t]
             end = wstart[t + 1]
             while s < end:
-                k, gx, gy = _add_slot(s, widx, wval, values, c0, ref, gx, gy, width)
+                k = widx[s]
+                row = k * stride + c0
+                ax = wval[2 * s]
+                ay = wval[2 * s + 1]
+                for w in ti.static(range(width)):
+                    v = values[row + w] - ref[w]
+                    gx[w] += ax * v
+                    gy[w] += ay * v
                 # k >= 0: a step of 1 that the loop vectorizer cannot count
                 s += 1 + (k >> 31)
-        else:
-            for s in range(wstart[t], wstart[t + 1]):
-                _, gx, gy = _add_slot(s, widx, wval, values, c0, ref, gx, gy, width)
-        for w in ti.static(range(width)):
-            out[t, c0 + w, 0] = gx[w]
-            out[t, c0 + w, 1] = gy[w]
+            o = (t * m + c0) * 2
+            for w in ti.static(range(width)):
+                if c0 + w < m:
+                    out[o + 2 * w] = gx[w]
+                    out[o + 2 * w + 1] = gy[w]
 
 
 class FitWeights:
@@ -602,15 +612,24 @@ class FitWeights:
     def gradients(self, values) -> np.ndarray:
         """(T, m, 2) the gradient of each column of ``values`` (N, m, in the
         order of the bins' points) at the targets."""
-        v = np.ascontiguousarray(values, dtype=np.float64)
+        v = np.asarray(values, dtype=np.float64)
         v = v[:, None] if v.ndim == 1 else v
-        out = np.zeros((self.n_targets, v.shape[1], 2))
-        if self.n_targets and v.shape[1]:
-            col = 0
-            for width in APPLY_WIDTHS:
-                blocks = (v.shape[1] - col) // width
-                if blocks:
-                    _apply_weights(self.start, self.index, self.weights, self.reference, v,
-                                   out, width, col, blocks)
-                    col += blocks * width
+        m = v.shape[1]
+        out = np.empty((self.n_targets, m, 2))
+        if not (self.n_targets and m):
+            return out
+        for c in range(0, m, APPLY_COLUMNS):
+            part = v[:, c:c + APPLY_COLUMNS]
+            width = part.shape[1]
+            stride = gather_stride(width)
+            if stride == width and part.flags.c_contiguous:
+                rows = part
+            else:
+                rows = np.zeros((len(v), stride))
+                rows[:, :width] = part
+            dest = out if width == m else np.empty((self.n_targets, width, 2))
+            _apply_weights(self.start, self.index, self.weights.reshape(-1), self.reference,
+                           rows.reshape(-1), dest.reshape(-1), stride, width)
+            if dest is not out:
+                out[:, c:c + width] = dest
         return out
