@@ -233,8 +233,8 @@ def test_fit_weights_are_the_fits():
 
 
 def test_fit_weights_gather_is_the_sum_over_slots():
-    """FitWeights.gradients (a kernel taking the columns in blocks of 8, 4, 2
-    and 1) is the plain sum over each target's slots of the weights times
+    """FitWeights.gradients (a kernel reading rows padded to a multiple of 4
+    columns, in blocks of 8 and 4, at most 16 columns a launch) is the plain sum over each target's slots of the weights times
     the values less the reference's, for any number of columns: numpy in
     slot order agrees to round-off, and each column with that column alone
     (no block mixes columns)."""
@@ -244,8 +244,10 @@ def test_fit_weights_gather_is_the_sum_over_slots():
     rows = np.repeat(np.arange(w.n_targets), np.diff(w.start))
     n = int(w.start[-1])
     rng = np.random.default_rng(6)
-    for m in (1, 2, 3, 5, 7, 8, 13, 16):
+    for m in (1, 2, 3, 5, 6, 7, 8, 13, 16, 21):
         vals = rng.standard_normal((len(pts), m)) * 10.0 ** rng.integers(-3, 4, m)
+        if m == 6:             # a strided view: read as its values
+            vals = np.asfortranarray(vals)
         diff = vals[w.index[:n]] - vals[w.reference[rows]]                   # (S, m)
         ref = np.zeros((w.n_targets, m, 2))
         np.add.at(ref, rows, diff[:, :, None] * w.weights[:n, None, :])
@@ -357,3 +359,25 @@ def test_cell_counts_are_the_numpy_sums(layout):
     assert got_edge.any() and not got_edge.all()
     if layout == "clustered":
         assert (got_spacing > max(grid.hx, grid.hy)).any()        # the sparse rule taken
+
+
+def test_fit_weights_of_some_targets_are_their_rows():
+    """FitWeights.rows (the harmonic check's fits, taken from the nodes'):
+    the weights of a subset of targets equal, bit for bit, the weights built
+    for those targets alone; all rows give the same object."""
+    pts = np.random.default_rng(8).random((2500, 2)) * [1.5, 1.0]
+    grid, b = _binned(pts, math.sqrt(1.5 / len(pts)))
+    targets = grid.centres()
+    w = node_fits.FitWeights(grid, b, targets)
+    assert w.rows(np.arange(w.n_targets)) is w
+    for rows in (np.arange(0, len(targets), 7), np.array([0, len(targets) - 1]),
+                 np.zeros(0, dtype=int)):
+        sub, alone = w.rows(rows), node_fits.FitWeights(grid, b, targets[rows])
+        n = int(alone.start[-1])
+        assert np.array_equal(sub.start, alone.start)
+        assert np.array_equal(sub.index[:n], alone.index[:n])
+        assert np.array_equal(sub.weights[:n], alone.weights[:n])
+        assert np.array_equal(sub.reference[:len(rows)], alone.reference[:len(rows)])
+        assert np.array_equal(sub.counts, alone.counts)
+        vals = np.sin(3 * b.points)
+        assert np.array_equal(sub.gradients(vals), alone.gradients(vals))

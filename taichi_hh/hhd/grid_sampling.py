@@ -251,6 +251,25 @@ ONE_SIDED_REACH = 4
 ONE_SIDED_MIN_NODES = 16
 
 
+@ti.func
+def _stencil_node(P, ci, cj, a, b, nx, ny, x0, y0, hx, hy, inside: ti.template()):
+    """Node (ci + a, cj + b) of the one-sided fit's stencil around ``P``
+    (indices clamped into the grid): ``(in the fit, its weight, the quadratic
+    basis at it in cells from P, i, j)``."""
+    R = ONE_SIDED_REACH
+    ii = ti.math.clamp(ci + a, 0, nx - 1)
+    jj = ti.math.clamp(cj + b, 0, ny - 1)
+    dx = (x0 + ii * hx - P[0]) / hx                      # in cells
+    dy = (y0 + jj * hy - P[1]) / hy
+    q = ti.sqrt(dx * dx + dy * dy) / (R - 0.5)
+    use = inside[ii, jj] != 0 and q < 1.0
+    w = 0.0
+    if use:
+        w = (1.0 - q) ** 4 * (1.0 + 4.0 * q)
+    B = ti.Vector([1.0, dx, dy, dx * dx, dx * dy, dy * dy], dt=ti.f64)
+    return use, w, B, ii, jj
+
+
 @ti.kernel
 def _one_sided(u: ti.types.ndarray(), inside: ti.types.ndarray(), pts: ti.types.ndarray(),
                x0: ti.f64, y0: ti.f64, hx: ti.f64, hy: ti.f64, col: ti.i32,
@@ -277,17 +296,12 @@ def _one_sided(u: ti.types.ndarray(), inside: ti.types.ndarray(), pts: ti.types.
         ref = ti.Vector([u[ri, rj, col], u[ri, rj, col + 1]], dt=ti.f64)
         count = 0
         for a in range(-R, R + 1):
-            ii = ti.math.clamp(ci + a, 0, nx - 1)
             for b in range(-R, R + 1):
-                jj = ti.math.clamp(cj + b, 0, ny - 1)
-                dx = (x0 + ii * hx - P[0]) / hx                      # in cells
-                dy = (y0 + jj * hy - P[1]) / hy
-                q = ti.sqrt(dx * dx + dy * dy) / (R - 0.5)
-                if inside[ii, jj] != 0 and q < 1.0:
-                    w = (1.0 - q) ** 4 * (1.0 + 4.0 * q)
+                use, w, B, ii, jj = _stencil_node(P, ci, cj, a, b, nx, ny, x0, y0, hx, hy,
+                                                  inside)
+                if use:
                     if w > 0.0:
                         count += 1
-                    B = ti.Vector([1.0, dx, dy, dx * dx, dx * dy, dy * dy], dt=ti.f64)
                     v = ti.Vector([u[ii, jj, col], u[ii, jj, col + 1]], dt=ti.f64) - ref
                     M += w * B.outer_product(B)
                     rhs += w * B.outer_product(v)
@@ -341,6 +355,50 @@ def one_sided_gradient(grid: Grid, u: np.ndarray, inside: np.ndarray, points) ->
     return out[:, 0] if one else out
 
 
+@ti.kernel
+def _one_sided_slots(inside: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64,
+                     y0: ti.f64, hx: ti.f64, hy: ti.f64, index: ti.types.ndarray(),
+                     weights: ti.types.ndarray(), ok: ti.types.ndarray()):
+    """:func:`one_sided_weights`' fits: point p's weight in each derivative
+    on stencil node s at ``weights[p, s, :]`` (node ``index[p, s]``, -1
+    where the node is not in the fit), ``ok[p]`` where the fit exists: the
+    moment matrix of :func:`_one_sided`, solved once against the two
+    derivatives' unit vectors."""
+    nx, ny = inside.shape[0], inside.shape[1]
+    R = ONE_SIDED_REACH
+    for p in range(pts.shape[0]):
+        P = ti.Vector([pts[p, 0], pts[p, 1]], dt=ti.f64)
+        ci = ti.cast(ti.math.clamp(ti.floor((P[0] - x0) / hx + 0.5), -1e9, 1e9), ti.i32)
+        cj = ti.cast(ti.math.clamp(ti.floor((P[1] - y0) / hy + 0.5), -1e9, 1e9), ti.i32)
+        M = ti.Matrix.zero(ti.f64, 6, 6)
+        count = 0
+        for a in range(-R, R + 1):
+            for b in range(-R, R + 1):
+                use, w, B, _, _ = _stencil_node(P, ci, cj, a, b, nx, ny, x0, y0, hx, hy,
+                                                inside)
+                if use:
+                    if w > 0.0:
+                        count += 1
+                    M += w * B.outer_product(B)
+        fit = count >= ONE_SIDED_MIN_NODES
+        ok[p] = 1 if fit else 0
+        unit = ti.Matrix.zero(ti.f64, 6, 2)
+        unit[1, 0] = 1.0
+        unit[2, 1] = 1.0
+        X = cholesky_solve(M, unit, 6, ti.f64, 0.0)
+        s = 0
+        for a in range(-R, R + 1):
+            for b in range(-R, R + 1):
+                use, w, B, ii, jj = _stencil_node(P, ci, cj, a, b, nx, ny, x0, y0, hx, hy,
+                                                  inside)
+                index[p, s] = -1
+                if use and fit:
+                    index[p, s] = ii * ny + jj
+                    weights[p, s, 0] = w * (X[:, 0].dot(B)) / hx
+                    weights[p, s, 1] = w * (X[:, 1].dot(B)) / hy
+                s += 1
+
+
 def one_sided_weights(grid: Grid, inside: np.ndarray, points) -> tuple:
     """:func:`one_sided_gradient` at fixed ``points`` as weights, for grids
     that carry many potentials (a series): ``(weights, ok)``, ``weights`` a
@@ -349,55 +407,28 @@ def one_sided_weights(grid: Grid, inside: np.ndarray, points) -> tuple:
     ``u.reshape(m, -1).T`` gives the fits' gradients of the m potentials,
     equal to :func:`one_sided_gradient` to rounding; ``ok`` (len(points),)
     where the fit exists (elsewhere that function's NaN).  The same weighted
-    quadratic fit as :func:`_one_sided`, its matrix inverted once per point
-    (numpy, in blocks of points)."""
+    quadratic fit as :func:`_one_sided`, its matrix solved once per point
+    for the two derivatives' weights (a Taichi kernel,
+    :func:`_one_sided_slots`; numpy's batched solves took 20x as long)."""
+    runtime.ensure_init()
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
-    R = ONE_SIDED_REACH
-    nx, ny = grid.shape
-    x0, y0 = float(grid.origin[0]), float(grid.origin[1])
-    off = np.arange(-R, R + 1)
-    starts, index, weights, ok = [np.zeros(1, dtype=np.int64)], [], [], []
-    for a in range(0, len(pts), 4096):
-        P = pts[a:a + 4096]
-        ci = np.clip(np.floor((P[:, 0] - x0) / grid.hx + 0.5), -1e9, 1e9).astype(np.int64)
-        cj = np.clip(np.floor((P[:, 1] - y0) / grid.hy + 0.5), -1e9, 1e9).astype(np.int64)
-        ii = np.clip(ci[:, None, None] + off[None, :, None], 0, nx - 1)
-        jj = np.clip(cj[:, None, None] + off[None, None, :], 0, ny - 1)
-        ii, jj = np.broadcast_arrays(ii, jj)
-        ii, jj = ii.reshape(len(P), -1), jj.reshape(len(P), -1)
-        dx = (x0 + ii * grid.hx - P[:, :1]) / grid.hx                   # in cells
-        dy = (y0 + jj * grid.hy - P[:, 1:]) / grid.hy
-        q = np.sqrt(dx * dx + dy * dy) / (R - 0.5)
-        use = (np.asarray(inside)[ii, jj] != 0) & (q < 1.0)
-        w = np.where(use, (1.0 - q) ** 4 * (1.0 + 4.0 * q), 0.0)
-        fit = (use & (w > 0.0)).sum(axis=1) >= ONE_SIDED_MIN_NODES
-        # the basis (P, 6, nodes): each product below runs over contiguous
-        # nodes (three-operand einsum and (P, nodes, 6) were 3x and 20x slower)
-        B = np.stack([np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy], axis=1)
-        M = np.einsum("pin,pjn->pij", B * w[:, None, :], B)
-        # the kernel's Cholesky raises the diagonal by 1e-12 of the trace
-        M += 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(6)
-        M[~fit] = np.eye(6)
-        unit = np.zeros((6, 2))
-        unit[1, 0] = unit[2, 1] = 1.0
-        X = np.linalg.solve(M, np.broadcast_to(unit, (len(P), 6, 2)))      # (P, 6, 2)
-        # (P, 2, 6) @ (P, 6, nodes): small products, one thread of BLAS each
-        g = np.matmul(X.transpose(0, 2, 1), B).transpose(0, 2, 1) * w[..., None] \
-            / np.array([grid.hx, grid.hy])
-        keep = use & fit[:, None]
-        starts.append(keep.sum(axis=1))
-        index.append((ii * ny + jj)[keep])
-        weights.append(g[keep])
-        ok.append(fit)
-    start = np.cumsum(np.concatenate(starts)).astype(np.int32)
-    index = np.concatenate(index).astype(np.int32) if index else np.zeros(0, np.int32)
-    weights = np.concatenate(weights) if weights else np.zeros((0, 2))
+    stencil = (2 * ONE_SIDED_REACH + 1) ** 2
+    index = np.empty((len(pts), stencil), dtype=np.int32)
+    weights = np.empty((len(pts), stencil, 2))
+    ok = np.zeros(len(pts), dtype=np.int32)
+    if len(pts):
+        _one_sided_slots(np.ascontiguousarray(inside, dtype=np.int32), pts,
+                         float(grid.origin[0]), float(grid.origin[1]), grid.hx, grid.hy,
+                         index, weights, ok)
+    keep = index >= 0
+    start = np.zeros(len(pts) + 1, dtype=np.int64)
+    np.cumsum(keep.sum(axis=1), out=start[1:])
+    index, weights = index[keep], weights[keep]
     # the reference each gather subtracts (the weights sum to zero): the
     # first node of the point's fit
-    reference = np.where(np.diff(start) > 0, index[np.minimum(start[:-1], max(len(index) - 1, 0))]
-                         if len(index) else 0, 0).astype(np.int32)
-    ok = np.concatenate(ok) if ok else np.zeros(0, dtype=bool)
-    return FitWeights.of_slots(start, index, weights, reference), ok
+    first = np.minimum(start[:-1], max(len(index) - 1, 0))
+    reference = np.where(np.diff(start) > 0, index[first] if len(index) else 0, 0)
+    return FitWeights.of_slots(start, index, weights, reference), ok.astype(bool)
 
 
 @ti.func

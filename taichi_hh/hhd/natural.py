@@ -299,9 +299,11 @@ class NaturalSetup:
         self.fits = self.one_sided = None
         if reuse_fits and 24 * 45 * (len(live) + len(self.near)) <= FIT_WEIGHTS_BYTES:
             self.fits = {}
-            for name in ("nodes", "near", "check"):
+            for name in ("nodes", "near"):
                 targets, scale, edge = self._targets(name)
                 self.fits[name] = FitWeights(grid, binned, targets, scale=scale, edge=edge)
+            # the check nodes are nodes: their fits are rows of the nodes'
+            self.fits["check"] = self.fits["nodes"].rows(self.check_rows)
             self.one_sided = one_sided_weights(grid, cells.inside, binned.points[self.near])
             lap("fit_weights")
         self.seconds = lap.seconds

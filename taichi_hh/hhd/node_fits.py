@@ -605,6 +605,23 @@ class FitWeights:
         self.reference[:self.n_targets] = reference
         return self
 
+    def rows(self, rows) -> "FitWeights":
+        """The weights of the targets ``rows`` (indices, increasing) alone:
+        the same slots (a fit depends on its target alone, so a subset of
+        targets fitted again would give these weights bit for bit)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        if len(rows) == self.n_targets and np.array_equal(rows, np.arange(self.n_targets)):
+            return self
+        first, count = self.start[rows].astype(np.int64), np.diff(self.start)[rows]
+        start = np.zeros(len(rows) + 1, dtype=np.int64)
+        np.cumsum(count, out=start[1:])
+        # each kept slot's place: its target's first slot plus its rank
+        slots = np.repeat(first - start[:-1], count) + np.arange(start[-1])
+        out = FitWeights.of_slots(start, self.index[slots], self.weights[slots],
+                                  self.reference[rows])
+        out.counts = self.counts[rows]
+        return out
+
     @property
     def nbytes(self) -> int:
         return self.start.nbytes + self.index.nbytes + self.weights.nbytes + self.reference.nbytes
