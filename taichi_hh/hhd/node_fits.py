@@ -311,7 +311,8 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
                    radii: ti.types.vector(3, ti.f64), min_points: ti.i32, edge_degree: ti.i32,
                    min_pivot: ti.f64,
                    scale: ti.types.ndarray(), edge: ti.types.ndarray(),
-                   out: ti.types.ndarray(), emit: ti.template(), wstart: ti.types.ndarray(),
+                   out: ti.types.ndarray(), emit: ti.template(), count_only: ti.template(),
+                   wstart: ti.types.ndarray(),
                    widx: ti.types.ndarray(), wval: ti.types.ndarray(),
                    wref: ti.types.ndarray()):
     """The gradients of the two columns of ``vals`` at each target (T, 2) from
@@ -329,7 +330,9 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
     ``wstart[t]`` on (the counts of a pass without: :class:`FitWeights`):
     ``widx`` the point, ``wval`` its weights in d/dx and d/dy (the rows of
     the inverse normal matrix times the point's weighted monomials), and
-    ``wref[t]`` the point whose value the fit subtracts first."""
+    ``wref[t]`` the point whose value the fit subtracts first.  With
+    ``count_only`` the points in each fit alone (the radius depends on the
+    counts alone), out[t, :4] zero: the slots' pass of :class:`FitWeights`."""
     NB = ti.static(len(_MONO[p]))
     NM = ti.static(len(_MOMENTS[p]))
     for t in range(targets.shape[0]):
@@ -369,19 +372,24 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
             for i in range(i0, i1 + 1):
                 row = i * ny
                 for k in range(start[row + j0], start[row + j1 + 1]):
-                    near, px, py = _fit_powers(pos, k, X, inv, 2 * p)
-                    if near:
-                        count += 1
-                        inc = ti.Vector.zero(ti.f64, NM)
-                        for m in ti.static(range(NM)):
-                            inc[m] = px[ti.static(_MOMENTS[p][m][0])] \
-                                * py[ti.static(_MOMENTS[p][m][1])]
-                        mom += inc
-                        v0 = vals[k, 0] - ref0
-                        v1 = vals[k, 1] - ref1
-                        for m in ti.static(range(NB)):
-                            r0[m] += inc[ti.static(_RHS[p][m])] * v0
-                            r1[m] += inc[ti.static(_RHS[p][m])] * v1
+                    if ti.static(count_only):
+                        near, _, _ = _fit_powers(pos, k, X, inv, 0)
+                        if near:
+                            count += 1
+                    else:
+                        near, px, py = _fit_powers(pos, k, X, inv, 2 * p)
+                        if near:
+                            count += 1
+                            inc = ti.Vector.zero(ti.f64, NM)
+                            for m in ti.static(range(NM)):
+                                inc[m] = px[ti.static(_MOMENTS[p][m][0])] \
+                                    * py[ti.static(_MOMENTS[p][m][1])]
+                            mom += inc
+                            v0 = vals[k, 0] - ref0
+                            v1 = vals[k, 1] - ref1
+                            for m in ti.static(range(NB)):
+                                r0[m] += inc[ti.static(_RHS[p][m])] * v0
+                                r1[m] += inc[ti.static(_RHS[p][m])] * v1
             done = count >= min_points or a == 2
             a += 1
         # a radius beyond the first next to the boundary: at most edge_degree
@@ -391,7 +399,7 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
         # equations are the leading block)
         g = ti.Vector.zero(ti.f64, 4)
         solved = False
-        for q in ti.static(range(p, 0, -1)):
+        for q in ti.static(range(p, 0, -1) if not count_only else ()):
             nq = ti.static(len(_MONO[q]))
             if not solved and ((q <= top and count >= nq + 2) or q == 1):
                 M = ti.Matrix.zero(ti.f64, nq, nq)
@@ -468,7 +476,7 @@ def fit_gradients(grid: Grid, binned: "PointBins", values, targets, degree: int 
                                             dtype=np.float64),
                        np.ascontiguousarray(np.broadcast_to(True if edge is None else edge,
                                                             len(tg)), dtype=np.int32), out,
-                       False, _NO_SLOTS, _NO_INDEX, _NO_WEIGHTS, _NO_INDEX)
+                       False, False, _NO_SLOTS, _NO_INDEX, _NO_WEIGHTS, _NO_INDEX)
     grads = out[:, :4].reshape(-1, 2, 2)
     return (grads, out[:, 4]) if counts else grads
 
@@ -558,33 +566,38 @@ class FitWeights:
     def __init__(self, grid: Grid, binned: "PointBins", targets, *, scale=None, edge=None):
         runtime.ensure_init()
         tg = np.ascontiguousarray(targets, dtype=np.float64).reshape(-1, 2)
-        # the first pass counts each fit's points (the slots), the second
-        # writes their weights
         zero = np.zeros((len(binned.points), 2))
-        _, count = fit_gradients(grid, binned, zero, tg, counts=True, scale=scale, edge=edge)
-        self.counts = count
+        self.counts = np.zeros(len(tg))
+        self.start = np.zeros(len(tg) + 1, dtype=np.int32)
+        self.index = np.zeros(1, dtype=np.int32)
+        self.weights = np.zeros((1, 2))
+        self.reference = np.zeros(max(len(tg), 1), dtype=np.int32)
+        self.n_targets = len(tg)
+        if not (len(tg) and len(binned.points)):
+            return
+        lower = grid.origin - 0.5 * np.array([grid.hx, grid.hy])
+        args = (tg, grid.nx, grid.ny, float(lower[0]), float(lower[1]), grid.hx, grid.hy,
+                binned.start, binned.points, zero, int(FIT_DEGREE),
+                ti.Vector([float(r) for r in FIT_RADII], dt=ti.f64), int(FIT_MIN_POINTS),
+                int(EDGE_DEGREE), float(FIT_MIN_PIVOT),
+                np.ascontiguousarray(np.broadcast_to(
+                    max(grid.hx, grid.hy) if scale is None else scale, len(tg)),
+                    dtype=np.float64),
+                np.ascontiguousarray(np.broadcast_to(True if edge is None else edge, len(tg)),
+                                     dtype=np.int32))
+        out = np.zeros((len(tg), 5))
+        # the first pass counts each fit's points (the slots: the radii's
+        # search alone), the second writes their weights
+        _fit_gradients(*args, out, False, True, _NO_SLOTS, _NO_INDEX, _NO_WEIGHTS, _NO_INDEX)
+        self.counts = out[:, 4].copy()
         # 32-bit slots (the kernels' loop bounds): the weights stay far below
         # 2^31 of them (natural.FIT_WEIGHTS_BYTES)
-        self.start = np.zeros(len(tg) + 1, dtype=np.int32)
-        self.start[1:] = np.cumsum(count.astype(np.int64))
+        self.start[1:] = np.cumsum(self.counts.astype(np.int64))
         n = int(self.start[-1])
         self.index = np.zeros(max(n, 1), dtype=np.int32)
         self.weights = np.zeros((max(n, 1), 2))
-        self.reference = np.zeros(max(len(tg), 1), dtype=np.int32)
-        if len(tg) and len(binned.points):
-            lower = grid.origin - 0.5 * np.array([grid.hx, grid.hy])
-            out = np.zeros((len(tg), 5))
-            _fit_gradients(tg, grid.nx, grid.ny, float(lower[0]), float(lower[1]), grid.hx,
-                           grid.hy, binned.start, binned.points, zero, int(FIT_DEGREE),
-                           ti.Vector([float(r) for r in FIT_RADII], dt=ti.f64),
-                           int(FIT_MIN_POINTS), int(EDGE_DEGREE), float(FIT_MIN_PIVOT),
-                           np.ascontiguousarray(np.broadcast_to(
-                               max(grid.hx, grid.hy) if scale is None else scale, len(tg)),
-                               dtype=np.float64),
-                           np.ascontiguousarray(np.broadcast_to(True if edge is None else edge,
-                                                                len(tg)), dtype=np.int32),
-                           out, True, self.start, self.index, self.weights, self.reference)
-        self.n_targets = len(tg)
+        _fit_gradients(*args, out, True, False, self.start, self.index, self.weights,
+                       self.reference)
 
     @classmethod
     def of_slots(cls, start, index, weights, reference) -> "FitWeights":
