@@ -49,16 +49,18 @@ def test_spline_prefilter_kernel_is_the_numpy_filter():
 
 def test_spline_prefilter_kernel_on_odd_lines_and_short_axes():
     """The prefilter's lanes (adjacent lines per thread, the last block
-    partly past the end) and its start sum cut after SPLINE_START_TERMS
-    terms (lines longer and shorter than that) give the numpy filter's
-    full sums to round-off."""
+    partly past the end) on lines of any length, down to one node: the
+    numpy filter's coefficients to round-off, and a constant grid's
+    coefficients the constant (the starts exact for the edge values
+    repeated forever)."""
     rng = np.random.default_rng(1)
-    for shape in ((5, 7), (40, 3, 1), (61, 29, 5), (3, 50, 7)):
+    for shape in ((5, 7), (40, 3, 1), (61, 29, 5), (3, 50, 7), (1, 4), (2, 1, 3)):
         u = rng.standard_normal(shape) * 10.0 ** rng.integers(-2, 3, shape)
         a = grid_sampling.spline_coefficients(u)
         b = grid_sampling.spline_coefficients_numpy(u)
         assert np.abs(a - b).max() < 1e-14 * np.abs(b).max()
-    assert abs(grid_sampling.SPLINE_POLE) ** grid_sampling.SPLINE_START_TERMS < 2.0 ** -56
+        c = grid_sampling.spline_coefficients(np.full(shape, 2.5))
+        assert np.abs(c - 2.5).max() < 1e-14
 
 
 def test_lagrange_and_spline_gathers_take_any_columns():

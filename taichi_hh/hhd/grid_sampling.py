@@ -18,16 +18,10 @@ from .node_fits import FitWeights, cholesky_solve
 #: the cubic B-spline's interpolation pole (Unser et al. 1991): the
 #: prefilter that makes the spline pass through the grid values
 SPLINE_POLE = math.sqrt(3.0) - 2.0
-#: edge cells replicated on each side before the prefilter (as
-#: scipy.ndimage.map_coordinates(mode="nearest") pads): the filter's boundary
-#: start decays as SPLINE_POLE ** distance, below round-off at the points
-SPLINE_PAD = 12
-
-
-#: the terms of the causal filter's mirrored start sum taken: z^i beyond
-#: them is below 2^-56 (the rest of the sum is under the round-off of its
-#: first terms)
-SPLINE_START_TERMS = math.ceil(math.log(2.0 ** -56) / math.log(abs(SPLINE_POLE)))
+#: edge values repeated on each side of the grid before the prefilter, whose
+#: starts are exact for the edge values repeated forever: the extension's own
+#: coefficients for the knots of points up to a cell beyond the grid
+SPLINE_PAD = 2
 #: adjacent grid lines one thread of :func:`_spline_filter` filters together
 #: (their values share cache lines)
 SPLINE_LANES = 3
@@ -35,15 +29,14 @@ SPLINE_LANES = 3
 
 @ti.kernel
 def _spline_filter(c: ti.types.ndarray(), A: ti.i32, n: ti.i32, B: ti.i32, z: ti.f64,
-                   zn: ti.f64, terms: ti.i32, lanes: ti.template()):
+                   lanes: ti.template()):
     """The cubic B-spline prefilter in place along the middle axis of ``c``
     (A, n, B, flat), the lines (a, :, b) in parallel, ``lanes`` adjacent ones
-    per thread (their values share cache lines): the gain, the causal filter
-    started exactly for the half-sample symmetric extension (its sum over the
-    mirrored line cut after ``terms`` terms), the anticausal filter (as
-    :func:`spline_coefficients_numpy`); the running value of each recursion
-    kept in a register, the offsets stepped (no 3-d index arithmetic).
-    ``zn`` is z ** n, from the host: SPIR-V (Vulkan) has no f64 pow."""
+    per thread (their values share cache lines): the causal and anticausal
+    filters with the gain, each started exactly for the line's edge values
+    repeated forever (:func:`spline_coefficients_numpy`); the running value
+    of each recursion kept in a register, the offsets stepped (no 3-d index
+    arithmetic)."""
     gain = (1.0 - z) * (1.0 - 1.0 / z)
     blocks = (B + lanes - 1) // lanes
     for t in range(A * blocks):
@@ -53,21 +46,14 @@ def _spline_filter(c: ti.types.ndarray(), A: ti.i32, n: ti.i32, B: ti.i32, z: ti
         base = ti.Vector.zero(ti.i64, lanes)
         for w in ti.static(range(lanes)):
             base[w] = ti.cast(a, ti.i64) * n * B + ti.min(b0 + w, B - 1)
-        # causal start: sum_i z^i c_i over the mirrored sequence, in closed form
-        mirror = ti.Vector.zero(ti.f64, lanes)
-        zi = ti.f64(1.0)
-        for i in range(1, ti.min(n, terms)):
-            zi *= z
-            up = ti.cast(i, ti.i64) * B
-            down = ti.cast(n - 1 - i, ti.i64) * B
-            for w in ti.static(range(lanes)):
-                mirror[w] += zi * (gain * c[base[w] + up] + zn * (gain * c[base[w] + down]))
         last = ti.cast(n - 1, ti.i64) * B
         prev = ti.Vector.zero(ti.f64, lanes)
+        # the far end's edge value, read before the causal pass overwrites it
+        far = ti.Vector.zero(ti.f64, lanes)
         for w in ti.static(range(lanes)):
-            c0 = gain * c[base[w]]
-            prev[w] = c0 + z / (1.0 - zn * zn) * (c0 + zn * (gain * c[base[w] + last])
-                                                 + mirror[w])
+            far[w] = gain * c[base[w] + last] / (1.0 - z)
+            # causal start: the sum of z^i gain c_0 over the repeated edge
+            prev[w] = gain * c[base[w]] / (1.0 - z)
             if b0 + w < B:
                 c[base[w]] = prev[w]
         off = ti.cast(0, ti.i64)
@@ -77,8 +63,10 @@ def _spline_filter(c: ti.types.ndarray(), A: ti.i32, n: ti.i32, B: ti.i32, z: ti
                 prev[w] = gain * c[base[w] + off] + z * prev[w]
                 if b0 + w < B:
                     c[base[w] + off] = prev[w]
-        prev *= z / (z - 1.0)                             # anticausal start
+        # anticausal start: -z sum_j z^j c+_{n-1+j}, the causal values beyond
+        # the end tending to ``far`` as z^j
         for w in ti.static(range(lanes)):
+            prev[w] = -z * (far[w] / (1.0 - z) + (prev[w] - far[w]) / (1.0 - z * z))
             if b0 + w < B:
                 c[base[w] + off] = prev[w]
         for q in range(1, n):
@@ -91,9 +79,10 @@ def _spline_filter(c: ti.types.ndarray(), A: ti.i32, n: ti.i32, B: ti.i32, z: ti
 
 def spline_coefficients(u: np.ndarray) -> np.ndarray:
     """The cubic B-spline coefficients interpolating ``u`` (nx, ny[, m]) on
-    its grid padded by ``SPLINE_PAD`` replicated edge values (a contiguous
-    array): :func:`spline_coefficients_numpy`'s recursive filters in a
-    Taichi kernel, every grid line in parallel."""
+    its grid, the grid's edge values repeated forever beyond it, on the grid
+    padded by SPLINE_PAD nodes a side (a contiguous array):
+    :func:`spline_coefficients_numpy`'s recursive filters in a Taichi
+    kernel, every grid line in parallel."""
     runtime.ensure_init()
     pad = [(SPLINE_PAD, SPLINE_PAD)] * 2 + [(0, 0)] * (u.ndim - 2)
     c = np.pad(np.asarray(u, dtype=np.float64), pad, mode="edge")
@@ -102,43 +91,43 @@ def spline_coefficients(u: np.ndarray) -> np.ndarray:
 
 
 def prefilter(c: np.ndarray) -> None:
-    """:func:`spline_coefficients`' filters in place on the padded grid ``c``
-    (NX, NY[, m], C-contiguous float64)."""
+    """:func:`spline_coefficients`' filters in place on the padded grid
+    values ``c`` (NX, NY[, m], C-contiguous float64)."""
     if not (c.flags.c_contiguous and c.dtype == np.float64):
         raise ValueError("the spline prefilter takes a C-contiguous float64 array")
     if c.size:
         runtime.ensure_init()
-        z = SPLINE_POLE
         nx, ny = c.shape[0], c.shape[1]
         m = c.size // (nx * ny)
         flat = c.reshape(-1)
-        _spline_filter(flat, 1, nx, ny * m, z, z ** nx, SPLINE_START_TERMS, SPLINE_LANES)
-        _spline_filter(flat, nx, ny, m, z, z ** ny, SPLINE_START_TERMS, SPLINE_LANES)
+        _spline_filter(flat, 1, nx, ny * m, SPLINE_POLE, SPLINE_LANES)
+        _spline_filter(flat, nx, ny, m, SPLINE_POLE, SPLINE_LANES)
 
 
 def spline_coefficients_numpy(u: np.ndarray) -> np.ndarray:
-    """The cubic B-spline coefficients interpolating ``u`` (nx, ny[, m]) on
-    its grid padded by ``SPLINE_PAD`` replicated edge values: along each axis
-    the causal and anticausal recursive filters with the pole z (Unser et al.
-    1991), each started exactly for the half-sample symmetric extension.
-    The same maths as scipy.ndimage.spline_filter(mode="nearest") on the
-    edge-padded grid (map_coordinates' prefilter)."""
+    """The cubic B-spline coefficients interpolating ``u`` (nx, ny[, m]), the
+    grid's edge values repeated forever beyond it (``nearest``): along each
+    axis the causal and anticausal recursive filters with the pole z (Unser
+    et al. 1991), each started exactly for that extension (the causal
+    filter's start the geometric sum of the first value, the anticausal
+    one's the causal values beyond the end, which tend to the last value's
+    as z^j), on the grid padded by SPLINE_PAD edge values (the extension's
+    coefficients there).  scipy.ndimage.spline_filter(mode="nearest") pads 12
+    edge values and starts for a mirror instead: the same coefficients to
+    z^12 (1.4e-7 of the edge's variation at the first node)."""
     pad = [(SPLINE_PAD, SPLINE_PAD)] * 2 + [(0, 0)] * (u.ndim - 2)
     c = np.pad(np.asarray(u, dtype=np.float64), pad, mode="edge")
     z = SPLINE_POLE
+    gain = (1.0 - z) * (1.0 - 1.0 / z)
     for axis in (0, 1):
         c = np.moveaxis(c, axis, 0).copy()
         n = c.shape[0]
-        c *= (1.0 - z) * (1.0 - 1.0 / z)                 # the filter's gain
-        # causal start: sum_i z^i c_i over the mirrored sequence, in closed form
-        zi = z ** np.arange(n)
-        zn = z ** n
-        mirror = np.tensordot(zi[1:], c[1:] + zn * c[-2::-1], axes=(0, 0))
-        c0 = c[0].copy()
-        c[0] = c0 + z / (1.0 - zn * zn) * (c0 + zn * c[-1] + mirror)
+        c *= gain
+        far = c[-1] / (1.0 - z)
+        c[0] = c[0] / (1.0 - z)
         for i in range(1, n):
             c[i] += z * c[i - 1]
-        c[-1] *= z / (z - 1.0)                           # anticausal start
+        c[-1] = -z * (far / (1.0 - z) + (c[-1] - far) / (1.0 - z * z))
         for i in range(n - 2, -1, -1):
             c[i] = z * (c[i + 1] - c[i])
         c = np.moveaxis(c, 0, axis)
@@ -163,12 +152,13 @@ def _tensor_gather(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64
                    dest: ti.types.ndarray(), out: ti.types.ndarray()):
     """out[p, :blocks * m] (with ``scatter``: row dest[p]) = the
     tensor-product 4 x 4 interpolant of the first blocks * m columns of
-    ``coef`` (NX, NY, M) at point p: ``weights(t)`` of
-    the fractional position along each axis, the knots offset by ``pad``
-    cells (indices clamped: ``nearest``); the ``m`` columns of a block read
-    together, the blocks one after another (the point's weights and knots
-    found once for them all).  The cubic B-spline (:func:`_cubic_weights`,
-    SPLINE_PAD) and the cubic Lagrange interpolant (:func:`_lagrange_weights`, 0)."""
+    ``coef`` (NX, NY, M) at point p: ``weights(t)`` of the fractional
+    position along each axis, the knots offset by ``pad`` cells (indices
+    clamped: the edge knots again beyond them); the ``m`` columns of a
+    block read together, the blocks one after another (the point's weights
+    and knots found once for them all).  The cubic B-spline
+    (:func:`_cubic_weights`, SPLINE_PAD) and the cubic Lagrange interpolant
+    (:func:`_lagrange_weights`, 0)."""
     NX, NY = coef.shape[0], coef.shape[1]
     for p in range(pts.shape[0]):
         x = (pts[p, 0] - x0) / hx + pad
@@ -215,7 +205,8 @@ def spline_values(grid: Grid, coef: np.ndarray, points, *, dest=None) -> np.ndar
     """The cubic B-spline of the coefficients ``coef`` (the grid padded by
     SPLINE_PAD nodes a side, (NX, NY[, m]): :func:`spline_coefficients` or
     :func:`prefilter`) at ``points``: the tensor product of the 4 x 4 knots
-    around each point, one gather per point.  ``dest``: the row of the
+    around each point, one gather per point (exact up to a cell beyond the
+    grid; further out the edge knots again).  ``dest``: the row of the
     result each point's values go to (a permutation)."""
     c3 = coef if coef.ndim == 3 else coef[..., None]
     out = _tensor_at(grid, c3, points, SPLINE_PAD, _cubic_weights, dest)
@@ -443,4 +434,4 @@ def lagrange_at(grid: Grid, u: np.ndarray, points, dest) -> np.ndarray:
     """(N, m): the tensor cubic Lagrange interpolant of the columns of ``u``
     (nx, ny, m) at ``points`` from the 4 x 4 nodes around each (indices
     clamped; :func:`_tensor_gather`), point p's values in row ``dest[p]``."""
-    return _tensor_at(grid, u, points, 0.0, _lagrange_weights, dest)
+    return _tensor_at(grid, u, points, 0, _lagrange_weights, dest)
