@@ -380,7 +380,8 @@ def _fft_pool():
     return _FFT_POOL[0]
 
 
-def convolve_fft(grid: Grid, density: np.ndarray, threads: bool = True) -> np.ndarray:
+def convolve_fft(grid: Grid, density: np.ndarray, threads: bool = True,
+                 out=None) -> np.ndarray:
     """(nx, ny) sum over cells of G(x_a - x_b) density_b (times the cell area),
     by zero-padded FFT (the padding makes the circular convolution free-space);
     ``density`` (k, nx, ny) gives (k, nx, ny).  The padded sides are lengths
@@ -388,7 +389,8 @@ def convolve_fft(grid: Grid, density: np.ndarray, threads: bool = True) -> np.nd
     transforms skip the padding's zero rows on the way in and the unused rows
     on the way out.  ``threads``: from :data:`FFT_THREAD_DENSITIES` densities
     on, half of them transformed on a helper thread (numpy.fft's sizes; the
-    same answer bit for bit)."""
+    same answer bit for bit); ``out``: a (k, nx, ny) array to write (a
+    series' batches reuse one)."""
     nx, ny = grid.shape
     d = np.asarray(density, dtype=np.float64)
     one = d.ndim == 2
@@ -399,7 +401,8 @@ def convolve_fft(grid: Grid, density: np.ndarray, threads: bool = True) -> np.nd
     # one density at a time: a padded spectrum (L1 x L2 / 2 complex, under a
     # megabyte at 120 x 120 cells) stays in cache through the four passes,
     # where a stack of eight ran 3.5x slower (docs/notes/series.md)
-    out = np.empty(d.shape)
+    if out is None or out.shape != d.shape or not out.flags.c_contiguous:
+        out = np.empty(d.shape)
 
     def run(ks):
         for k in ks:
@@ -557,11 +560,12 @@ def _values_and_gradients(u: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, hx: ti.
             out[o + 3 * k + 2] = _difference(u, c, j, ny, 1, hy)
 
 
-def values_and_gradients(grid: Grid, u: np.ndarray, pad: int = 0) -> np.ndarray:
+def values_and_gradients(grid: Grid, u: np.ndarray, pad: int = 0, out=None) -> np.ndarray:
     """(nx + 2 pad, ny + 2 pad, m, 3) the potentials ``u`` (m, nx, ny) and their
     gradients (:func:`grid_gradient`) side by side at each node, the edge
     nodes' repeated ``pad`` nodes beyond the grid (numpy.pad's ``edge``): the
-    columns the spline through them all takes.  A Taichi kernel, one pass."""
+    columns the spline through them all takes.  A Taichi kernel, one pass;
+    ``out``: the array to write (a series' batches reuse one)."""
     runtime.ensure_init()
     u = np.ascontiguousarray(u, dtype=np.float64)
     nx, ny = grid.shape
@@ -569,7 +573,9 @@ def values_and_gradients(grid: Grid, u: np.ndarray, pad: int = 0) -> np.ndarray:
         raise ValueError(f"potentials of shape (m, {nx}, {ny}) expected, got {u.shape}")
     if min(nx, ny) < 3:
         raise ValueError(f"the grid's differences need 3 nodes a side, got {nx} x {ny}")
-    out = np.empty((nx + 2 * pad, ny + 2 * pad, len(u), 3))
+    shape = (nx + 2 * pad, ny + 2 * pad, len(u), 3)
+    if out is None or out.shape != shape or not out.flags.c_contiguous:
+        out = np.empty(shape)
     if len(u):
         _values_and_gradients(u.reshape(-1), nx, ny, grid.hx, grid.hy, int(pad),
                               out.reshape(-1), len(u))

@@ -201,19 +201,21 @@ def at_points(grid: Grid, u: np.ndarray, points, *, dest=None) -> np.ndarray:
     return spline_values(grid, spline_coefficients(u), points, dest=dest)
 
 
-def spline_values(grid: Grid, coef: np.ndarray, points, *, dest=None) -> np.ndarray:
+def spline_values(grid: Grid, coef: np.ndarray, points, *, dest=None, out=None) -> np.ndarray:
     """The cubic B-spline of the coefficients ``coef`` (the grid padded by
     SPLINE_PAD nodes a side, (NX, NY[, m]): :func:`spline_coefficients` or
     :func:`prefilter`) at ``points``: the tensor product of the 4 x 4 knots
     around each point, one gather per point (exact up to a cell beyond the
     grid; further out the edge knots again).  ``dest``: the row of the
-    result each point's values go to (a permutation)."""
+    result each point's values go to (a permutation); ``out``: an (N, m)
+    array to write them to (a series' batches reuse one)."""
     c3 = coef if coef.ndim == 3 else coef[..., None]
-    out = _tensor_at(grid, c3, points, SPLINE_PAD, _cubic_weights, dest)
+    out = _tensor_at(grid, c3, points, SPLINE_PAD, _cubic_weights, dest, out)
     return out if coef.ndim == 3 else out[:, 0]
 
 
-def _tensor_at(grid: Grid, c3: np.ndarray, points, pad, weights, dest) -> np.ndarray:
+def _tensor_at(grid: Grid, c3: np.ndarray, points, pad, weights, dest,
+               out=None) -> np.ndarray:
     """(N, m) :func:`_tensor_gather` of the columns of ``c3`` (NX, NY, m),
     in one launch: blocks of SPLINE_COLUMNS, 2 or 1 of them (the widest that
     divides m: the kernel compiles once per width; a series' many columns go
@@ -222,7 +224,8 @@ def _tensor_at(grid: Grid, c3: np.ndarray, points, pad, weights, dest) -> np.nda
     c3 = np.ascontiguousarray(c3, dtype=np.float64)
     pts = np.ascontiguousarray(points, dtype=np.float64)
     m = c3.shape[2]
-    out = np.zeros((len(pts), m))
+    if out is None or out.shape != (len(pts), m) or not out.flags.c_contiguous:
+        out = np.empty((len(pts), m))
     if len(pts):
         scatter = dest is not None
         rows = np.ascontiguousarray(dest, dtype=np.int64) if scatter else np.zeros(1, np.int64)
@@ -430,8 +433,9 @@ def _lagrange_weights(t):
                      dt=ti.f64)
 
 
-def lagrange_at(grid: Grid, u: np.ndarray, points, dest) -> np.ndarray:
+def lagrange_at(grid: Grid, u: np.ndarray, points, dest, out=None) -> np.ndarray:
     """(N, m): the tensor cubic Lagrange interpolant of the columns of ``u``
     (nx, ny, m) at ``points`` from the 4 x 4 nodes around each (indices
-    clamped; :func:`_tensor_gather`), point p's values in row ``dest[p]``."""
-    return _tensor_at(grid, u, points, 0, _lagrange_weights, dest)
+    clamped; :func:`_tensor_gather`), point p's values in row ``dest[p]``
+    (of ``out`` when given)."""
+    return _tensor_at(grid, u, points, 0, _lagrange_weights, dest, out)

@@ -32,6 +32,7 @@ second order and its error is smooth, so differencing it keeps second order
 (docs/notes/hhd.md).
 """
 import math
+import threading
 import time
 
 import numpy as np
@@ -64,6 +65,32 @@ class _Stopwatch:
         now = time.perf_counter()
         self.seconds[stage] = self.seconds.get(stage, 0.0) + now - self._t
         self._t = now
+
+
+class _Scratch(threading.local):
+    """A series' work arrays, kept from batch to batch: ``scratch(name,
+    shape)`` the array of that name, new only when its shape changes.  A
+    batch's intermediates (the columns, the node fits, the densities and
+    potentials, the spline's columns, about 17 MB at 13k points and 4
+    fields) are then written to memory the process already holds: fresh
+    arrays each batch cost their pages' first touches (an allocation of
+    more than a few hundred kB is new pages from the system; the assembly
+    kernel took 1.6x as long writing to new arrays as to kept ones).  One
+    set per thread: a setup shared by threads keeps their batches apart."""
+
+    def __init__(self):
+        self.arrays = {}
+
+    def __call__(self, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
+        a = self.arrays.get(name)
+        if a is None or a.shape != tuple(shape) or a.dtype != dtype:
+            a = self.arrays[name] = np.empty(shape, dtype=dtype)
+        return a
+
+
+def _new(name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
+    """New work arrays (a single split: nothing to keep them for)."""
+    return np.empty(shape, dtype=dtype)
 
 
 def _check_evaluation(evaluation: str) -> None:
@@ -106,7 +133,7 @@ class _Cells:
 
 
 def _grid_potentials(cells: _Cells, at_cells: np.ndarray, evaluation: str,
-                     lap, grids=None) -> np.ndarray:
+                     lap, grids=None, scratch=_new) -> np.ndarray:
     """(m, nx, ny) the free-space potentials of the densities ``at_cells``
     (len(live), m) at the live cells' centres: each cell's charge its value
     times its inside area at its centre, a cut cell's part's moments up to
@@ -115,7 +142,8 @@ def _grid_potentials(cells: _Cells, at_cells: np.ndarray, evaluation: str,
     ``evaluation``; next to the cut cells, their charges' exact potentials
     (:func:`~.cut_cells.near_field_correction`).  ``grids``: ``(values,
     charges)`` on the whole grid, (m, nx * ny) each, made already (then
-    ``at_cells`` is not read; :func:`.natural_assemble.node_densities`)."""
+    ``at_cells`` is not read; :func:`.natural_assemble.node_densities`);
+    ``scratch``: where the potentials' array comes from (:class:`_Scratch`)."""
     grid, live = cells.grid, cells.live
     if grids is not None:
         values, dens = grids
@@ -136,7 +164,7 @@ def _grid_potentials(cells: _Cells, at_cells: np.ndarray, evaluation: str,
     dens = dens.reshape((m,) + grid.shape)
     lap("density")
     if evaluation == "fft":
-        u = convolve_fft(grid, dens)
+        u = convolve_fft(grid, dens, out=scratch("potentials", dens.shape))
     else:
         u = np.stack([convolve_direct(grid, d) for d in dens])
     if cells.cut is not None:
@@ -153,7 +181,7 @@ def _near_points(cells: _Cells, binned: "PointBins", domain) -> np.ndarray:
 
 
 def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap,
-               one_sided=None, apart: bool = False):
+               one_sided=None, apart: bool = False, scratch=_new):
     """(N, m, 3) each potential of ``u`` (m, nx, ny) and its gradient at the
     points (input order): the cubic spline of the potentials and their
     fourth-order grid gradients, the gradient at the points ``near`` the
@@ -161,16 +189,19 @@ def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap,
     (:func:`one_sided_gradient`; ``one_sided``: those fits kept as weights,
     :func:`~.grid_sampling.one_sided_weights`).  ``apart``: ``(the spline's
     (N, m, 3), the fits (len(near), m, 2), the near points fitted)``, the
-    fits not yet written over the spline's gradients."""
+    fits not yet written over the spline's gradients.  ``scratch``: where
+    the work arrays come from (:class:`_Scratch`)."""
     grid = cells.grid
     m = len(u)
     # every potential and its grid gradient, one spline through them all: the
     # columns written padded for the prefilter, filtered in place
-    coef = values_and_gradients(grid, u, SPLINE_PAD).reshape(
-        grid.nx + 2 * SPLINE_PAD, grid.ny + 2 * SPLINE_PAD, 3 * m)
+    padded = (grid.nx + 2 * SPLINE_PAD, grid.ny + 2 * SPLINE_PAD)
+    coef = values_and_gradients(grid, u, SPLINE_PAD,
+                                out=scratch("spline", padded + (m, 3))).reshape(padded + (3 * m,))
     prefilter(coef)
     sp = binned.points
-    at = spline_values(grid, coef, sp, dest=binned.order)       # in the input order
+    at = spline_values(grid, coef, sp, dest=binned.order,       # in the input order
+                       out=scratch("at_points", (len(sp), 3 * m)))
     lap("interpolate")
     # the gradient within ONE_SIDED_CELLS of the boundary from the fit
     if one_sided is None:
@@ -178,7 +209,8 @@ def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap,
         ok = np.isfinite(fitted).all(axis=(1, 2))
     else:
         weights, ok = one_sided
-        fitted = weights.gradients(u.reshape(m, -1).T)
+        fitted = weights.gradients(u.reshape(m, -1).T,
+                                   out=scratch("one_sided", (weights.n_targets, m, 2)))
     at = at.reshape(len(sp), m, 3)
     if apart:
         lap("boundary_fit")
@@ -297,6 +329,8 @@ class NaturalSetup:
         self.check_rows = np.flatnonzero(check)
         lap("setup")
         self.fits = self.one_sided = None
+        # a series' work arrays kept from batch to batch
+        self.scratch = _Scratch() if reuse_fits else _new
         if reuse_fits and 24 * 45 * (len(live) + len(self.near)) <= FIT_WEIGHTS_BYTES:
             self.fits = {}
             for name in ("nodes", "near"):
@@ -325,7 +359,8 @@ class NaturalSetup:
         ``counts`` also the points in each fit."""
         if self.fits is not None:
             w = self.fits[which]
-            g = w.gradients(values)
+            g = w.gradients(values, out=self.scratch(f"fits_{which}",
+                                                     (w.n_targets, np.shape(values)[1], 2)))
             return (g, w.counts) if counts else g
         targets, scale, edge = self._targets(which)
         values = np.asarray(values, dtype=np.float64).reshape(len(values), -1)
@@ -351,8 +386,9 @@ class NaturalSetup:
         cells, binned = self.cells, self.binned
         grid, live = cells.grid, cells.live
         k = len(snapshots)
+        scratch = self.scratch
         # the snapshots' components side by side: columns 2 s, 2 s + 1
-        vs = np.empty((len(binned.order), 2 * k))
+        vs = scratch("columns", (len(binned.order), 2 * k))
         for s, vec in enumerate(snapshots):
             # np.take: a tenth of fancy indexing's time for rows
             vs[:, 2 * s:2 * s + 2] = np.take(np.asarray(vec, dtype=np.float64), binned.order,
@@ -373,16 +409,17 @@ class NaturalSetup:
         # div v and curl v at the nodes, their charges on the grid, their grid
         # for the interpolation to the points, the harmonic check's scale
         nodes = node_densities(g, live_of, cells.frac, self.check_rows,
-                               with_values=cells.cut is not None)
+                               with_values=cells.cut is not None,
+                               scratch=None if scratch is _new else scratch)
         u = _grid_potentials(cells, None, self.evaluation, lap,
-                             grids=(nodes["values"], nodes["dens"]))
+                             grids=(nodes["values"], nodes["dens"]), scratch=scratch)
         at, fitted, ok = _at_points(cells, u, binned, self.near, lap, self.one_sided,
-                                    apart=True)                       # (N, 2k, 3)
+                                    apart=True, scratch=scratch)      # (N, 2k, 3)
         # div v and curl v at the points: the nodes' values inside, the fit at
         # the point near the boundary (the nodes around it partly outside)
         # (every field's two columns in one interpolation)
         lag = lagrange_at(grid, nodes["dc"].reshape(grid.shape + (2 * k,)), binned.points,
-                          binned.order)                               # (N, 2k)
+                          binned.order, out=scratch("lagrange", (len(binned.points), 2 * k)))
         gn = self.gradients("near", vs) if self.near.size else np.zeros((0, 2 * k, 2))
         lap("divergence")
         # every output of every field in one pass (natural_assemble): phi,
@@ -390,7 +427,8 @@ class NaturalSetup:
         # fits), div v, curl v and the energy check's rows
         if fit_of is None:                 # the one-sided fits made per call
             fit_of = row_index(len(pos), binned.order[self.near[ok]], np.flatnonzero(ok))
-        out = assemble(at, vs, pos, fit_of, fitted, near_of, gn, lag, self.volume)
+        out = assemble(at, vs, pos, fit_of, fitted, near_of, gn, lag, self.volume,
+                       scratch=None if scratch is _new else scratch)
         pot, grads, comps, dc = out["pot"], out["grads"], out["comps"], out["dc"]
         energies = out["energies"]                                       # (4, k)
         check_scale = nodes["check_scale"]                              # (k,)

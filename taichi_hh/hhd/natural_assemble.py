@@ -135,17 +135,20 @@ def _node_densities(g: ti.types.ndarray(), live_of: ti.types.ndarray(),
             chk[s, j] = ti.sqrt(dv * dv + cu * cu)
 
 
-def node_densities(g, live_of, frac, check_rows, with_values: bool = True) -> dict:
+def node_densities(g, live_of, frac, check_rows, with_values: bool = True,
+                   scratch=None) -> dict:
     """:func:`_node_densities` of the node fits' gradients ``g`` (L, 2k, 2):
     a dict of ``values`` (None without ``with_values``: only a polygon's cut
     cells read them), ``dens`` (2k, cells), ``dc`` (cells, 2k) and
     ``check_scale`` (k,), the mean of sqrt(div v^2 + curl v^2) over the
-    nodes ``check_rows``."""
+    nodes ``check_rows``.  ``scratch``: where the arrays come from
+    (``scratch(name, shape)``, a series' kept buffers; None: new ones)."""
     runtime.ensure_init()
+    new = scratch or (lambda name, shape: np.empty(shape))
     m, cells = g.shape[1], len(live_of)
-    out = {"values": np.empty((m, cells)) if with_values else None,
-           "dens": np.empty((m, cells)), "dc": np.empty((cells, m))}
-    chk = np.empty((m // 2, len(check_rows)))
+    out = {"values": new("values", (m, cells)) if with_values else None,
+           "dens": new("dens", (m, cells)), "dc": new("dc", (cells, m))}
+    chk = new("check", (m // 2, len(check_rows)))
     if cells and m:
         _node_densities(np.ascontiguousarray(g, dtype=np.float64), live_of,
                         np.ascontiguousarray(frac, dtype=np.float64),
@@ -166,7 +169,7 @@ def row_index(n: int, rows, values=None) -> np.ndarray:
     return out
 
 
-def assemble(at, vs, pos, fit_of, fitted, near_of, near_grad, lag, vol) -> dict:
+def assemble(at, vs, pos, fit_of, fitted, near_of, near_grad, lag, vol, scratch=None) -> dict:
     """The batch's outputs (:func:`_assemble`) from ``at`` (N, 2k, 3), the
     fields ``vs`` (N, 2k: field s's components in columns 2 s, 2 s + 1) in the
     bins' order, ``pos`` (N,) each point's position in the bins' order (the
@@ -177,13 +180,16 @@ def assemble(at, vs, pos, fit_of, fitted, near_of, near_grad, lag, vol) -> dict:
     ``pot`` (k, 2, N) phi and psi, ``grads`` (k, 2, N, 2) d and grad psi,
     ``comps`` (k, 2, N, 2) r and h, ``dc`` (k, 2, N), ``hs`` (N, 2k) and
     ``energies`` (4, k): the volume-weighted sums of |v|^2, |d|^2, |r|^2,
-    |h|^2 (each a sum over the rows in order, as numpy sums a 1-d array)."""
+    |h|^2 (each a sum over the rows in order, as numpy sums a 1-d array).
+    ``scratch``: where ``hs`` and the energy terms come from (as
+    :func:`node_densities`); the outputs that results keep are new arrays."""
     runtime.ensure_init()
     k, n = vs.shape[1] // 2, vs.shape[0]
+    new = scratch or (lambda name, shape: np.empty(shape))
     out = {"pot": np.empty((k, 2, n)), "grads": np.empty((k, 2, n, 2)),
            "comps": np.empty((k, 2, n, 2)), "dc": np.empty((k, 2, n)),
-           "hs": np.empty((n, 2 * k))}
-    sq = np.empty((4, k, n))
+           "hs": new("hs", (n, 2 * k))}
+    sq = new("energy_terms", (4, k, n))
     if n and k:
         def flat(a, dtype=np.float64):
             return np.ascontiguousarray(a, dtype=dtype).reshape(-1)

@@ -639,13 +639,15 @@ class FitWeights:
     def nbytes(self) -> int:
         return self.start.nbytes + self.index.nbytes + self.weights.nbytes + self.reference.nbytes
 
-    def gradients(self, values) -> np.ndarray:
+    def gradients(self, values, out=None) -> np.ndarray:
         """(T, m, 2) the gradient of each column of ``values`` (N, m, in the
-        order of the bins' points) at the targets."""
+        order of the bins' points) at the targets (written to ``out`` when
+        it is such an array: a series' batches reuse one)."""
         v = np.asarray(values, dtype=np.float64)
         v = v[:, None] if v.ndim == 1 else v
         m = v.shape[1]
-        out = np.empty((self.n_targets, m, 2))
+        if out is None or out.shape != (self.n_targets, m, 2) or not out.flags.c_contiguous:
+            out = np.empty((self.n_targets, m, 2))
         if not (self.n_targets and m):
             return out
         for c in range(0, m, APPLY_COLUMNS):
