@@ -179,6 +179,7 @@ class Decomposer:
         self._near = None              # auto's band of points next to the boundary
         self._reach_checked = False    # the natural condition's reach of the boundary
         self._natural = None           # the natural decomposition's set-up (NaturalSetup)
+        self._natural_width = 0        # the fields its splits take (_split_width)
         self._caller_domain = None     # (unit domain, the same in the caller's units)
 
     def __repr__(self) -> str:
@@ -280,7 +281,10 @@ class Decomposer:
             width = natural_batch(len(self.data.unit_points))
             for a in range(0, len(at_nodes), width):
                 part = at_nodes[a:a + width]
-                made = setup.split_many([data.unit_vectors for _, data, _, _ in part])
+                fields = [data.unit_vectors for _, data, _, _ in part]
+                made = setup.split_many(fields + [fields[0]] * (self._split_width(len(fields),
+                                                                                  width)
+                                                                - len(fields)))
                 splits.update({k: split for (k, _, _, _), split in zip(part, made)})
         share = (time.perf_counter() - t) / max(len(at_nodes), 1)
         for k, data, opts, chosen in natural:
@@ -301,6 +305,18 @@ class Decomposer:
                 out[k] = self._finish(unit, data)
         self.seconds["last_batch"] = time.perf_counter() - t0
         return out
+
+    def _split_width(self, k: int, width: int) -> int:
+        """The fields a natural split of ``k`` snapshots takes (the rest
+        copies of the first, their results dropped): the split's kernels
+        compile once per width (their strides known at compile time), and a
+        width's first split in a process loads them (0.3 s at 13k points;
+        2 s where never compiled), so a series' short last batch takes the
+        width of the batches before it, and a first split the next power of
+        two (at most ``width``: four widths in all)."""
+        if k >= self._natural_width:
+            self._natural_width = min(width, 1 << max(k - 1, 0).bit_length())
+        return max(k, self._natural_width)
 
     def _finish(self, unit, data) -> HHDResult:
         # the domain in the caller's units: the same for every snapshot on
