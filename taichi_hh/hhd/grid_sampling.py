@@ -264,22 +264,21 @@ def _stencil_node(P, ci, cj, a, b, nx, ny, x0, y0, hx, hy, inside: ti.template()
     return use, w, B, ii, jj
 
 
-@ti.kernel
-def _one_sided(u: ti.types.ndarray(), inside: ti.types.ndarray(), pts: ti.types.ndarray(),
-               x0: ti.f64, y0: ti.f64, hx: ti.f64, hy: ti.f64, col: ti.i32,
-               out: ti.types.ndarray()):
-    """:func:`one_sided_gradient` of the columns ``col`` and ``col + 1`` of
-    ``u`` (nx, ny, m) at each point: out[p, 0:2] and out[p, 2:4] (NaN where
-    fewer than ONE_SIDED_MIN_NODES nodes carry weight)."""
-    nx, ny = u.shape[0], u.shape[1]
+@ti.func
+def _one_sided_system(P, x0, y0, hx, hy, nx, ny, inside: ti.template(), u: ti.template(), col,
+                      with_values: ti.template()):
+    """The weighted quadratic fit's normal equations at point ``P`` over the
+    stencil around its nearest node: ``(ci, cj, M, rhs, count)``, the
+    nearest node, the 6 x 6 moment matrix, with ``with_values`` the
+    right-hand sides of the columns ``col`` and ``col + 1`` of ``u`` (nx,
+    ny, m), and the nodes carrying weight."""
     R = ONE_SIDED_REACH
-    for p in range(pts.shape[0]):
-        P = ti.Vector([pts[p, 0], pts[p, 1]], dt=ti.f64)
-        # the nearest node
-        ci = ti.cast(ti.math.clamp(ti.floor((P[0] - x0) / hx + 0.5), -1e9, 1e9), ti.i32)
-        cj = ti.cast(ti.math.clamp(ti.floor((P[1] - y0) / hy + 0.5), -1e9, 1e9), ti.i32)
-        M = ti.Matrix.zero(ti.f64, 6, 6)
-        rhs = ti.Matrix.zero(ti.f64, 6, 2)
+    ci = ti.cast(ti.math.clamp(ti.floor((P[0] - x0) / hx + 0.5), -1e9, 1e9), ti.i32)
+    cj = ti.cast(ti.math.clamp(ti.floor((P[1] - y0) / hy + 0.5), -1e9, 1e9), ti.i32)
+    M = ti.Matrix.zero(ti.f64, 6, 6)
+    rhs = ti.Matrix.zero(ti.f64, 6, 2)
+    ref = ti.Vector.zero(ti.f64, 2)
+    if ti.static(with_values):
         # the values less the nearest node's (the constant term takes it):
         # sums of the differences do not carry the potential's level, and the
         # fit's constant is as small as its gradient term (the solver's ridge,
@@ -288,17 +287,32 @@ def _one_sided(u: ti.types.ndarray(), inside: ti.types.ndarray(), pts: ti.types.
         ri = ti.math.clamp(ci, 0, nx - 1)
         rj = ti.math.clamp(cj, 0, ny - 1)
         ref = ti.Vector([u[ri, rj, col], u[ri, rj, col + 1]], dt=ti.f64)
-        count = 0
-        for a in range(-R, R + 1):
-            for b in range(-R, R + 1):
-                use, w, B, ii, jj = _stencil_node(P, ci, cj, a, b, nx, ny, x0, y0, hx, hy,
-                                                  inside)
-                if use:
-                    if w > 0.0:
-                        count += 1
+    count = 0
+    for a in range(-R, R + 1):
+        for b in range(-R, R + 1):
+            use, w, B, ii, jj = _stencil_node(P, ci, cj, a, b, nx, ny, x0, y0, hx, hy, inside)
+            if use:
+                if w > 0.0:
+                    count += 1
+                M += w * B.outer_product(B)
+                if ti.static(with_values):
                     v = ti.Vector([u[ii, jj, col], u[ii, jj, col + 1]], dt=ti.f64) - ref
-                    M += w * B.outer_product(B)
                     rhs += w * B.outer_product(v)
+    return ci, cj, M, rhs, count
+
+
+@ti.kernel
+def _one_sided(u: ti.types.ndarray(), inside: ti.types.ndarray(), pts: ti.types.ndarray(),
+               x0: ti.f64, y0: ti.f64, hx: ti.f64, hy: ti.f64, col: ti.i32,
+               out: ti.types.ndarray()):
+    """:func:`one_sided_gradient` of the columns ``col`` and ``col + 1`` of
+    ``u`` (nx, ny, m) at each point: out[p, 0:2] and out[p, 2:4] (NaN where
+    fewer than ONE_SIDED_MIN_NODES nodes carry weight)."""
+    nx, ny = u.shape[0], u.shape[1]
+    for p in range(pts.shape[0]):
+        P = ti.Vector([pts[p, 0], pts[p, 1]], dt=ti.f64)
+        _, _, M, rhs, count = _one_sided_system(P, x0, y0, hx, hy, nx, ny, inside, u, col,
+                                                True)
         for c in ti.static(range(4)):
             out[p, c] = ti.math.nan
         if count >= ONE_SIDED_MIN_NODES:
@@ -362,18 +376,8 @@ def _one_sided_slots(inside: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti
     R = ONE_SIDED_REACH
     for p in range(pts.shape[0]):
         P = ti.Vector([pts[p, 0], pts[p, 1]], dt=ti.f64)
-        ci = ti.cast(ti.math.clamp(ti.floor((P[0] - x0) / hx + 0.5), -1e9, 1e9), ti.i32)
-        cj = ti.cast(ti.math.clamp(ti.floor((P[1] - y0) / hy + 0.5), -1e9, 1e9), ti.i32)
-        M = ti.Matrix.zero(ti.f64, 6, 6)
-        count = 0
-        for a in range(-R, R + 1):
-            for b in range(-R, R + 1):
-                use, w, B, _, _ = _stencil_node(P, ci, cj, a, b, nx, ny, x0, y0, hx, hy,
-                                                inside)
-                if use:
-                    if w > 0.0:
-                        count += 1
-                    M += w * B.outer_product(B)
+        ci, cj, M, _, count = _one_sided_system(P, x0, y0, hx, hy, nx, ny, inside, inside, 0,
+                                                False)
         fit = count >= ONE_SIDED_MIN_NODES
         ok[p] = 1 if fit else 0
         unit = ti.Matrix.zero(ti.f64, 6, 2)
