@@ -340,3 +340,20 @@ def test_one_sided_fits_kept_as_weights_equal_the_fits():
             for g in (got, want):
                 assert np.abs(g[ok] - exact[ok]).max() <= 1e-8 * np.abs(exact).max()
     assert ok.sum() > 0.9 * len(setup.near) and not ok[-2:].any()
+
+
+def test_a_decomposer_pickles_with_its_setup():
+    """A Decomposer that has split natural snapshots (its setup, kept fits and
+    work arrays made) pickles, e.g. to go to another process, and the copy
+    decomposes as the original does."""
+    import pickle
+    pts = _points()
+    V = np.stack([_window(pts, t) for t in (0.0, 0.5)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        dec = thh.Decomposer(pts, boundary_condition="natural")
+        first = dec.decompose(V)
+        copy = pickle.loads(pickle.dumps(dec))
+        again = copy.decompose(V)
+    for name in ("curl_free", "div_free", "harmonic"):
+        assert np.array_equal(getattr(first, name), getattr(again, name)), name

@@ -81,6 +81,10 @@ class _Scratch(threading.local):
     def __init__(self):
         self.arrays = {}
 
+    def __reduce__(self):
+        # a pickled setup (a Decomposer sent to another process) takes none
+        return _Scratch, ()
+
     def __call__(self, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
         a = self.arrays.get(name)
         if a is None or a.shape != tuple(shape) or a.dtype != dtype:
