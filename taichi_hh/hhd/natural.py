@@ -303,7 +303,8 @@ class NaturalSetup:
     ``reuse_fits`` (and the weights under :data:`FIT_WEIGHTS_BYTES`) the three
     sets of fits (the nodes, the near points, the check nodes) are kept as
     weights (:class:`~.node_fits.FitWeights`), each field's gradients then
-    one gather, equal to the fits to rounding."""
+    one gather, equal to the fits to rounding, and a batch's work arrays
+    kept for the next (:class:`_Scratch`)."""
 
     def __init__(self, points, domain, spacing: float, *, evaluation: str = "fft",
                  cell_ratio: float = 1.0, reuse_fits: bool = False):
