@@ -458,27 +458,31 @@ def fit_gradients(grid: Grid, binned: "PointBins", values, targets, degree: int 
     (T,) the targets next to the boundary (None: all); with ``counts`` also
     (T,) the points in each fit."""
     runtime.ensure_init()
-    degree = FIT_DEGREE if degree is None else degree
-    radii = FIT_RADII if radii is None else radii
-    min_points = FIT_MIN_POINTS if min_points is None else min_points
     tg = np.ascontiguousarray(targets, dtype=np.float64).reshape(-1, 2)
     out = np.zeros((len(tg), 5))
     if len(tg) and len(binned.points):
-        lower = grid.origin - 0.5 * np.array([grid.hx, grid.hy])
-        _fit_gradients(tg, grid.nx, grid.ny, float(lower[0]), float(lower[1]), grid.hx,
-                       grid.hy, binned.start, binned.points,
-                       np.ascontiguousarray(values, dtype=np.float64), int(degree),
-                       ti.Vector([float(r) for r in radii], dt=ti.f64), int(min_points),
-                       int(EDGE_DEGREE if edge_degree is None else edge_degree),
-                       float(FIT_MIN_PIVOT),
-                       np.ascontiguousarray(np.broadcast_to(max(grid.hx, grid.hy) if scale is None
-                                                            else scale, len(tg)),
-                                            dtype=np.float64),
-                       np.ascontiguousarray(np.broadcast_to(True if edge is None else edge,
-                                                            len(tg)), dtype=np.int32), out,
-                       False, False, _NO_SLOTS, _NO_INDEX, _NO_WEIGHTS, _NO_INDEX)
+        _fit_gradients(*_fit_arguments(grid, binned, values, tg, degree, radii, min_points,
+                                       edge_degree, scale, edge),
+                       out, False, False, _NO_SLOTS, _NO_INDEX, _NO_WEIGHTS, _NO_INDEX)
     grads = out[:, :4].reshape(-1, 2, 2)
     return (grads, out[:, 4]) if counts else grads
+
+
+def _fit_arguments(grid: Grid, binned: "PointBins", values, tg, degree=None, radii=None,
+                   min_points=None, edge_degree=None, scale=None, edge=None) -> tuple:
+    """:func:`_fit_gradients`' arguments up to ``out``, the defaults of
+    :func:`fit_gradients` for the None ones."""
+    lower = grid.origin - 0.5 * np.array([grid.hx, grid.hy])
+    return (tg, grid.nx, grid.ny, float(lower[0]), float(lower[1]), grid.hx, grid.hy,
+            binned.start, binned.points, np.ascontiguousarray(values, dtype=np.float64),
+            int(FIT_DEGREE if degree is None else degree),
+            ti.Vector([float(r) for r in (FIT_RADII if radii is None else radii)], dt=ti.f64),
+            int(FIT_MIN_POINTS if min_points is None else min_points),
+            int(EDGE_DEGREE if edge_degree is None else edge_degree), float(FIT_MIN_PIVOT),
+            np.ascontiguousarray(np.broadcast_to(max(grid.hx, grid.hy) if scale is None
+                                                 else scale, len(tg)), dtype=np.float64),
+            np.ascontiguousarray(np.broadcast_to(True if edge is None else edge, len(tg)),
+                                 dtype=np.int32))
 
 
 _NO_SLOTS = np.zeros(1, dtype=np.int32)
@@ -575,16 +579,7 @@ class FitWeights:
         self.n_targets = len(tg)
         if not (len(tg) and len(binned.points)):
             return
-        lower = grid.origin - 0.5 * np.array([grid.hx, grid.hy])
-        args = (tg, grid.nx, grid.ny, float(lower[0]), float(lower[1]), grid.hx, grid.hy,
-                binned.start, binned.points, zero, int(FIT_DEGREE),
-                ti.Vector([float(r) for r in FIT_RADII], dt=ti.f64), int(FIT_MIN_POINTS),
-                int(EDGE_DEGREE), float(FIT_MIN_PIVOT),
-                np.ascontiguousarray(np.broadcast_to(
-                    max(grid.hx, grid.hy) if scale is None else scale, len(tg)),
-                    dtype=np.float64),
-                np.ascontiguousarray(np.broadcast_to(True if edge is None else edge, len(tg)),
-                                     dtype=np.int32))
+        args = _fit_arguments(grid, binned, zero, tg, scale=scale, edge=edge)
         out = np.zeros((len(tg), 5))
         # the first pass counts each fit's points (the slots: the radii's
         # search alone), the second writes their weights
