@@ -5,6 +5,7 @@ import json
 import pathlib
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -61,11 +62,48 @@ def test_decomposition_does_not_depend_on_the_fields_magnitude(trig_points):
     not zeros, not "b contains NaN or inf"."""
     pts, exact = trig_points
     ref = thh.decompose(pts, exact.v, (0, 0, 1, 1))
-    for magnitude in (1e-300, 1e-160, 1e-40, 1e40, 1e160, 1e300):
-        res = thh.decompose(pts, exact.v * magnitude, (0, 0, 1, 1))
-        assert np.abs(res.curl_free / magnitude - ref.curl_free).max() \
-            <= 1e-9 * np.abs(exact.v).max(), magnitude
-        assert np.abs(res.psi / magnitude - ref.psi).max() <= 1e-9 * np.ptp(ref.psi)
+    # 1e306: the vectors' sum (the input check's one pass for NaN) overflows
+    for magnitude in (1e-300, 1e-160, 1e-40, 1e40, 1e160, 1e300, 1e306):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)
+            res = thh.decompose(pts, exact.v * magnitude, (0, 0, 1, 1))
+            series = thh.Decomposer(pts, (0, 0, 1, 1)).decompose(exact.v * magnitude)
+        for got in (res, series[0]):
+            assert np.abs(got.curl_free / magnitude - ref.curl_free).max() \
+                <= 1e-9 * np.abs(exact.v).max(), magnitude
+            assert np.abs(got.psi / magnitude - ref.psi).max() <= 1e-9 * np.ptp(ref.psi)
+
+
+@pytest.mark.parametrize("condition", ["natural", "neumann"])
+def test_the_unit_frame_result_is_the_callers_scaled_back(trig_points, condition):
+    """``result.unit``: the valid rows in the unit frame, the caller's arrays
+    over the frame's scales (a natural split's arrays are scaled to the
+    caller's units in place: the unit result must not read them as they
+    were), its stats' lengths in the unit frame."""
+    pts, exact = trig_points
+    placed, box = _placed(pts, 1e3, (5e5, 5e6))
+    v = exact.v * 40.0
+    v[7] = np.nan
+    res = thh.decompose(placed, v, box, boundary_condition=condition)
+    f, unit, ok = res.frame, res.unit, res.valid
+    assert f.speed != 1.0 and f.length != 1.0 and not ok[7] and ok.sum() == len(pts) - 1
+    assert np.allclose(unit.points, (placed[ok] - np.asarray(f.centre)) / f.length,
+                       rtol=0, atol=1e-12)
+    for name, scale in (("curl_free", f.speed), ("div_free", f.speed), ("harmonic", f.speed),
+                        ("phi", f.potential), ("psi", f.potential),
+                        ("divergence", f.derivative), ("curl", f.derivative)):
+        got, caller = getattr(unit, name), getattr(res, name)[ok]
+        assert np.abs(got * scale - caller).max() <= 1e-14 * np.abs(caller).max(), name
+        assert not 0.5 < scale < 2.0 and not np.allclose(got, caller, rtol=0.1), name
+    assert unit.stats["spacing"] == pytest.approx(res.stats["spacing"] / f.length, rel=1e-14)
+    assert unit.domain.area == pytest.approx(res.domain.area / f.length ** 2, rel=1e-12)
+    # every row valid: the natural split's arrays scaled in place, the unit
+    # frame's made from them
+    whole = thh.decompose(placed, exact.v * 40.0, box, boundary_condition=condition)
+    again = thh.decompose(placed, exact.v * 40.0, box, boundary_condition=condition)
+    assert np.abs(whole.unit.curl_free * whole.frame.speed - whole.curl_free).max() \
+        <= 1e-14 * np.abs(whole.curl_free).max()
+    assert np.array_equal(whole.curl_free, again.curl_free)
 
 
 def test_projection_does_not_depend_on_units_or_magnitude():

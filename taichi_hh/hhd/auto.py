@@ -115,7 +115,7 @@ def boundary_flow(points: np.ndarray, vectors: np.ndarray, domain, spacing: floa
     already."""
     idx, normal = flux_band(points, domain, spacing, band) if near is None else near
     size = float(np.einsum("ij,ij->", vectors, vectors)) / max(len(vectors), 1)  # mean abs(v)^2
-    return band_flow(vectors[idx], normal, size)
+    return band_flow(np.take(vectors, idx, axis=0), normal, size)
 
 
 def boundary_flux(points: np.ndarray, vectors: np.ndarray, domain, spacing: float,

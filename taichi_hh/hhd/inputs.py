@@ -1,6 +1,7 @@
 """Checks of the user's input to :func:`~taichi_hh.hhd.decompose.decompose`
 and :func:`~taichi_hh.hhd.project.project`."""
 
+import functools
 import warnings
 from dataclasses import dataclass, field
 
@@ -192,15 +193,20 @@ class Data:
     domain: object = None        # the caller's Box or Polygon; None: made from the points
     made_from: tuple | None = None   # (kind, alpha) of a domain made from the points
 
-    @property
+    @functools.cached_property
     def n_invalid(self) -> int:
         return int(self.valid.size - np.count_nonzero(self.valid))
+
+    @property
+    def all_valid(self) -> bool:
+        """Whether every row is valid (no missing row)."""
+        return self.n_invalid == 0
 
     def rows(self, values, scale: float = 1.0) -> np.ndarray:
         """Per-valid-row ``values`` (unit frame) times ``scale`` on every row of
         the input, NaN on the missing ones."""
         values = np.asarray(values, dtype=np.float64)
-        if self.valid.all():
+        if self.all_valid:
             return values * scale
         out = np.full((self.valid.size,) + values.shape[1:], np.nan)
         out[self.valid] = values * scale
@@ -208,8 +214,9 @@ class Data:
 
 
 def _real_rows(values, name: str, n: int | None):
-    """``(array, masked_rows)``: ``values`` as an (n, 2) float64 array, and the
-    rows a numpy mask hides (None without a mask).  Complex, object and string
+    """``(array, masked_rows, finite)``: ``values`` as an (n, 2) float64 array,
+    the rows a numpy mask hides (None without a mask), and whether every
+    value is finite (else some are NaN: infinite ones are refused).  Complex, object and string
     arrays are refused (:func:`~taichi_hh.checks.as_real_array`): a cast would
     drop an imaginary part or invent numbers."""
     masked = None
@@ -224,11 +231,15 @@ def _real_rows(values, name: str, n: int | None):
         raise InputError(f"{name} must have shape {expect}, got {arr.shape}")
     if arr.shape[0] == 0:
         raise InputError(f"{name} is empty: at least one point is needed")
-    if np.isinf(arr).any():
+    # a finite sum: every value finite (one pass; an overflowing sum of
+    # finite values takes the values' own check)
+    with np.errstate(over="ignore", invalid="ignore"):
+        finite = bool(np.isfinite(arr.sum()))
+    if not finite and np.isinf(arr).any():
         i = int(np.flatnonzero(np.isinf(arr).any(axis=1))[0])
         raise InputError(f"{name} contain infinite values, first in row {i}: "
                          f"{arr[i].tolist()} (missing values are NaN)")
-    return arr, masked
+    return arr, masked, finite
 
 
 def prepare_data(points, vectors, domain, *, invalid: str = "missing", valid=None,
@@ -248,10 +259,10 @@ def prepare_data(points, vectors, domain, *, invalid: str = "missing", valid=Non
     zero vectors are fluid at rest.  Raises :class:`~taichi_hh.errors.InputError`."""
     if invalid not in INVALID_MODES:
         raise InputError(f"invalid must be one of {INVALID_MODES}, got {invalid!r}")
-    pts, masked_p = _real_rows(points, "points", None)
-    vec, masked_v = _real_rows(vectors, "vectors", len(pts))
+    pts, masked_p, finite_p = _real_rows(points, "points", None)
+    vec, masked_v, finite_v = _real_rows(vectors, "vectors", len(pts))
     missing = np.zeros(len(pts), dtype=bool)
-    if np.isnan(pts).any() or np.isnan(vec).any():
+    if not (finite_p and finite_v):
         missing = rows_any(np.isnan(pts)) | rows_any(np.isnan(vec))
     for m in (masked_p, masked_v):
         if m is not None:
@@ -323,18 +334,17 @@ def field_on(data: Data, vectors, *, stacklevel: int = 5) -> Data | None:
     and zero-row check.  None when the field misses (NaN, masked) a row that
     ``data`` holds: its valid points differ, the caller prepares them anew.  Raises
     :class:`~taichi_hh.errors.InputError` for a bad array."""
-    vec, masked = _real_rows(vectors, "vectors", data.valid.size)
-    # by columns: numpy's reductions over an axis of two cost more than the work
-    missing = np.isnan(vec[:, 0]) | np.isnan(vec[:, 1])
-    if masked is not None:
-        missing |= masked
-    every = data.n_invalid == 0
-    if (missing if every else missing[data.valid]).any():   # a row the points hold is missing
-        return None
+    vec, masked, finite = _real_rows(vectors, "vectors", data.valid.size)
+    every = data.all_valid
+    if masked is not None or not finite:
+        # by columns: numpy's reductions over an axis of two cost more than the work
+        missing = np.isnan(vec[:, 0]) | np.isnan(vec[:, 1])
+        if masked is not None:
+            missing |= masked
+        if (missing if every else missing[data.valid]).any():   # a row the points hold
+            return None
     vec_ok = vec if every else vec[data.valid]
-    base = data.frame
-    frame = Frame.of(((0.0, 0.0), (base.length, base.length)), vec_ok)
-    frame = Frame(base.centre, base.length, frame.speed)
+    frame = data.frame.with_speed_of(vec_ok)
     vec_out = vec.copy()
     if not every:
         vec_out[~data.valid] = np.nan
@@ -348,9 +358,13 @@ def check_zero_rows(data: Data, *, stacklevel: int = 4) -> None:
     """Name exactly zero vectors when there are enough of them to be an
     instrument's mark for invalid ones rather than still fluid."""
     u = data.unit_vectors
+    least = max(ZERO_ROWS, ZERO_FRACTION * len(u))
+    # a zero row is two zero components: too few of those, no rows to name
+    if np.count_nonzero(u == 0.0) < 2 * least:
+        return
     zero = (u[:, 0] == 0.0) & (u[:, 1] == 0.0)
     count = int(np.count_nonzero(zero))
-    if count < max(ZERO_ROWS, ZERO_FRACTION * zero.size) or count == zero.size:
+    if count < least or count == zero.size:
         return
     where = np.flatnonzero(data.valid)[zero]
     lo, hi = data.points[where].min(axis=0), data.points[where].max(axis=0)

@@ -46,10 +46,12 @@ class Frame:
         length = float(np.max(hi - lo))
         if not (np.isfinite(length) and length > 0):
             length = 1.0
-        speed = float(np.abs(vectors).max()) if np.size(vectors) else 0.0
-        if not (np.isfinite(speed) and speed > 0):
-            speed = 1.0
-        return cls((float(centre[0]), float(centre[1])), length, speed)
+        return cls((float(centre[0]), float(centre[1])), length, speed_of(vectors))
+
+    def with_speed_of(self, vectors) -> "Frame":
+        """This frame's coordinates with the speed of the field ``vectors``
+        (another field on the same points: :meth:`of`'s speed)."""
+        return Frame(self.centre, self.length, speed_of(vectors))
 
     @property
     def potential(self) -> float:
@@ -78,3 +80,12 @@ class Frame:
 
     def as_dict(self) -> dict:
         return {"centre": self.centre, "length": self.length, "speed": self.speed}
+
+
+def speed_of(vectors) -> float:
+    """The unit frame's speed of ``vectors`` (finite float64 rows): their
+    largest |component|, 1.0 for an empty or all-zero field.  max(max v,
+    -min v) is max |v| exactly, without |v|'s array."""
+    v = np.asarray(vectors)
+    speed = float(max(v.max(), -v.min())) if v.size else 0.0
+    return speed if np.isfinite(speed) and speed > 0 else 1.0
