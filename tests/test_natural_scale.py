@@ -4,6 +4,8 @@ Taichi spline prefilter and boundary fit against numpy, the batched FFT
 against single convolutions (and its helper thread against none), the batch's
 node densities and assembled outputs against numpy's steps, the k-nearest
 search's counting sort against numpy's stable sort."""
+import types
+
 import numpy as np
 
 import taichi_hh as thh
@@ -126,6 +128,67 @@ def test_grid_gradient_kernel_is_the_numpy_differences():
     exact = np.stack([3 * x ** 2 - 2 * y ** 2, -4 * x * y + 1], axis=-1)
     inner = got[pad + 2:-pad - 2, pad + 2:-pad - 2, 1, 1:]
     assert np.abs(inner - exact[2:-2, 2:-2]).max() < 1e-12
+
+
+def _linear_continuation(a, pad):
+    """``a`` (nx, ny, ...) continued ``pad`` nodes beyond each side with its
+    edge's slope, along axis 0 then axis 1 (numpy)."""
+    for axis in (0, 1):
+        v = np.moveaxis(a, axis, 0)
+        steps = np.arange(1, pad + 1).reshape((-1,) + (1,) * (v.ndim - 1))
+        lo = v[0] - (v[1] - v[0]) * steps[::-1]
+        hi = v[-1] + (v[-1] - v[-2]) * steps
+        a = np.moveaxis(np.concatenate([lo, v, hi]), 0, axis)
+    return a
+
+
+def test_spline_columns_continue_linearly_and_commute_with_the_differences():
+    """The natural path's spline columns (natural._at_points): the
+    potentials continued linearly beyond the grid (free_space.edge_padded),
+    the prefilter started exactly for that continuation (scipy's mirror
+    filter on the grid continued 80 nodes, to round-off; a linear field's
+    coefficients are its values), and the coefficients' differences
+    (free_space.with_differences, the same kernel as values_and_gradients):
+    inside, the spline of the differences is the differences of the
+    spline's coefficients, so the gradient columns give the grid gradient at
+    the nodes."""
+    from scipy.ndimage import spline_filter
+    grid = free_space.Grid(RECT, 0.07)
+    nx, ny = grid.shape
+    x, y = np.meshgrid(grid.origin[0] + grid.hx * np.arange(nx),
+                       grid.origin[1] + grid.hy * np.arange(ny), indexing="ij")
+    u = np.stack([np.sin(3 * x) * np.cos(2 * y), x ** 3 - 2 * x * y ** 2 + y,
+                  np.random.default_rng(2).standard_normal(grid.shape), 2.0 + 3.0 * x - y])
+    pad = grid_sampling.SPLINE_PAD
+    c = free_space.edge_padded(grid, u, pad)
+    assert c.shape == (nx + 2 * pad, ny + 2 * pad, 4)
+    for k in range(4):
+        assert np.abs(c[..., k] - _linear_continuation(u[k], pad)).max() \
+            <= 1e-14 * np.abs(u[k]).max()
+    grid_sampling.prefilter(c, linear=True)
+    far = 80
+    for k in range(4):
+        ref = spline_filter(_linear_continuation(u[k], far), order=3, mode="mirror")
+        ref = ref[far - pad:far + nx + pad, far - pad:far + ny + pad]
+        assert np.abs(c[..., k] - ref).max() <= 1e-12 * np.abs(ref).max(), k
+    assert np.abs(c[..., 3] - _linear_continuation(u[3], pad)).max() < 1e-13
+    cols = free_space.with_differences(grid, c)
+    assert cols.shape == c.shape + (3,)
+    # the channels-first layout's kernel on the same values: the same bits
+    padded = types.SimpleNamespace(shape=c.shape[:2], hx=grid.hx, hy=grid.hy)
+    assert np.array_equal(free_space.values_and_gradients(
+        padded, np.ascontiguousarray(np.moveaxis(c, -1, 0))), cols)
+    # the spline of the coefficients' differences at the nodes: the grid
+    # gradient (inside: the edges' one-sided differences differ)
+    nodes = np.c_[x.ravel(), y.ravel()]
+    inside = np.zeros(grid.shape, dtype=bool)
+    inside[4:-4, 4:-4] = True
+    for k in range(4):
+        got = grid_sampling.spline_values(grid, np.ascontiguousarray(cols[:, :, k]), nodes)
+        got = got.reshape(nx, ny, 3)
+        want = np.concatenate([u[k][..., None], _gradient_numpy(grid, u[k])], -1)
+        assert np.abs(got[..., 0] - u[k]).max() <= 1e-12 * np.abs(u[k]).max()
+        assert np.abs(got[inside] - want[inside]).max() <= 1e-12 * np.abs(want).max(), k
 
 
 def test_batched_fft_convolution_is_each_single_one():

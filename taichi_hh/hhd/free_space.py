@@ -9,7 +9,10 @@ FFT in O(M log M) for M cells (:func:`convolve_fft`) or by direct summation
 in a Taichi kernel (:func:`convolve_direct`, O(M^2), the exact reference of
 the same sum), the cell's own integral of G on the diagonal; the potentials'
 gradients by fourth-order differences on the grid (:func:`grid_gradient`; with
-the values, padded for the spline, in one kernel: :func:`values_and_gradients`).
+the values, padded, in one kernel: :func:`values_and_gradients`; the
+spline's columns: the potentials continued beyond the grid,
+:func:`edge_padded`, and their coefficients' differences,
+:func:`with_differences`).
 """
 import itertools
 import math
@@ -542,12 +545,14 @@ def _difference(u: ti.template(), c, p, n, stride, h):
 
 @ti.kernel
 def _values_and_gradients(u: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, hx: ti.f64,
-                          hy: ti.f64, pad: ti.i32, out: ti.types.ndarray(), m: ti.template()):
+                          hy: ti.f64, pad: ti.i32, out: ti.types.ndarray(), m: ti.template(),
+                          last: ti.template()):
     """out[I, J, k, :] = u[k] and its grid gradient (:func:`_difference`) at
     the node (I - pad, J - pad) clamped into the grid (the edge nodes'
-    values repeated ``pad`` nodes beyond it); ``u`` (m, nx, ny) and ``out``
-    (nx + 2 pad, ny + 2 pad, m, 3) flat, the ``m`` potentials' strides known
-    at compile time (2-d and 4-d ndarrays' runtime strides took 1.4x as long)."""
+    values repeated ``pad`` nodes beyond it); ``u`` (m, nx, ny), or (nx, ny,
+    m) with ``last``, and ``out`` (nx + 2 pad, ny + 2 pad, m, 3) flat, the
+    ``m`` potentials' strides known at compile time (2-d and 4-d ndarrays'
+    runtime strides took 1.4x as long)."""
     NX, NY = nx + 2 * pad, ny + 2 * pad
     for I, J in ti.ndrange(NX, NY):
         i = ti.math.clamp(I - pad, 0, nx - 1)
@@ -555,9 +560,51 @@ def _values_and_gradients(u: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, hx: ti.
         o = (I * NY + J) * (3 * m)
         for k in ti.static(range(m)):
             c = (k * nx + i) * ny + j
+            sx, sy = ny, 1
+            if ti.static(last):
+                c = (i * ny + j) * m + k
+                sx, sy = ny * m, m
             out[o + 3 * k] = u[c]
-            out[o + 3 * k + 1] = _difference(u, c, i, nx, ny, hx)
-            out[o + 3 * k + 2] = _difference(u, c, j, ny, 1, hy)
+            out[o + 3 * k + 1] = _difference(u, c, i, nx, sx, hx)
+            out[o + 3 * k + 2] = _difference(u, c, j, ny, sy, hy)
+
+
+@ti.kernel
+def _edge_padded(u: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, pad: ti.i32,
+                 out: ti.types.ndarray(), m: ti.template()):
+    """out[I, J, k] = u[k] continued linearly beyond the grid along each
+    axis (the edge's slope) to the node (I - pad, J - pad); ``u`` (m, nx,
+    ny), ``out`` (nx + 2 pad, ny + 2 pad, m), flat."""
+    NX, NY = nx + 2 * pad, ny + 2 * pad
+    for I, J in ti.ndrange(NX, NY):
+        i = ti.math.clamp(I - pad, 0, nx - 1)
+        j = ti.math.clamp(J - pad, 0, ny - 1)
+        di = ti.cast(I - pad - i, ti.f64)
+        dj = ti.cast(J - pad - j, ti.f64)
+        si = 1 if I - pad > i else -1        # towards the inside: i - si
+        sj = 1 if J - pad > j else -1
+        o = (I * NY + J) * m
+        for k in ti.static(range(m)):
+            b = k * nx * ny
+            a = u[b + i * ny + j]
+            if di != 0.0:
+                a += ti.abs(di) * (u[b + i * ny + j] - u[b + (i - si) * ny + j])
+            if dj != 0.0:
+                a2 = u[b + i * ny + j - sj]
+                if di != 0.0:
+                    a2 += ti.abs(di) * (u[b + i * ny + j - sj] - u[b + (i - si) * ny + j - sj])
+                a += ti.abs(dj) * (a - a2)
+            out[o + k] = a
+
+
+def _potentials(grid: Grid, u: np.ndarray) -> np.ndarray:
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    nx, ny = grid.shape
+    if u.ndim != 3 or u.shape[1:] != (nx, ny):
+        raise ValueError(f"potentials of shape (m, {nx}, {ny}) expected, got {u.shape}")
+    if min(nx, ny) < 3:
+        raise ValueError(f"the grid's differences need 3 nodes a side, got {nx} x {ny}")
+    return u
 
 
 def values_and_gradients(grid: Grid, u: np.ndarray, pad: int = 0, out=None) -> np.ndarray:
@@ -567,18 +614,48 @@ def values_and_gradients(grid: Grid, u: np.ndarray, pad: int = 0, out=None) -> n
     columns the spline through them all takes.  A Taichi kernel, one pass;
     ``out``: the array to write (a series' batches reuse one)."""
     runtime.ensure_init()
-    u = np.ascontiguousarray(u, dtype=np.float64)
+    u = _potentials(grid, u)
     nx, ny = grid.shape
-    if u.ndim != 3 or u.shape[1:] != (nx, ny):
-        raise ValueError(f"potentials of shape (m, {nx}, {ny}) expected, got {u.shape}")
-    if min(nx, ny) < 3:
-        raise ValueError(f"the grid's differences need 3 nodes a side, got {nx} x {ny}")
     shape = (nx + 2 * pad, ny + 2 * pad, len(u), 3)
     if out is None or out.shape != shape or not out.flags.c_contiguous:
         out = np.empty(shape)
     if len(u):
         _values_and_gradients(u.reshape(-1), nx, ny, grid.hx, grid.hy, int(pad),
-                              out.reshape(-1), len(u))
+                              out.reshape(-1), len(u), False)
+    return out
+
+
+def edge_padded(grid: Grid, u: np.ndarray, pad: int, out=None) -> np.ndarray:
+    """(nx + 2 pad, ny + 2 pad, m) the potentials ``u`` (m, nx, ny) with the
+    edge nodes' values repeated ``pad`` nodes beyond the grid, the
+    potentials last (a spline's columns); ``out``: the array to write."""
+    runtime.ensure_init()
+    u = _potentials(grid, u)
+    nx, ny = grid.shape
+    shape = (nx + 2 * pad, ny + 2 * pad, len(u))
+    if out is None or out.shape != shape or not out.flags.c_contiguous:
+        out = np.empty(shape)
+    if len(u):
+        _edge_padded(u.reshape(-1), nx, ny, int(pad), out.reshape(-1), len(u))
+    return out
+
+
+def with_differences(grid: Grid, c: np.ndarray, out=None) -> np.ndarray:
+    """(NX, NY, m, 3) the columns ``c`` (NX, NY, m: values on a grid of
+    ``grid``'s spacing, e.g. a spline's coefficients) and their grid
+    gradients (:func:`_difference`, that grid's edges its own) side by
+    side; ``out``: the array to write."""
+    runtime.ensure_init()
+    c = np.ascontiguousarray(c, dtype=np.float64)
+    NX, NY, m = c.shape
+    if min(NX, NY) < 3:
+        raise ValueError(f"the grid's differences need 3 nodes a side, got {NX} x {NY}")
+    shape = (NX, NY, m, 3)
+    if out is None or out.shape != shape or not out.flags.c_contiguous:
+        out = np.empty(shape)
+    if m:
+        _values_and_gradients(c.reshape(-1), NX, NY, grid.hx, grid.hy, 0, out.reshape(-1), m,
+                              True)
     return out
 
 

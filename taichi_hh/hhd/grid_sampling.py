@@ -29,7 +29,7 @@ SPLINE_LANES = 3
 
 @ti.kernel
 def _spline_filter(c: ti.types.ndarray(), A: ti.i32, n: ti.i32, B: ti.i32, z: ti.f64,
-                   lanes: ti.template()):
+                   lanes: ti.template(), linear: ti.template()):
     """The cubic B-spline prefilter in place along the middle axis of ``c``
     (A, n, B, flat), the lines (a, :, b) in parallel, ``lanes`` adjacent ones
     per thread (their values share cache lines): the causal and anticausal
@@ -50,10 +50,20 @@ def _spline_filter(c: ti.types.ndarray(), A: ti.i32, n: ti.i32, B: ti.i32, z: ti
         prev = ti.Vector.zero(ti.f64, lanes)
         # the far end's edge value, read before the causal pass overwrites it
         far = ti.Vector.zero(ti.f64, lanes)
+        steady = ti.Vector.zero(ti.f64, lanes)
         for w in ti.static(range(lanes)):
             far[w] = gain * c[base[w] + last] / (1.0 - z)
+            steady[w] = far[w]
             # causal start: the sum of z^i gain c_0 over the repeated edge
             prev[w] = gain * c[base[w]] / (1.0 - z)
+            if ti.static(linear):
+                # ... or over the line continued with its edge's slope: less
+                # gain z / (1 - z)^2 times that slope; the causal values
+                # beyond the far end tend to a line whose start is ``steady``
+                slope0 = c[base[w] + B] - c[base[w]]
+                slope1 = c[base[w] + last] - c[base[w] + last - B]
+                prev[w] -= gain * z / ((1.0 - z) * (1.0 - z)) * slope0
+                steady[w] = far[w] - gain * z / ((1.0 - z) * (1.0 - z)) * slope1
             if b0 + w < B:
                 c[base[w]] = prev[w]
         off = ti.cast(0, ti.i64)
@@ -66,7 +76,7 @@ def _spline_filter(c: ti.types.ndarray(), A: ti.i32, n: ti.i32, B: ti.i32, z: ti
         # anticausal start: -z sum_j z^j c+_{n-1+j}, the causal values beyond
         # the end tending to ``far`` as z^j
         for w in ti.static(range(lanes)):
-            prev[w] = -z * (far[w] / (1.0 - z) + (prev[w] - far[w]) / (1.0 - z * z))
+            prev[w] = -z * (far[w] / (1.0 - z) + (prev[w] - steady[w]) / (1.0 - z * z))
             if b0 + w < B:
                 c[base[w] + off] = prev[w]
         for q in range(1, n):
@@ -90,9 +100,10 @@ def spline_coefficients(u: np.ndarray) -> np.ndarray:
     return c
 
 
-def prefilter(c: np.ndarray) -> None:
+def prefilter(c: np.ndarray, linear: bool = False) -> None:
     """:func:`spline_coefficients`' filters in place on the padded grid
-    values ``c`` (NX, NY[, m], C-contiguous float64)."""
+    values ``c`` (NX, NY[, m], C-contiguous float64); ``linear``: each line
+    continued beyond its ends with its edge's slope instead of its edge value."""
     if not (c.flags.c_contiguous and c.dtype == np.float64):
         raise ValueError("the spline prefilter takes a C-contiguous float64 array")
     if c.size:
@@ -100,8 +111,8 @@ def prefilter(c: np.ndarray) -> None:
         nx, ny = c.shape[0], c.shape[1]
         m = c.size // (nx * ny)
         flat = c.reshape(-1)
-        _spline_filter(flat, 1, nx, ny * m, SPLINE_POLE, SPLINE_LANES)
-        _spline_filter(flat, nx, ny, m, SPLINE_POLE, SPLINE_LANES)
+        _spline_filter(flat, 1, nx, ny * m, SPLINE_POLE, SPLINE_LANES, bool(linear))
+        _spline_filter(flat, nx, ny, m, SPLINE_POLE, SPLINE_LANES, bool(linear))
 
 
 def spline_coefficients_numpy(u: np.ndarray) -> np.ndarray:
