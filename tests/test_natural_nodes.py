@@ -261,6 +261,29 @@ def test_fit_weights_gather_is_the_sum_over_slots():
             assert (np.abs(w.gradients(vals[:, c])[:, 0] - got[:, c]) <= bound[c]).all()
 
 
+def test_fit_weights_div_curl_is_numpys_of_the_gradients():
+    """FitWeights.gradients(div_curl=True) (the harmonic check's |div| and
+    |curl| in the gather) against node_fits.abs_div_curl of the gradients,
+    bit for bit, for 1 to 10 fields (20 columns: two launches), and the
+    divergence and curl of a linear field (to the normal equations' rounding)."""
+    pts = np.random.default_rng(5).random((2000, 2))
+    grid, b = _binned(pts, math.sqrt(1.0 / len(pts)))
+    w = node_fits.FitWeights(grid, b, grid.centres()[::3])
+    rng = np.random.default_rng(7)
+    for k in (1, 2, 3, 4, 8, 10):
+        vals = rng.standard_normal((len(pts), 2 * k))
+        got = w.gradients(vals, div_curl=True)
+        assert got.shape == (w.n_targets, k, 2)
+        assert np.array_equal(got, node_fits.abs_div_curl(w.gradients(vals)))
+    # v = (2x + 3y, 5x - y): div 1, curl 2 at the targets inside
+    lin = np.c_[2 * b.points[:, 0] + 3 * b.points[:, 1], 5 * b.points[:, 0] - b.points[:, 1]]
+    terms = w.gradients(lin, div_curl=True)
+    inside = (np.abs(grid.centres()[::3] - 0.5) < 0.4).all(axis=1)
+    assert inside.sum() > 400 and np.abs(terms[inside] - [1.0, 2.0]).max() < 1e-7
+    with pytest.raises(ValueError, match="pairs"):
+        w.gradients(vals[:, :3], div_curl=True)
+
+
 def test_a_kept_natural_setup_splits_as_a_call():
     """NaturalSetup with the fits kept as weights (the Decomposer's) splits
     each field as natural_decomposition does, to rounding."""

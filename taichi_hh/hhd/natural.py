@@ -46,7 +46,8 @@ from .free_space import (Grid, axis_rectangle, convolve_direct, convolve_fft, ed
 from .grid_sampling import (ONE_SIDED_CELLS, SPLINE_PAD, lagrange_at, one_sided_gradient,
                             one_sided_weights, prefilter, spline_values)
 from .natural_assemble import assemble, node_densities, row_index
-from .node_fits import FitWeights, PointBins, fit_gradients, reconstruct_on_grid
+from .node_fits import (FitWeights, PointBins, abs_div_curl, fit_gradients,
+                        reconstruct_on_grid)
 from .options import NATURAL_EVALUATIONS
 
 #: subsamples per side of a cell a rectangle's side may cross, for its inside
@@ -386,6 +387,17 @@ class NaturalSetup:
         g = parts[0][0] if len(parts) == 1 else np.concatenate([q[0] for q in parts], axis=1)
         return (g, parts[0][1]) if counts else g
 
+    def harmonic_terms(self, hs) -> np.ndarray:
+        """(T, k, 2) |div h| and |curl h| at the harmonic check's nodes of
+        the k fields ``hs`` (N, 2 k, in the bins' order), from the fits of
+        h (:func:`~.node_fits.abs_div_curl`; with the fits kept as weights,
+        in their gather)."""
+        if self.fits is not None:
+            w = self.fits["check"]
+            return w.gradients(hs, div_curl=True, out=self.scratch(
+                "check_terms", (w.n_targets, np.shape(hs)[1] // 2, 2)))
+        return abs_div_curl(self.gradients("check", hs))
+
     def split(self, vectors) -> "NaturalSplit":
         """The natural HHD of ``vectors`` (N, 2) at these points
         (:func:`natural_decomposition`): :meth:`split_many` of one."""
@@ -450,10 +462,9 @@ class NaturalSetup:
         mean_fit_points = float(count.mean()) if count.size else 0.0
         lap("gather")
         # the harmonic check's fits of h at the check nodes, every field in one gather
-        gh = self.gradients("check", out["hs"]).reshape(-1, k, 2, 2)
-        n_check = max(len(gh), 1)
-        div_h = np.abs(gh[:, :, 0, 0] + gh[:, :, 1, 1]).sum(axis=0) / n_check   # (k,)
-        curl_h = np.abs(gh[:, :, 1, 0] - gh[:, :, 0, 1]).sum(axis=0) / n_check
+        terms = self.harmonic_terms(out["hs"])                   # (check nodes, k, 2)
+        means = terms.sum(axis=0) / max(len(terms), 1)
+        div_h, curl_h = means[:, 0], means[:, 1]                        # (k,)
         splits = [NaturalSplit(phi=pot[s, 0], d=grads[s, 0], psi=pot[s, 1],
                                grad_psi=grads[s, 1], div_free=comps[s, 0],
                                divergence=dc[s, 0], curl=dc[s, 1], harmonic=comps[s, 1],

@@ -522,14 +522,17 @@ def _column_blocks(stride: int) -> tuple:
 def _apply_weights(wstart: ti.types.ndarray(), widx: ti.types.ndarray(),
                    wval: ti.types.ndarray(), wref: ti.types.ndarray(),
                    values: ti.types.ndarray(), out: ti.types.ndarray(), stride: ti.template(),
-                   m: ti.i32):
+                   m: ti.i32, div_curl: ti.template()):
     """out[(t m + c) 2 + j] = the sum over target t's slots of the weights
     ``wval[2 s + j]`` times column c of ``values`` (rows of ``stride``,
     flat) less its value at the fit's reference point (as the fit subtracts
     it: the same rounding), for the first ``m`` columns: one gather per
     target, a slot's index and weights read once for a block's columns
     (adjacent in a row), each column summed in slot order (the loop's step
-    written so that the vectorizer cannot split the sum)."""
+    written so that the vectorizer cannot split the sum).  With
+    ``div_curl`` the columns are fields' components in pairs (2 f, 2 f + 1)
+    and out[(t m / 2 + f) 2 + 0|1] = |div|, |curl| of field f from those
+    gradients (:meth:`FitWeights.gradients`)."""
     for t in range(wstart.shape[0] - 1):
         for c0, width in ti.static(_column_blocks(stride)):
             gx = ti.Vector.zero(ti.f64, width)
@@ -552,10 +555,29 @@ def _apply_weights(wstart: ti.types.ndarray(), widx: ti.types.ndarray(),
                 # k >= 0: a step of 1 that the loop vectorizer cannot count
                 s += 1 + (k >> 31)
             o = (t * m + c0) * 2
-            for w in ti.static(range(width)):
-                if c0 + w < m:
-                    out[o + 2 * w] = gx[w]
-                    out[o + 2 * w + 1] = gy[w]
+            if ti.static(div_curl):
+                # a block's columns start even: its pairs are whole
+                for w in ti.static(range(0, width - 1, 2)):
+                    if c0 + w < m:
+                        q = t * m + c0 + w          # (t m / 2 + f) 2
+                        out[q] = ti.abs(gx[w] + gy[w + 1])
+                        out[q + 1] = ti.abs(gx[w + 1] - gy[w])
+            else:
+                for w in ti.static(range(width)):
+                    if c0 + w < m:
+                        out[o + 2 * w] = gx[w]
+                        out[o + 2 * w + 1] = gy[w]
+
+
+def abs_div_curl(gradients) -> np.ndarray:
+    """(T, k, 2) |div| and |curl| of k fields from the gradients (T, 2 k, 2)
+    of their components (columns 2 f, 2 f + 1 the x and y components of
+    field f): div = dx/dx + dy/dy, curl = dy/dx - dx/dy."""
+    g = np.asarray(gradients).reshape(len(gradients), -1, 2, 2)
+    out = np.empty(g.shape[:2] + (2,))
+    np.abs(g[:, :, 0, 0] + g[:, :, 1, 1], out=out[..., 0])
+    np.abs(g[:, :, 1, 0] - g[:, :, 0, 1], out=out[..., 1])
+    return out
 
 
 class FitWeights:
@@ -634,15 +656,22 @@ class FitWeights:
     def nbytes(self) -> int:
         return self.start.nbytes + self.index.nbytes + self.weights.nbytes + self.reference.nbytes
 
-    def gradients(self, values, out=None) -> np.ndarray:
+    def gradients(self, values, out=None, div_curl: bool = False) -> np.ndarray:
         """(T, m, 2) the gradient of each column of ``values`` (N, m, in the
         order of the bins' points) at the targets (written to ``out`` when
-        it is such an array: a series' batches reuse one)."""
+        it is such an array: a series' batches reuse one).  ``div_curl``:
+        the columns are fields' (x, y) components in pairs, and the answer
+        (T, m / 2, 2) |div| and |curl| of each field (those gradients'
+        :func:`abs_div_curl`, in the gather: the harmonic check's terms)."""
         v = np.asarray(values, dtype=np.float64)
         v = v[:, None] if v.ndim == 1 else v
         m = v.shape[1]
-        if out is None or out.shape != (self.n_targets, m, 2) or not out.flags.c_contiguous:
-            out = np.empty((self.n_targets, m, 2))
+        if div_curl and m % 2:
+            raise ValueError(f"div_curl takes pairs of columns, got {m}")
+        per = 1 if div_curl else 2                  # the answer's columns a value column
+        shape = (self.n_targets, m // 2 if div_curl else m, 2)
+        if out is None or out.shape != shape or not out.flags.c_contiguous:
+            out = np.empty(shape)
         if not (self.n_targets and m):
             return out
         for c in range(0, m, APPLY_COLUMNS):
@@ -654,9 +683,9 @@ class FitWeights:
             else:
                 rows = np.zeros((len(v), stride))
                 rows[:, :width] = part
-            dest = out if width == m else np.empty((self.n_targets, width, 2))
+            dest = out if width == m else np.empty((self.n_targets, width * per // 2, 2))
             _apply_weights(self.start, self.index, self.weights.reshape(-1), self.reference,
-                           rows.reshape(-1), dest.reshape(-1), stride, width)
+                           rows.reshape(-1), dest.reshape(-1), stride, width, bool(div_curl))
             if dest is not out:
-                out[:, c:c + width] = dest
+                out[:, c * per // 2:(c + width) * per // 2] = dest
         return out
