@@ -101,10 +101,12 @@ def band_flow(band_vectors: np.ndarray, normal: np.ndarray, size: float) -> tupl
         return float("nan"), float("nan")
     if size == 0.0:
         return 0.0, 0.0
-    normal_part = (band_vectors * normal).sum(axis=1)
+    # einsum: one pass each, no temporaries (a series pays this per snapshot)
+    normal_part = np.einsum("ij,ij->i", band_vectors, normal)
     tangential = band_vectors - normal_part[:, None] * normal
-    return (float(np.sqrt(np.mean(normal_part ** 2) / size)),
-            float(np.sqrt(np.mean((tangential ** 2).sum(axis=1)) / size)))
+    n = len(band_vectors)
+    return (float(np.sqrt(np.einsum("i,i->", normal_part, normal_part) / n / size)),
+            float(np.sqrt(np.einsum("ij,ij->", tangential, tangential) / n / size)))
 
 
 def boundary_flow(points: np.ndarray, vectors: np.ndarray, domain, spacing: float,
