@@ -3,7 +3,8 @@ one warm decompose() call per snapshot, in the same run.
 
     python benchmarks/timeseries.py [--layouts grid13k,random100k] [--snapshots 10]
                                     [--conditions auto,neumann,normal-parallel,no-flux]
-                                    [--one-off 3] [--batch B] [--direct] [--dask]
+                                    [--one-off 3] [--batch B] [--interleave]
+                                    [--direct] [--dask]
                                     [--out-dir DIR]
 
 The flow: a vortex and a source drifting across a uniform stream (the flow
@@ -34,7 +35,12 @@ points, through the scattered Decomposer as decompose() takes them),
   memory after the stream's first and last batch, and its peak (flat: the
   last close to the first; the stream holds one batch, whatever T);
 * ``max_rel_diff``: the largest difference of d, r, h against the one-off
-  calls' (over their max |.|), on the snapshots both computed.
+  calls' (over their max |.|), on the snapshots both computed;
+* with ``--interleave``, a warm one-off call before each batch (the second
+  of two in a row), outside the stream's time, and the ratios paired batch by batch (the machine's speed
+  drifts by tens of percent within a run, so the one-off calls timed before
+  the stream can be on another machine's speed): ``interleaved_one_off_s``,
+  ``paired_snapshot_ratio``, ``paired_ratio`` (:func:`paired_ratios`).
 
 ``--direct`` adds, per condition with Poisson rows, the sparse direct
 alternative for repeated solves: scipy's SuperLU (splu) of the assembled
@@ -127,6 +133,23 @@ def run_condition(thh, layout: str, points, condition: str, args) -> dict:
     dec, setup, first_batch = made()
     rss, diffs, conditions = [], [], {}
     snaps = [drifting_flow(points, t) for t in phases] if T <= args.hold else None
+    # a warm one-off call before each batch, outside the stream's time: each
+    # batch's snapshot against the call timed next to it (the machine's
+    # speed drifts by tens of percent within a run); two calls, the second
+    # timed, as a caller's loop of one-off calls runs them (the caches theirs)
+    interleaved, paired = [], []
+
+    def one_off_now(t):
+        s0 = time.perf_counter()
+        fld = drifting_flow(points, t)
+        thh.decompose(points, fld, **options)
+        s1 = time.perf_counter()
+        thh.decompose(points, fld, **options)
+        interleaved.append(time.perf_counter() - s1)
+        return time.perf_counter() - s0
+    if args.interleave:
+        one_off_now(phases[0])
+    outside = 0.0                       # the stream's seconds spent on one-off calls
     batches, last = [], (time.perf_counter(), time.process_time(), 0)
     t0, c0 = time.perf_counter(), time.process_time()
     for i, res in enumerate(dec.stream(snaps if snaps is not None else
@@ -143,8 +166,16 @@ def run_condition(thh, layout: str, points, condition: str, args) -> dict:
             now = (time.perf_counter(), time.process_time(), i + 1)
             batches.append(((now[0] - last[0]) / (now[2] - last[2]),
                             (now[1] - last[1]) / (now[2] - last[2])))
+            if args.interleave:
+                # (the batch's seconds, its snapshots, the one-off timed before it)
+                paired.append((now[0] - last[0], now[2] - last[2], interleaved[-1]))
+                if i + 1 < T:
+                    c1 = time.process_time()
+                    outside += one_off_now(phases[i + 1])
+                    c0 += time.process_time() - c1
+                    now = (time.perf_counter(), time.process_time(), i + 1)
             last = now
-    stream, stream_cpu = time.perf_counter() - t0, time.process_time() - c0
+    stream, stream_cpu = time.perf_counter() - t0 - outside, time.process_time() - c0
     median = statistics.median(one_off)
     median_cpu = statistics.median(one_off_cpu)
     amortised = (setup + stream) / T
@@ -159,7 +190,25 @@ def run_condition(thh, layout: str, points, condition: str, args) -> dict:
             "one_off_cpu_s": median_cpu, "per_snapshot_cpu_s": stream_cpu / T,
             "median_snapshot_cpu_s": batch_cpu, "cpu_ratio": batch_cpu / median_cpu,
             "rss_first_mb": rss[0], "rss_last_mb": rss[-1], "rss_peak_mb": peak_mb(),
-            "max_rel_diff": max(diffs) if diffs else float("nan")}
+            "max_rel_diff": max(diffs) if diffs else float("nan"),
+            **paired_ratios(paired, interleaved, setup, T)}
+
+
+def paired_ratios(paired: list, interleaved: list, setup: float, T: int) -> dict:
+    """``--interleave``'s figures: ``interleaved_one_off_s`` the median of the
+    one-off calls timed between the batches; ``paired_snapshot_ratio`` the
+    median over batches of a snapshot's seconds over the one-off call timed
+    just before its batch; ``paired_ratio`` the amortised ratio so paired:
+    the sum over batches of (the batch's seconds / its one-off call) plus
+    the set-up over the median one-off call, over T (a short last batch
+    counted as it is)."""
+    if not paired:
+        return {"interleaved_one_off_s": float("nan"), "paired_snapshot_ratio": float("nan"),
+                "paired_ratio": float("nan")}
+    median = statistics.median(interleaved)
+    return {"interleaved_one_off_s": median,
+            "paired_snapshot_ratio": statistics.median(s / n / o for s, n, o in paired),
+            "paired_ratio": (sum(s / o for s, n, o in paired) + setup / median) / T}
 
 
 def run_direct(thh, layout: str, points, condition: str, args) -> dict | None:
@@ -241,6 +290,9 @@ def main(argv=None) -> None:
     ap.add_argument("--hold", type=int, default=200,
                     help="series of at most this many snapshots made before the stream "
                          "(longer ones made as it reads them: memory flat)")
+    ap.add_argument("--interleave", action="store_true",
+                    help="a warm one-off call before each batch (not in the stream's "
+                         "time): the ratios paired batch by batch")
     ap.add_argument("--direct", action="store_true")
     ap.add_argument("--dask", action="store_true")
     ap.add_argument("--out-dir", default=str(_common.REPO_ROOT / "outputs" / "benchmarks"))
@@ -263,7 +315,11 @@ def main(argv=None) -> None:
                   f"{row['snapshot_ratio']:.2f}x, CPU {row['median_snapshot_cpu_s']:.4f} s "
                   f"against {row['one_off_cpu_s']:.3f} s = {row['cpu_ratio']:.2f}x; rss "
                   f"{row['rss_first_mb']:.0f} -> {row['rss_last_mb']:.0f} MB (peak "
-                  f"{row['rss_peak_mb']:.0f}); diff {row['max_rel_diff']:.1e}", flush=True)
+                  f"{row['rss_peak_mb']:.0f}); diff {row['max_rel_diff']:.1e}"
+                  + (f"; paired with {row['interleaved_one_off_s']:.3f} s one-off calls "
+                     f"between batches: a snapshot {row['paired_snapshot_ratio']:.3f}x, "
+                     f"amortised {row['paired_ratio']:.3f}x" if args.interleave else ""),
+                  flush=True)
             if args.direct:
                 d = run_direct(thh, layout, points, condition, args)
                 if d is not None:
