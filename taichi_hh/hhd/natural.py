@@ -286,6 +286,12 @@ class NaturalSplit:
     def __init__(self, **kw):
         self.__dict__.update(kw)
 
+    @property
+    def grad_psi(self) -> np.ndarray:
+        """grad psi = -J r (J of :mod:`.rotation`: r = J grad psi), exactly."""
+        r = self.div_free
+        return np.stack([-r[:, 1], r[:, 0]], axis=1)
+
     def harmonic_ratios(self) -> tuple:
         """``(div, curl)``: mean |div h| and mean |curl h| of ``harmonic``
         (h = v - d - r) over the mean of sqrt(div v^2 + curl v^2), the same
@@ -465,8 +471,7 @@ class NaturalSetup:
         terms = self.harmonic_terms(out["hs"])                   # (check nodes, k, 2)
         means = terms.sum(axis=0) / max(len(terms), 1)
         div_h, curl_h = means[:, 0], means[:, 1]                        # (k,)
-        splits = [NaturalSplit(phi=pot[s, 0], d=grads[s, 0], psi=pot[s, 1],
-                               grad_psi=grads[s, 1], div_free=comps[s, 0],
+        splits = [NaturalSplit(phi=pot[s, 0], d=grads[s], psi=pot[s, 1], div_free=comps[s, 0],
                                divergence=dc[s, 0], curl=dc[s, 1], harmonic=comps[s, 1],
                                volume=self.volume, grid=grid, mean_fit_points=mean_fit_points,
                                energies=tuple(float(e) for e in energies[:, s]),

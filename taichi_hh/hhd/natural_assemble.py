@@ -32,7 +32,7 @@ def _assemble(at: ti.types.ndarray(), vs: ti.types.ndarray(), pos: ti.types.ndar
               comps: ti.types.ndarray(), dc: ti.types.ndarray(), hs: ti.types.ndarray(),
               vol: ti.types.ndarray(), sq: ti.types.ndarray(), k: ti.template()):
     """For each point (input row i, bins' position p = pos[i]) and field s:
-    pot[s, 0|1, i] phi, psi; grads[s, 0|1, i, :] d, grad psi; comps[s, 0|1, i, :]
+    pot[s, 0|1, i] phi, psi; grads[s, i, :] d; comps[s, 0|1, i, :]
     r = J grad psi, h = v - d - r; dc[s, 0|1, i] div v, curl v;
     hs[p, 2 s:2 s + 2] h; sq[0..3, s, i] |v|^2, |d|^2, |r|^2, |h|^2 times
     the point's area vol[i] (the energy check's terms).  ``at``
@@ -68,10 +68,9 @@ def _assemble(at: ti.types.ndarray(), vs: ti.types.ndarray(), pos: ti.types.ndar
                 gx, gy = fitted[fb], fitted[fb + 1]
             g0 = ((2 * s) * n + i) * 2
             g1 = ((2 * s + 1) * n + i) * 2
-            grads[g0] = dx
-            grads[g0 + 1] = dy
-            grads[g1] = gx
-            grads[g1 + 1] = gy
+            # grad psi is not kept: -J r (NaturalSplit.grad_psi)
+            grads[(s * n + i) * 2] = dx
+            grads[(s * n + i) * 2 + 1] = dy
             # r = J grad psi = (d psi/dy, -d psi/dx) (rotation.J)
             rx, ry = gy, -gx
             comps[g0] = rx
@@ -177,7 +176,7 @@ def assemble(at, vs, pos, fit_of, fitted, near_of, near_grad, lag, vol, scratch=
     fits ``fitted`` (rows ``fit_of``), the fits of v near the boundary
     ``near_grad`` (rows ``near_of``) and the Lagrange interpolant ``lag``
     (N, 2k) of div v and curl v, the points' areas ``vol`` (N,): a dict of
-    ``pot`` (k, 2, N) phi and psi, ``grads`` (k, 2, N, 2) d and grad psi,
+    ``pot`` (k, 2, N) phi and psi, ``grads`` (k, N, 2) d,
     ``comps`` (k, 2, N, 2) r and h, ``dc`` (k, 2, N), ``hs`` (N, 2k) and
     ``energies`` (4, k): the volume-weighted sums of |v|^2, |d|^2, |r|^2,
     |h|^2 (each a sum over the rows in order, as numpy sums a 1-d array).
@@ -186,7 +185,7 @@ def assemble(at, vs, pos, fit_of, fitted, near_of, near_grad, lag, vol, scratch=
     runtime.ensure_init()
     k, n = vs.shape[1] // 2, vs.shape[0]
     new = scratch or (lambda name, shape: np.empty(shape))
-    out = {"pot": np.empty((k, 2, n)), "grads": np.empty((k, 2, n, 2)),
+    out = {"pot": np.empty((k, 2, n)), "grads": np.empty((k, n, 2)),
            "comps": np.empty((k, 2, n, 2)), "dc": np.empty((k, 2, n)),
            "hs": new("hs", (n, 2 * k))}
     sq = new("energy_terms", (4, k, n))
