@@ -15,7 +15,9 @@ points, through the scattered Decomposer as decompose() takes them),
 
 * ``one_off_s``: the median of ``--one-off`` warm ``decompose()`` calls
   (after one untimed call that compiles);
-* ``setup_s``: the Decomposer's set-up (points, systems, preconditioners),
+* ``setup_s``: the Decomposer's set-up (points, systems, preconditioners, the
+  natural set-up, auto's band of points next to the boundary, the natural
+  condition's reach check: ``Decomposer.seconds``),
   in a process that made one before (its kernels loaded, as the one-off
   call's are); ``setup_cold_s``: the first one's, kernels loaded;
   ``amortised_s``: (set-up + the stream over T snapshots) / T, after an

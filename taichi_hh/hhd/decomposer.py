@@ -146,7 +146,9 @@ class Decomposer:
     (scipy needed) and every snapshot solved by triangular solves instead of
     BiCGSTAB: for long series where the factorisation's cost (seconds at
     13k points, growing faster than N) is repaid (benchmarks/timeseries.py
-    ``--direct``; docs/notes/series.md)."""
+    ``--direct``; docs/notes/series.md).  ``seconds``: what the set-up took,
+    made on first use (each condition's system by its name, ``natural``,
+    ``auto_band``, ``natural_reach``), and ``last_batch``."""
 
     def __init__(self, points, domain=None, *, method: str = "default", progress=None,
                  invalid: str = "missing", batch: int | None = None,
@@ -261,7 +263,9 @@ class Decomposer:
                 out[k] = res
                 continue
             if self.opts.boundary_condition == "auto" and self._near is None:
+                t = time.perf_counter()
                 self._near = flux_band(data.unit_points, data.unit_domain, unit_spacing(data))
+                self.seconds["auto_band"] = time.perf_counter() - t
             opts, chosen = resolved_options(self.opts, data, near=self._near)
             if natural_at_nodes(opts) or "boundary_flux" in chosen \
                     and opts.boundary_condition == "natural":
@@ -271,9 +275,11 @@ class Decomposer:
         at_nodes = [m for m in natural if natural_at_nodes(m[2])]
         if at_nodes and not self._reach_checked:
             _, data, opts, _ = at_nodes[0]
+            t = time.perf_counter()
             check_natural_reach(data.unit_points, data.unit_domain, unit_spacing(data), opts,
                                 data)
             self._reach_checked = True
+            self.seconds["natural_reach"] = time.perf_counter() - t
         t = time.perf_counter()
         splits = {}
         if at_nodes:
