@@ -357,3 +357,42 @@ def test_a_decomposer_pickles_with_its_setup():
         again = copy.decompose(V)
     for name in ("curl_free", "div_free", "harmonic"):
         assert np.array_equal(getattr(first, name), getattr(again, name)), name
+
+
+def test_a_batchs_fields_are_checked_as_one_off_calls_check_them():
+    """inputs.fields_on (a batch's fields checked in passes over their
+    stack) against prepare_data (a one-off call's check) field by field:
+    the same unit vectors, speed, vectors (NaN on the points' missing rows)
+    and zero-row flag; None for a field missing a row the points hold (NaN
+    or masked); the Data of a batch outlive its stack being reused."""
+    from taichi_hh.hhd.inputs import fields_on, prepare_data
+    rng = np.random.default_rng(8)
+    pts = rng.random((600, 2))
+    pts[[3, 40]] = np.nan                                 # missing in every snapshot
+    base = prepare_data(pts, np.ones((600, 2)), None)
+    fields = [rng.standard_normal((600, 2)) * s for s in (1.0, 1e-30, 7e20)]
+    fields[1][[3, 40]] = np.nan                           # NaN where the points are missing
+    zero = rng.standard_normal((600, 2))
+    zero[100:120] = 0.0                                   # an instrument's invalid marks
+    fields.append(zero)
+    nan_row = rng.standard_normal((600, 2))
+    nan_row[7, 1] = np.nan                                # a row the points hold
+    masked = np.ma.masked_array(rng.standard_normal((600, 2)), mask=False)
+    masked.mask[9] = True
+    with pytest.warns(thh.AccuracyWarning, match="exactly zero"):
+        got = fields_on(base, fields + [nan_row, masked])
+    assert got[-2] is None and got[-1] is None
+    for vec, data in zip(fields, got):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            ref = prepare_data(pts, vec, None)
+        assert data.frame == ref.frame
+        assert np.array_equal(data.unit_vectors, ref.unit_vectors)
+        assert np.array_equal(data.vectors, ref.vectors, equal_nan=True)
+        assert np.array_equal(data.valid, ref.valid)
+        assert len(data.flags) == len(ref.flags)
+    assert len(got[3].flags) == 1 and not got[0].flags
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        again = fields_on(base, [f * 2 for f in fields])
+    assert not np.shares_memory(again[0].vectors, got[0].vectors)

@@ -90,23 +90,32 @@ def flux_band(points: np.ndarray, domain, spacing: float, band: float = FLUX_BAN
     return candidates[keep], normal[keep]
 
 
-def band_flow(band_vectors: np.ndarray, normal: np.ndarray, size: float) -> tuple:
+def band_flow(band_vectors: np.ndarray, normal: np.ndarray, size) -> tuple:
     """``(flux, along)``: the RMS of the normal part v.n and of the tangential
     part v - (v.n) n of the vectors ``band_vectors`` next to the boundary
     (``normal``: the outward normals there), each over the square root of
     ``size`` (the mean of abs(v)^2 over all points); ``(0, 0)`` for a field
     that is zero, ``(nan, nan)`` with no vector in the band (the flow next to
-    the boundary unknown)."""
-    if len(band_vectors) == 0:
-        return float("nan"), float("nan")
-    if size == 0.0:
-        return 0.0, 0.0
-    # einsum: one pass each, no temporaries (a series pays this per snapshot)
-    normal_part = np.einsum("ij,ij->i", band_vectors, normal)
-    tangential = band_vectors - normal_part[:, None] * normal
-    n = len(band_vectors)
-    return (float(np.sqrt(np.einsum("i,i->", normal_part, normal_part) / n / size)),
-            float(np.sqrt(np.einsum("ij,ij->", tangential, tangential) / n / size)))
+    the boundary unknown).  Several fields at once: ``band_vectors`` (k, M,
+    2) and ``size`` (k,) give (k,) arrays."""
+    bv = np.asarray(band_vectors)
+    size = np.asarray(size, dtype=np.float64)
+    m = bv.shape[-2]
+    if m == 0:
+        flux = along = np.full(size.shape, np.nan)
+    else:
+        # einsum: one pass each, no temporaries (a series pays this per snapshot)
+        normal_part = np.einsum("...ij,ij->...i", bv, normal)
+        tangential = bv - normal_part[..., None] * normal
+        zero = size == 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            flux = np.where(zero, 0.0, np.sqrt(
+                np.einsum("...i,...i->...", normal_part, normal_part) / m / size))
+            along = np.where(zero, 0.0, np.sqrt(
+                np.einsum("...ij,...ij->...", tangential, tangential) / m / size))
+    if flux.ndim == 0:
+        return float(flux), float(along)
+    return flux, along
 
 
 def boundary_flow(points: np.ndarray, vectors: np.ndarray, domain, spacing: float,
@@ -115,9 +124,21 @@ def boundary_flow(points: np.ndarray, vectors: np.ndarray, domain, spacing: floa
     spacing`` of the boundary (n: the outward normal at the closest boundary
     point).  ``near``: :func:`flux_band`'s answer for these points, if made
     already."""
-    idx, normal = flux_band(points, domain, spacing, band) if near is None else near
-    size = float(np.einsum("ij,ij->", vectors, vectors)) / max(len(vectors), 1)  # mean abs(v)^2
-    return band_flow(np.take(vectors, idx, axis=0), normal, size)
+    near = flux_band(points, domain, spacing, band) if near is None else near
+    flux, along = boundary_flows([vectors], near)
+    return float(flux[0]), float(along[0])
+
+
+def boundary_flows(fields, near) -> tuple:
+    """``(flux, along)``, (k,) arrays: :func:`boundary_flow` of each of the k
+    ``fields`` ((N, 2) each) on the same points, ``near`` their
+    :func:`flux_band`: one :func:`band_flow` of their bands (a series'
+    batch)."""
+    idx, normal = near
+    band = np.stack([np.take(v, idx, axis=0) for v in fields])
+    # mean abs(v)^2 over all points
+    size = np.array([np.einsum("ij,ij->", v, v) for v in fields]) / max(len(fields[0]), 1)
+    return band_flow(band, normal, size)
 
 
 def boundary_flux(points: np.ndarray, vectors: np.ndarray, domain, spacing: float,
@@ -141,10 +162,12 @@ def is_closed(flux: float, along: float, boundary: str) -> bool:
 
 
 def choose_boundary_condition(points, vectors, domain, spacing: float, boundary: str, *,
-                              near=None) -> tuple:
+                              near=None, flow=None) -> tuple:
     """``(condition, flux, along)``: ``"no-flux"`` for a closed container
-    (:func:`is_closed` of :func:`boundary_flow`), else ``"natural"``."""
-    flux, along = boundary_flow(points, vectors, domain, spacing, near=near)
+    (:func:`is_closed` of :func:`boundary_flow`), else ``"natural"``.
+    ``flow``: that ``(flux, along)``, made already (:func:`boundary_flows`)."""
+    flux, along = boundary_flow(points, vectors, domain, spacing, near=near) \
+        if flow is None else flow
     return ("no-flux" if is_closed(flux, along, boundary) else "natural"), flux, along
 
 

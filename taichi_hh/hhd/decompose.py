@@ -194,18 +194,20 @@ def poisson_problems(points, vectors, domain=None, *, method: str = "default", p
     return problems
 
 
-def resolved_options(opts: HHDOptions, data: Data, *, near=None) -> tuple:
+def resolved_options(opts: HHDOptions, data: Data, *, near=None, flow=None) -> tuple:
     """``(opts, stats)``: ``boundary_condition="auto"`` replaced by the condition
     the data call for (:func:`~taichi_hh.hhd.auto.choose_boundary_condition`;
     ``near``: its band of points, :func:`~taichi_hh.hhd.auto.flux_band`, if
-    made already); ``stats``: ``boundary_condition`` (the one used) and, for
-    ``auto``, ``boundary_flux`` and ``boundary_along`` (the normal and the
-    tangential flow next to the boundary)."""
+    made already; ``flow``: its ``(flux, along)``, made already,
+    :func:`~taichi_hh.hhd.auto.boundary_flows`); ``stats``:
+    ``boundary_condition`` (the one used) and, for ``auto``,
+    ``boundary_flux`` and ``boundary_along`` (the normal and the tangential
+    flow next to the boundary)."""
     if opts.boundary_condition != "auto":
         return opts, {"boundary_condition": opts.boundary_condition}
     condition, flux, along = choose_boundary_condition(data.unit_points, data.unit_vectors,
                                                        data.unit_domain, unit_spacing(data),
-                                                       opts.boundary, near=near)
+                                                       opts.boundary, near=near, flow=flow)
     return with_condition(opts, condition), {
         "boundary_condition": condition, "boundary_flux": flux, "boundary_along": along}
 

@@ -54,11 +54,11 @@ import numpy as np
 
 from .. import runtime
 from ..errors import InputError
-from .auto import flux_band
+from .auto import boundary_flows, flux_band
 from .component_checks import Components
 from .decompose import (HHDResult, check_natural_reach, decompose, decompose_unit,
                         in_caller_units, natural_at_nodes, resolved_options, unit_spacing)
-from .inputs import field_on, prepare_data
+from .inputs import fields_on, prepare_data
 from .natural import NaturalSetup
 from .operator_split import COLUMN_BYTES, VECTORS_PER_COLUMN, OperatorSplit
 from .options import options_for
@@ -254,19 +254,27 @@ class Decomposer:
         out = [None] * len(snapshots)
         natural = []                       # [(index, data, opts, chosen)]
         groups = {}                        # condition -> [(index, data, chosen)]
-        for k, vec in enumerate(snapshots):
-            data = field_on(self.data, vec, stacklevel=6)
+        datas = fields_on(self.data, snapshots, stacklevel=6)
+        shared = [data for data in datas if data is not None]
+        flows = None
+        if shared and self.opts.boundary_condition == "auto":
+            # auto's measure of the flow next to the boundary, the batch's at once
+            if self._near is None:
+                t = time.perf_counter()
+                data = shared[0]
+                self._near = flux_band(data.unit_points, data.unit_domain, unit_spacing(data))
+                self.seconds["auto_band"] = time.perf_counter() - t
+            flows = iter(zip(*boundary_flows([d.unit_vectors for d in shared], self._near)))
+        for k, (vec, data) in enumerate(zip(snapshots, datas)):
             if data is None:               # other valid rows: a call of its own
                 res = decompose(self.points, vec, self.domain_spec, method=self.method,
                                 progress=self.progress, invalid=self.invalid, **self.options)
                 res.stats["shared_setup"] = False
                 out[k] = res
                 continue
-            if self.opts.boundary_condition == "auto" and self._near is None:
-                t = time.perf_counter()
-                self._near = flux_band(data.unit_points, data.unit_domain, unit_spacing(data))
-                self.seconds["auto_band"] = time.perf_counter() - t
-            opts, chosen = resolved_options(self.opts, data, near=self._near)
+            flow = next(flows) if flows is not None else None
+            opts, chosen = resolved_options(self.opts, data, near=self._near,
+                                            flow=None if flow is None else tuple(map(float, flow)))
             if natural_at_nodes(opts) or "boundary_flux" in chosen \
                     and opts.boundary_condition == "natural":
                 natural.append((k, data, opts, chosen))

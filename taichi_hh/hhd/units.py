@@ -48,11 +48,6 @@ class Frame:
             length = 1.0
         return cls((float(centre[0]), float(centre[1])), length, speed_of(vectors))
 
-    def with_speed_of(self, vectors) -> "Frame":
-        """This frame's coordinates with the speed of the field ``vectors``
-        (another field on the same points: :meth:`of`'s speed)."""
-        return Frame(self.centre, self.length, speed_of(vectors))
-
     @property
     def potential(self) -> float:
         """What a potential (phi, psi) in the unit frame is multiplied by."""
@@ -82,10 +77,17 @@ class Frame:
         return {"centre": self.centre, "length": self.length, "speed": self.speed}
 
 
-def speed_of(vectors) -> float:
-    """The unit frame's speed of ``vectors`` (finite float64 rows): their
-    largest |component|, 1.0 for an empty or all-zero field.  max(max v,
-    -min v) is max |v| exactly, without |v|'s array."""
+def speeds_of(vectors) -> np.ndarray:
+    """The unit frame's speed of each field of ``vectors`` (..., N, 2) (finite
+    float64 rows): its largest |component|, 1.0 for an empty or all-zero
+    field.  max(max v, -min v) is max |v| exactly, without |v|'s array."""
     v = np.asarray(vectors)
-    speed = float(max(v.max(), -v.min())) if v.size else 0.0
-    return speed if np.isfinite(speed) and speed > 0 else 1.0
+    if v.shape[-2] * v.shape[-1] == 0:
+        return np.ones(v.shape[:-2])
+    speed = np.maximum(v.max(axis=(-2, -1)), -v.min(axis=(-2, -1)))
+    return np.where(np.isfinite(speed) & (speed > 0), speed, 1.0)
+
+
+def speed_of(vectors) -> float:
+    """:func:`speeds_of` of one field (N, 2)."""
+    return float(speeds_of(np.asarray(vectors).reshape(-1, 2)))
