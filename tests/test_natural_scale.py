@@ -200,6 +200,36 @@ def test_batched_fft_convolution_is_each_single_one():
         assert np.abs(both[m] - one).max() < 1e-13 * np.abs(one).max()
 
 
+def test_fft_padded_to_the_densities_reach_is_the_direct_sum():
+    """convolve_fft pads each axis to the offsets the densities' nonzero
+    rows and columns need (free_space.padded_lengths): with empty margins
+    (a window's grid), support against one side only, or a single charge,
+    the direct sum's potentials at every node to round-off, and the padded
+    sides shorter than 2 n where the margins are empty."""
+    grid = free_space.Grid(RECT, 0.05)
+    nx, ny = grid.shape
+    rng = np.random.default_rng(9)
+    cases = []
+    d = np.zeros(grid.shape)
+    d[3:-3, 3:-3] = rng.standard_normal((nx - 6, ny - 6))   # the margins empty
+    cases.append(d)
+    d = np.zeros(grid.shape)
+    d[:nx // 2, ny // 3:] = rng.standard_normal((nx // 2, ny - ny // 3))
+    cases.append(d)
+    d = np.zeros(grid.shape)
+    d[nx - 1, 0] = 1.0                                      # a charge in a corner
+    cases.append(d)
+    assert not free_space.convolve_fft(grid, np.zeros(grid.shape)).any()
+    for d in cases:
+        fast = free_space.convolve_fft(grid, d)
+        ref = free_space.convolve_direct(grid, d)
+        assert np.abs(fast - ref).max() < 1e-12 * np.abs(ref).max()
+    L1, L2 = free_space.padded_lengths(cases[0][None])
+    assert L1 < free_space.fast_length(2 * nx - 1) or L2 < free_space.fast_length(2 * ny - 1)
+    assert (L1, L2) == (free_space.fast_length(2 * (nx - 4) + 2),
+                        free_space.fast_length(2 * (ny - 4) + 2))
+
+
 def test_threaded_fft_convolution_is_the_serial_one_bit_for_bit():
     """From FFT_THREAD_DENSITIES densities on, half go through a helper thread:
     the same transforms, the same bits, for odd counts and repeated calls."""

@@ -383,12 +383,31 @@ def _fft_pool():
     return _FFT_POOL[0]
 
 
+def padded_lengths(density: np.ndarray) -> tuple:
+    """The zero-padded FFT's sides for the densities (k, nx, ny): on each
+    axis the potentials at every node i and the charges at the nodes j
+    with any nonzero density need the offsets |i - j| <= R (R the largest),
+    which the padded length L keeps apart (the kernel's offsets wrap at
+    L // 2: L - 1 - L // 2 >= R), the smallest :func:`fast_length` such.
+    A window's grid has MARGIN empty cells a side: 240 instead of 243 at
+    121 nodes, 8% faster transforms."""
+    sides = []
+    for axis, n in ((1, density.shape[1]), (2, density.shape[2])):
+        other = tuple(a for a in (0, 1, 2) if a != axis)
+        used = np.flatnonzero(density.any(axis=other))
+        # (no charge at all: any length the nodes fit in, the answer zero)
+        reach = max(int(used[-1]), n - 1 - int(used[0])) if used.size else n - 1
+        sides.append(fast_length(2 * reach + 2))
+    return tuple(sides)
+
+
 def convolve_fft(grid: Grid, density: np.ndarray, threads: bool = True,
                  out=None) -> np.ndarray:
     """(nx, ny) sum over cells of G(x_a - x_b) density_b (times the cell area),
     by zero-padded FFT (the padding makes the circular convolution free-space);
     ``density`` (k, nx, ny) gives (k, nx, ny).  The padded sides are lengths
-    the FFT factors well (:func:`fast_length`, at least 2 n - 1), the
+    the FFT factors well (:func:`padded_lengths`: at most 2 n, less where
+    the densities leave the grid's sides empty), the
     transforms skip the padding's zero rows on the way in and the unused rows
     on the way out.  ``threads``: from :data:`FFT_THREAD_DENSITIES` densities
     on, half of them transformed on a helper thread (numpy.fft's sizes; the
@@ -398,7 +417,7 @@ def convolve_fft(grid: Grid, density: np.ndarray, threads: bool = True,
     d = np.asarray(density, dtype=np.float64)
     one = d.ndim == 2
     d = d[None] if one else d
-    L1, L2 = fast_length(2 * nx - 1), fast_length(2 * ny - 1)
+    L1, L2 = padded_lengths(d)
     fft, kw = _fft(L1 * L2)
     K = _kernel_spectrum(grid, (L1, L2), fft, kw)
     # one density at a time: a padded spectrum (L1 x L2 / 2 complex, under a
