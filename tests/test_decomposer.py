@@ -380,8 +380,11 @@ def test_a_batchs_fields_are_checked_as_one_off_calls_check_them():
     masked = np.ma.masked_array(rng.standard_normal((600, 2)), mask=False)
     masked.mask[9] = True
     with pytest.warns(thh.AccuracyWarning, match="exactly zero"):
-        got = fields_on(base, fields + [nan_row, masked])
+        got, units = fields_on(base, fields + [nan_row, masked])
     assert got[-2] is None and got[-1] is None
+    assert units.shape == (4, 598, 2)
+    assert all(np.shares_memory(units[j], got[j].unit_vectors)
+               and np.array_equal(units[j], got[j].unit_vectors) for j in range(4))
     for vec, data in zip(fields, got):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -394,5 +397,5 @@ def test_a_batchs_fields_are_checked_as_one_off_calls_check_them():
     assert len(got[3].flags) == 1 and not got[0].flags
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        again = fields_on(base, [f * 2 for f in fields])
+        again, _ = fields_on(base, [f * 2 for f in fields])
     assert not np.shares_memory(again[0].vectors, got[0].vectors)

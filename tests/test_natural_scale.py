@@ -243,6 +243,21 @@ def test_threaded_fft_convolution_is_the_serial_one_bit_for_bit():
         assert np.array_equal(serial[-1], free_space.convolve_fft(grid, d[-1]))
 
 
+def test_columns_kernel_is_numpys_take():
+    """natural_assemble.columns (a batch's fields side by side in the bins'
+    order, one kernel) against numpy's take, for 1 to 8 fields, from a
+    stack or a list."""
+    from taichi_hh.hhd.natural_assemble import columns
+    rng = np.random.default_rng(10)
+    n = 900
+    order = rng.permutation(n)
+    for k in (1, 3, 8):
+        fields = rng.standard_normal((k, n, 2))
+        want = fields[:, order].transpose(1, 0, 2).reshape(n, 2 * k)
+        assert np.array_equal(columns(fields, order), want)
+        assert np.array_equal(columns(list(fields), order), want)
+
+
 def test_assembled_outputs_are_the_numpy_steps():
     """natural_assemble's kernel against the numpy it replaced: the one-sided
     fits over the spline's gradients, the fits of v near the boundary over

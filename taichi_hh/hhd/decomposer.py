@@ -254,8 +254,9 @@ class Decomposer:
         out = [None] * len(snapshots)
         natural = []                       # [(index, data, opts, chosen)]
         groups = {}                        # condition -> [(index, data, chosen)]
-        datas = fields_on(self.data, snapshots, stacklevel=6)
+        datas, units = fields_on(self.data, snapshots, stacklevel=6)
         shared = [data for data in datas if data is not None]
+        unit_of = {id(data): j for j, data in enumerate(shared)}      # its row of units
         flows = None
         if shared and self.opts.boundary_condition == "auto":
             # auto's measure of the flow next to the boundary, the batch's at once
@@ -295,10 +296,13 @@ class Decomposer:
             width = natural_batch(len(self.data.unit_points))
             for a in range(0, len(at_nodes), width):
                 part = at_nodes[a:a + width]
-                fields = [data.unit_vectors for _, data, _, _ in part]
-                made = setup.split_many(fields + [fields[0]] * (self._split_width(len(fields),
-                                                                                  width)
-                                                                - len(fields)))
+                # the fields' rows of units (a slice of it as a rule: no copy),
+                # the first again up to the split's width
+                rows = [unit_of[id(data)] for _, data, _, _ in part]
+                rows += [rows[0]] * (self._split_width(len(rows), width) - len(rows))
+                made = setup.split_many(units[rows[0]:rows[-1] + 1]
+                                        if rows == list(range(rows[0], rows[-1] + 1))
+                                        else units[rows])
                 splits.update({k: split for (k, _, _, _), split in zip(part, made)})
         share = (time.perf_counter() - t) / max(len(at_nodes), 1)
         for k, data, opts, chosen in natural:

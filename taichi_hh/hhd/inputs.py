@@ -327,9 +327,12 @@ def prepare_data(points, vectors, domain, *, invalid: str = "missing", valid=Non
     return data
 
 
-def fields_on(data: Data, snapshots, *, stacklevel: int = 5) -> list:
-    """Other fields ``snapshots`` (a sequence of (N, 2) arrays) on the points
-    of ``data`` (:func:`prepare_data`'s), one Data each: the same points,
+def fields_on(data: Data, snapshots, *, stacklevel: int = 5) -> tuple:
+    """``(datas, units)``: other fields ``snapshots`` (a sequence of (N, 2)
+    arrays) on the points of ``data`` (:func:`prepare_data`'s), one Data
+    each in ``datas``, and ``units`` (k, n, 2) the unit vectors of the k of
+    them that are not None, in order (their Data's ``unit_vectors`` are
+    views of it; None if there is none).  Each Data holds the same points,
     valid rows, domain and unit coordinates, each field's own speed
     (:class:`~taichi_hh.hhd.units.Frame`) and zero-row check; None for a
     field that misses (NaN, masked) a row that ``data`` holds: its valid
@@ -353,7 +356,7 @@ def fields_on(data: Data, snapshots, *, stacklevel: int = 5) -> list:
                 continue
         kept.append((i, vec))
     if not kept:
-        return out
+        return out, None
     stack = np.stack([vec for _, vec in kept])              # (k, N, 2), a copy
     if every:
         ok = stack
@@ -376,7 +379,7 @@ def fields_on(data: Data, snapshots, *, stacklevel: int = 5) -> list:
         if zeros[j] >= 2 * least:        # else too few zero components for zero rows
             check_zero_rows(one, stacklevel=stacklevel)
         out[i] = one
-    return out
+    return out, unit
 
 
 def zero_rows_named(n: int) -> float:

@@ -97,6 +97,33 @@ def _assemble(at: ti.types.ndarray(), vs: ti.types.ndarray(), pos: ti.types.ndar
 
 
 @ti.kernel
+def _columns(fields: ti.types.ndarray(), order: ti.types.ndarray(), out: ti.types.ndarray(),
+             k: ti.template()):
+    """out[p, 2 s + c] = fields[s, order[p], c]: the k fields (k, N, 2, flat)
+    side by side in the bins' order (N, 2 k, flat), one pass."""
+    n = order.shape[0]
+    for p in range(n):
+        i = order[p]
+        for s in ti.static(range(k)):
+            out[p * 2 * k + 2 * s] = fields[(s * n + i) * 2]
+            out[p * 2 * k + 2 * s + 1] = fields[(s * n + i) * 2 + 1]
+
+
+def columns(fields, order, out=None) -> np.ndarray:
+    """(N, 2 k) the fields (k, N, 2) side by side, field s's components in
+    columns 2 s and 2 s + 1, in the rows ``order`` (the bins'); ``out``: the
+    array to write (a series' batches reuse one)."""
+    runtime.ensure_init()
+    f = np.ascontiguousarray(fields, dtype=np.float64)
+    k, n = f.shape[0], f.shape[1]
+    if out is None or out.shape != (n, 2 * k) or not out.flags.c_contiguous:
+        out = np.empty((n, 2 * k))
+    if n and k:
+        _columns(f.reshape(-1), np.ascontiguousarray(order, dtype=np.int64), out.reshape(-1), k)
+    return out
+
+
+@ti.kernel
 def _node_densities(g: ti.types.ndarray(), live_of: ti.types.ndarray(),
                     frac: ti.types.ndarray(), check_rows: ti.types.ndarray(),
                     values: ti.types.ndarray(), dens: ti.types.ndarray(),
