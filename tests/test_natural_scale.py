@@ -245,8 +245,8 @@ def test_threaded_fft_convolution_is_the_serial_one_bit_for_bit():
 
 def test_columns_kernel_is_numpys_take():
     """natural_assemble.columns (a batch's fields side by side in the bins'
-    order, one kernel) against numpy's take, for 1 to 8 fields, from a
-    stack or a list."""
+    order, one kernel writing each point's row at its place) against
+    numpy's take by the order, for 1 to 8 fields, from a stack or a list."""
     from taichi_hh.hhd.natural_assemble import columns
     rng = np.random.default_rng(10)
     n = 900
@@ -254,8 +254,10 @@ def test_columns_kernel_is_numpys_take():
     for k in (1, 3, 8):
         fields = rng.standard_normal((k, n, 2))
         want = fields[:, order].transpose(1, 0, 2).reshape(n, 2 * k)
-        assert np.array_equal(columns(fields, order), want)
-        assert np.array_equal(columns(list(fields), order), want)
+        pos = np.empty(n, dtype=np.int32)
+        pos[order] = np.arange(n)
+        assert np.array_equal(columns(fields, pos), want)
+        assert np.array_equal(columns(list(fields), pos), want)
 
 
 def test_assembled_outputs_are_the_numpy_steps():

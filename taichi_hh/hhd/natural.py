@@ -423,9 +423,6 @@ class NaturalSetup:
         # the snapshots' components side by side in the bins' order: columns
         # 2 s, 2 s + 1 (a kernel: numpy's takes and strided copies took 0.3 ms
         # of a 13k-point snapshot)
-        vs = columns(snapshots, binned.order, out=scratch("columns", (len(binned.order), 2 * k)))
-        g, count = self.gradients("nodes", vs, counts=True)            # (live, 2k, 2)
-        lap("fit")
         kept = getattr(self, "_rows", None)    # made by the first split
         if kept is None:
             n = len(binned.order)
@@ -437,6 +434,9 @@ class NaturalSetup:
                 np.flatnonzero(self.one_sided[1]))
             kept = self._rows = (row_index(grid.nx * grid.ny, live), pos, near_of, fit_of)
         live_of, pos, near_of, fit_of = kept
+        vs = columns(snapshots, pos, out=scratch("columns", (len(pos), 2 * k)))
+        g, count = self.gradients("nodes", vs, counts=True)            # (live, 2k, 2)
+        lap("fit")
         # div v and curl v at the nodes, their charges on the grid, their grid
         # for the interpolation to the points, the harmonic check's scale
         nodes = node_densities(g, live_of, cells.frac, self.check_rows,

@@ -97,29 +97,31 @@ def _assemble(at: ti.types.ndarray(), vs: ti.types.ndarray(), pos: ti.types.ndar
 
 
 @ti.kernel
-def _columns(fields: ti.types.ndarray(), order: ti.types.ndarray(), out: ti.types.ndarray(),
+def _columns(fields: ti.types.ndarray(), pos: ti.types.ndarray(), out: ti.types.ndarray(),
              k: ti.template()):
-    """out[p, 2 s + c] = fields[s, order[p], c]: the k fields (k, N, 2, flat)
-    side by side in the bins' order (N, 2 k, flat), one pass."""
-    n = order.shape[0]
-    for p in range(n):
-        i = order[p]
+    """out[pos[i], 2 s + c] = fields[s, i, c]: the k fields (k, N, 2, flat)
+    side by side in the bins' order (N, 2 k, flat), one pass: the fields
+    read in order, each point's row written whole (by the bins' order
+    instead, the reads missed the caches: 2.6 ms for 8 fields of 13k)."""
+    n = pos.shape[0]
+    for i in range(n):
+        p = pos[i]
         for s in ti.static(range(k)):
             out[p * 2 * k + 2 * s] = fields[(s * n + i) * 2]
             out[p * 2 * k + 2 * s + 1] = fields[(s * n + i) * 2 + 1]
 
 
-def columns(fields, order, out=None) -> np.ndarray:
+def columns(fields, pos, out=None) -> np.ndarray:
     """(N, 2 k) the fields (k, N, 2) side by side, field s's components in
-    columns 2 s and 2 s + 1, in the rows ``order`` (the bins'); ``out``: the
-    array to write (a series' batches reuse one)."""
+    columns 2 s and 2 s + 1, point i's in row ``pos[i]`` (its place in the
+    bins); ``out``: the array to write (a series' batches reuse one)."""
     runtime.ensure_init()
     f = np.ascontiguousarray(fields, dtype=np.float64)
     k, n = f.shape[0], f.shape[1]
     if out is None or out.shape != (n, 2 * k) or not out.flags.c_contiguous:
         out = np.empty((n, 2 * k))
     if n and k:
-        _columns(f.reshape(-1), np.ascontiguousarray(order, dtype=np.int64), out.reshape(-1), k)
+        _columns(f.reshape(-1), np.ascontiguousarray(pos, dtype=np.int32), out.reshape(-1), k)
     return out
 
 
