@@ -265,7 +265,8 @@ class Decomposer:
                 data = shared[0]
                 self._near = flux_band(data.unit_points, data.unit_domain, unit_spacing(data))
                 self.seconds["auto_band"] = time.perf_counter() - t
-            flows = iter(zip(*boundary_flows([d.unit_vectors for d in shared], self._near)))
+            flows = iter(zip(*(a.tolist() for a in boundary_flows(
+                [d.unit_vectors for d in shared], self._near))))
         for k, (vec, data) in enumerate(zip(snapshots, datas)):
             if data is None:               # other valid rows: a call of its own
                 res = decompose(self.points, vec, self.domain_spec, method=self.method,
@@ -274,8 +275,7 @@ class Decomposer:
                 out[k] = res
                 continue
             flow = next(flows) if flows is not None else None
-            opts, chosen = resolved_options(self.opts, data, near=self._near,
-                                            flow=None if flow is None else tuple(map(float, flow)))
+            opts, chosen = resolved_options(self.opts, data, near=self._near, flow=flow)
             if natural_at_nodes(opts) or "boundary_flux" in chosen \
                     and opts.boundary_condition == "natural":
                 natural.append((k, data, opts, chosen))

@@ -49,6 +49,7 @@ from .natural_assemble import assemble, columns, node_densities, row_index
 from .node_fits import (FitWeights, PointBins, abs_div_curl, fit_gradients,
                         reconstruct_on_grid)
 from .options import NATURAL_EVALUATIONS
+from .rotation import J
 
 #: subsamples per side of a cell a rectangle's side may cross, for its inside
 #: fraction (a polygon's cut cells have theirs exact: :func:`~.cut_cells.cut_cells`)
@@ -289,8 +290,7 @@ class NaturalSplit:
     @property
     def grad_psi(self) -> np.ndarray:
         """grad psi = -J r (J of :mod:`.rotation`: r = J grad psi), exactly."""
-        r = self.div_free
-        return np.stack([-r[:, 1], r[:, 0]], axis=1)
+        return -J(self.div_free)
 
     def harmonic_ratios(self) -> tuple:
         """``(div, curl)``: mean |div h| and mean |curl h| of ``harmonic``
