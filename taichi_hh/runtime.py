@@ -32,6 +32,9 @@ ARCH_VARIABLE = "TAICHI_HH_ARCH"
 PROFILER_VARIABLE = "TAICHI_HH_KERNEL_PROFILER"
 #: set to 1 or 0: the GPU's loop schedule on or off whatever the device (:func:`on_gpu`)
 GPU_SCHEDULE_VARIABLE = "TAICHI_HH_GPU_SCHEDULE"
+#: set to 1 or 0: work arrays on the device (Taichi ndarrays) or in numpy,
+#: whatever the arch (:func:`resident`)
+RESIDENT_VARIABLE = "TAICHI_HH_RESIDENT"
 #: the GPU backends ``"gpu"`` and ``"auto"`` try, in order (Metal first on macOS)
 GPU_BACKENDS = ("cuda", "vulkan")
 _PRECISIONS = {"f32": np.float32, "f64": np.float64}
@@ -543,6 +546,116 @@ def array(dtype, shape, vector: int | None = None, *, zeroed: bool = True):
         if vector is None:
             return ti.ndarray(dtype, shape=shape)
         return ti.Vector.ndarray(int(vector), dtype, shape=shape)
+
+
+def resident() -> bool:
+    """Whether work arrays that only kernels read live on the device
+    (:class:`Device`, Taichi ndarrays) rather than in numpy: on CUDA.  There
+    Taichi 1.7 copies each numpy argument of a kernel to the device before
+    the launch and back after it, synchronously from pageable memory, so an
+    array written by one kernel and read by the next crossed the bus four
+    times (a 1M-point window passed 1 GB of numpy arguments; docs/arch.md).
+    Not on the CPU, where a numpy argument is not copied and is what the host
+    code reads cheapest; not on Vulkan, where Taichi 1.7 returns no ndarray's
+    memory (a call's work arrays would grow the process by every call), and
+    where on lavapipe the two ways timed alike.  ``$TAICHI_HH_RESIDENT`` = 1
+    or 0 forces it on or off whatever the arch (the tests of the device path
+    on the CPU and on lavapipe; an A/B on a GPU)."""
+    forced = os.environ.get(RESIDENT_VARIABLE, "")
+    if forced in ("0", "1"):
+        return forced == "1"
+    ensure_init()
+    return _state.arch == "cuda"
+
+
+_NUMPY_TO_TAICHI = {np.dtype(np.float64): "f64", np.dtype(np.float32): "f32",
+                    np.dtype(np.int32): "i32", np.dtype(np.int64): "i64"}
+
+
+class Device:
+    """A work array on the device: a flat Taichi ndarray (``nd``) seen with
+    a numpy ``shape`` and ``dtype``.  Kernels that take it index it flat
+    (:func:`flat`); ``reshape`` gives another view of the same ndarray (Taichi
+    1.7's ndarrays have none); ``to_numpy`` copies it to the host.  Made by
+    :func:`work` and :func:`to_device`; valid within the Taichi runtime it
+    was made in."""
+
+    __slots__ = ("nd", "shape", "dtype")
+
+    def __init__(self, nd, shape, dtype):
+        self.nd, self.shape, self.dtype = nd, tuple(int(s) for s in shape), np.dtype(dtype)
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape, dtype=np.int64))
+
+    @property
+    def ndim(self) -> int:
+        return len(self.shape)
+
+    @property
+    def nbytes(self) -> int:
+        return self.size * self.dtype.itemsize
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def reshape(self, *shape) -> "Device":
+        shape = shape[0] if len(shape) == 1 and not np.isscalar(shape[0]) else shape
+        shape = list(shape)
+        if -1 in shape:
+            rest = int(np.prod([s for s in shape if s != -1], dtype=np.int64))
+            shape[shape.index(-1)] = self.size // max(rest, 1)
+        if int(np.prod(shape, dtype=np.int64)) != self.size:
+            raise ValueError(f"cannot reshape a device array of {self.size} into {tuple(shape)}")
+        return Device(self.nd, shape, self.dtype)
+
+    def to_numpy(self) -> np.ndarray:
+        if self.size == 0:
+            return np.empty(self.shape, dtype=self.dtype)
+        return self.nd.to_numpy().reshape(self.shape)
+
+
+def work(shape, dtype=np.float64):
+    """An uninitialised work array of ``shape``: a :class:`Device` where
+    :func:`resident`, a numpy array otherwise."""
+    shape = (int(shape),) if np.isscalar(shape) else tuple(int(s) for s in shape)
+    if not resident():
+        return np.empty(shape, dtype=dtype)
+    ti = _taichi()
+    size = max(int(np.prod(shape, dtype=np.int64)), 1)
+    nd = array(getattr(ti, _NUMPY_TO_TAICHI[np.dtype(dtype)]), size, zeroed=False)
+    return Device(nd, shape, dtype)
+
+
+def to_device(a, dtype=np.float64):
+    """``a`` as a kernel argument that stays put: a :class:`Device` copy where
+    :func:`resident` (made once, read by many launches), else ``a`` as a
+    C-contiguous numpy array of ``dtype``."""
+    if isinstance(a, Device):
+        return a
+    a = np.ascontiguousarray(a, dtype=dtype)
+    if not resident():
+        return a
+    out = work(a.shape, dtype)
+    if a.size:
+        out.nd.from_numpy(a.reshape(-1))
+    return out
+
+
+def to_host(a) -> np.ndarray:
+    """``a`` as a numpy array: a :class:`Device` copied to the host, else as it is."""
+    return a.to_numpy() if isinstance(a, Device) else a
+
+
+def flat(a, dtype=np.float64):
+    """``a`` as a flat kernel argument: a :class:`Device`'s ndarray, or a
+    numpy array raveled (a view where it is C-contiguous of ``dtype``)."""
+    if isinstance(a, Device):
+        if a.dtype != np.dtype(dtype):
+            raise TypeError(f"a device array of {a.dtype} where {np.dtype(dtype)} is taken")
+        return a.nd
+    return np.ascontiguousarray(a, dtype=dtype).reshape(-1)
 
 
 def gpu_refused() -> bool:

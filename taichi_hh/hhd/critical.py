@@ -332,7 +332,7 @@ def noise_sigma(points, vectors, samples: int = NOISE_SAMPLES) -> float:
     nearest neighbours (itself left out), at ``samples`` points spread over
     the input; about the noise's standard deviation for noisy data and the
     fit's third-order error for smooth data."""
-    from .node_fits import mls_at
+    from .mls_reconstruct import mls_at
     pts = np.asarray(points, dtype=np.float64)
     v = np.asarray(vectors, dtype=np.float64)
     if len(pts) < 8:

@@ -636,11 +636,11 @@ def values_and_gradients(grid: Grid, u: np.ndarray, pad: int = 0, out=None) -> n
     u = _potentials(grid, u)
     nx, ny = grid.shape
     shape = (nx + 2 * pad, ny + 2 * pad, len(u), 3)
-    if out is None or out.shape != shape or not out.flags.c_contiguous:
+    if not _writable(out, shape):
         out = np.empty(shape)
     if len(u):
         _values_and_gradients(u.reshape(-1), nx, ny, grid.hx, grid.hy, int(pad),
-                              out.reshape(-1), len(u), False)
+                              runtime.flat(out), len(u), False)
     return out
 
 
@@ -652,11 +652,18 @@ def edge_padded(grid: Grid, u: np.ndarray, pad: int, out=None) -> np.ndarray:
     u = _potentials(grid, u)
     nx, ny = grid.shape
     shape = (nx + 2 * pad, ny + 2 * pad, len(u))
-    if out is None or out.shape != shape or not out.flags.c_contiguous:
+    if not _writable(out, shape):
         out = np.empty(shape)
     if len(u):
-        _edge_padded(u.reshape(-1), nx, ny, int(pad), out.reshape(-1), len(u))
+        _edge_padded(u.reshape(-1), nx, ny, int(pad), runtime.flat(out), len(u))
     return out
+
+
+def _writable(out, shape) -> bool:
+    """Whether ``out`` is an array of ``shape`` a kernel can write flat (a
+    C-contiguous numpy one, or a :class:`~taichi_hh.runtime.Device` one)."""
+    return out is not None and tuple(out.shape) == tuple(shape) and (
+        isinstance(out, runtime.Device) or out.flags.c_contiguous)
 
 
 def with_differences(grid: Grid, c: np.ndarray, out=None) -> np.ndarray:
@@ -665,16 +672,15 @@ def with_differences(grid: Grid, c: np.ndarray, out=None) -> np.ndarray:
     gradients (:func:`_difference`, that grid's edges its own) side by
     side; ``out``: the array to write."""
     runtime.ensure_init()
-    c = np.ascontiguousarray(c, dtype=np.float64)
     NX, NY, m = c.shape
     if min(NX, NY) < 3:
         raise ValueError(f"the grid's differences need 3 nodes a side, got {NX} x {NY}")
     shape = (NX, NY, m, 3)
-    if out is None or out.shape != shape or not out.flags.c_contiguous:
-        out = np.empty(shape)
+    if not _writable(out, shape):
+        out = runtime.work(shape) if isinstance(c, runtime.Device) else np.empty(shape)
     if m:
-        _values_and_gradients(c.reshape(-1), NX, NY, grid.hx, grid.hy, 0, out.reshape(-1), m,
-                              True)
+        _values_and_gradients(runtime.flat(c), NX, NY, grid.hx, grid.hy, 0, runtime.flat(out),
+                              m, True)
     return out
 
 

@@ -102,15 +102,16 @@ def spline_coefficients(u: np.ndarray) -> np.ndarray:
 
 def prefilter(c: np.ndarray, linear: bool = False) -> None:
     """:func:`spline_coefficients`' filters in place on the padded grid
-    values ``c`` (NX, NY[, m], C-contiguous float64); ``linear``: each line
+    values ``c`` (NX, NY[, m], C-contiguous float64, or a
+    :class:`~taichi_hh.runtime.Device` array); ``linear``: each line
     continued beyond its ends with its edge's slope instead of its edge value."""
-    if not (c.flags.c_contiguous and c.dtype == np.float64):
+    if not (isinstance(c, runtime.Device) or c.flags.c_contiguous) or c.dtype != np.float64:
         raise ValueError("the spline prefilter takes a C-contiguous float64 array")
     if c.size:
         runtime.ensure_init()
         nx, ny = c.shape[0], c.shape[1]
         m = c.size // (nx * ny)
-        flat = c.reshape(-1)
+        flat = runtime.flat(c)
         _spline_filter(flat, 1, nx, ny * m, SPLINE_POLE, SPLINE_LANES, bool(linear))
         _spline_filter(flat, nx, ny, m, SPLINE_POLE, SPLINE_LANES, bool(linear))
 
@@ -157,23 +158,24 @@ def _cubic_weights(t):
 
 
 @ti.kernel
-def _tensor_gather(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64, y0: ti.f64,
+def _tensor_gather(coef: ti.types.ndarray(), NX: ti.i32, NY: ti.i32, M: ti.i32,
+                   n: ti.i32, pts: ti.types.ndarray(), x0: ti.f64, y0: ti.f64,
                    hx: ti.f64, hy: ti.f64, pad: ti.template(), weights: ti.template(),
                    m: ti.template(), blocks: ti.i32, scatter: ti.template(),
                    dest: ti.types.ndarray(), out: ti.types.ndarray()):
     """out[p, :blocks * m] (with ``scatter``: row dest[p]) = the
     tensor-product 4 x 4 interpolant of the first blocks * m columns of
-    ``coef`` (NX, NY, M) at point p: ``weights(t)`` of the fractional
+    ``coef`` (NX, NY, M, flat) at point p (``pts`` (N, 2) flat; ``out``
+    (N, M) flat): ``weights(t)`` of the fractional
     position along each axis, the knots offset by ``pad`` cells (indices
     clamped: the edge knots again beyond them); the ``m`` columns of a
     block read together, the blocks one after another (the point's weights
     and knots found once for them all).  The cubic B-spline
     (:func:`_cubic_weights`, SPLINE_PAD) and the cubic Lagrange interpolant
     (:func:`_lagrange_weights`, 0)."""
-    NX, NY = coef.shape[0], coef.shape[1]
-    for p in range(pts.shape[0]):
-        x = (pts[p, 0] - x0) / hx + pad
-        y = (pts[p, 1] - y0) / hy + pad
+    for p in range(n):          # (a bound computed from a shape: not on SPIR-V)
+        x = (pts[2 * p] - x0) / hx + pad
+        y = (pts[2 * p + 1] - y0) / hy + pad
         fx = ti.floor(x)
         fy = ti.floor(y)
         wx = weights(x - fx)
@@ -193,10 +195,10 @@ def _tensor_gather(coef: ti.types.ndarray(), pts: ti.types.ndarray(), x0: ti.f64
                 for b in ti.static(range(4)):
                     j = ti.math.clamp(iy + b - 1, 0, NY - 1)
                     for col in ti.static(range(m)):
-                        row[col] += wy[b] * coef[i, j, col0 + col]
+                        row[col] += wy[b] * coef[(i * NY + j) * M + col0 + col]
                 acc += wx[a] * row
             for col in ti.static(range(m)):
-                out[row_out, col0 + col] = acc[col]
+                out[row_out * M + col0 + col] = acc[col]
 
 
 
@@ -220,29 +222,32 @@ def spline_values(grid: Grid, coef: np.ndarray, points, *, dest=None, out=None) 
     grid; further out the edge knots again).  ``dest``: the row of the
     result each point's values go to (a permutation); ``out``: an (N, m)
     array to write them to (a series' batches reuse one)."""
-    c3 = coef if coef.ndim == 3 else coef[..., None]
+    c3 = coef if coef.ndim == 3 else coef.reshape(coef.shape + (1,))
     out = _tensor_at(grid, c3, points, SPLINE_PAD, _cubic_weights, dest, out)
-    return out if coef.ndim == 3 else out[:, 0]
+    return out if coef.ndim == 3 else out.reshape(-1)
 
 
-def _tensor_at(grid: Grid, c3: np.ndarray, points, pad, weights, dest,
-               out=None) -> np.ndarray:
+def _tensor_at(grid: Grid, c3, points, pad, weights, dest, out=None):
     """(N, m) :func:`_tensor_gather` of the columns of ``c3`` (NX, NY, m),
     in one launch: blocks of SPLINE_COLUMNS, 2 or 1 of them (the widest that
     divides m: the kernel compiles once per width; a series' many columns go
-    through in blocks, read in place)."""
+    through in blocks, read in place).  ``c3``, ``points`` (N, 2), ``dest``
+    and ``out`` numpy arrays or :class:`~taichi_hh.runtime.Device` ones (the
+    answer then too: ``out``, or one from :func:`taichi_hh.runtime.work`)."""
     runtime.ensure_init()
-    c3 = np.ascontiguousarray(c3, dtype=np.float64)
-    pts = np.ascontiguousarray(points, dtype=np.float64)
-    m = c3.shape[2]
-    if out is None or out.shape != (len(pts), m) or not out.flags.c_contiguous:
-        out = np.empty((len(pts), m))
-    if len(pts):
+    NX, NY, m = c3.shape
+    n = len(points)
+    on_device = any(isinstance(a, runtime.Device) for a in (c3, points, out))
+    if out is None or tuple(out.shape) != (n, m) or not (
+            isinstance(out, runtime.Device) or out.flags.c_contiguous):
+        out = runtime.work((n, m)) if on_device else np.empty((n, m))
+    if n:
         scatter = dest is not None
-        rows = np.ascontiguousarray(dest, dtype=np.int64) if scatter else np.zeros(1, np.int64)
+        rows = runtime.flat(dest, np.int64) if scatter else np.zeros(1, np.int64)
         width = next(w for w in (SPLINE_COLUMNS, 2, 1) if m % w == 0)
-        _tensor_gather(c3, pts, float(grid.origin[0]), float(grid.origin[1]), grid.hx,
-                       grid.hy, pad, weights, width, m // width, scatter, rows, out)
+        _tensor_gather(runtime.flat(c3), NX, NY, m, n, runtime.flat(points),
+                       float(grid.origin[0]), float(grid.origin[1]), grid.hx,
+                       grid.hy, pad, weights, width, m // width, scatter, rows, runtime.flat(out))
     return out
 
 

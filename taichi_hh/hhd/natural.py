@@ -37,6 +37,7 @@ import time
 
 import numpy as np
 
+from .. import runtime
 from ..geometry.box import Box
 from .cell_counts import spacing_edge_volume
 from .cut_cells import (MULTIPOLE_ORDER, cut_cells, multipole_density, multipole_patches,
@@ -46,8 +47,8 @@ from .free_space import (Grid, axis_rectangle, convolve_direct, convolve_fft, ed
 from .grid_sampling import (ONE_SIDED_CELLS, SPLINE_PAD, lagrange_at, one_sided_gradient,
                             one_sided_weights, prefilter, spline_values)
 from .natural_assemble import assemble, columns, node_densities, row_index
-from .node_fits import (FitWeights, PointBins, abs_div_curl, fit_gradients,
-                        reconstruct_on_grid)
+from .mls_reconstruct import reconstruct_on_grid
+from .node_fits import FitWeights, PointBins, abs_div_curl, fit_gradients
 from .options import NATURAL_EVALUATIONS
 from .rotation import J
 
@@ -87,16 +88,25 @@ class _Scratch(threading.local):
         # a pickled setup (a Decomposer sent to another process) takes none
         return _Scratch, ()
 
-    def __call__(self, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
+    def __call__(self, name: str, shape: tuple, dtype=np.float64, host: bool = False):
         a = self.arrays.get(name)
         if a is None or a.shape != tuple(shape) or a.dtype != dtype:
             a = self.arrays[name] = np.empty(shape, dtype=dtype)
         return a
 
 
-def _new(name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
-    """New work arrays (a single split: nothing to keep them for)."""
+def _new(name: str, shape: tuple, dtype=np.float64, host: bool = True) -> np.ndarray:
+    """New work arrays in numpy."""
     return np.empty(shape, dtype=dtype)
+
+
+def _work(name: str, shape: tuple, dtype=np.float64, host: bool = False):
+    """New work arrays of a single split (nothing to keep them for): those
+    that only kernels read (not ``host``) on the device where
+    :func:`taichi_hh.runtime.resident` (:func:`taichi_hh.runtime.work`).  A
+    1M-point window passed 1 GB of numpy arguments to its kernels, each copied
+    to a GPU and back at every launch (docs/arch.md)."""
+    return np.empty(shape, dtype=dtype) if host else runtime.work(shape, dtype)
 
 
 def _check_evaluation(evaluation: str) -> None:
@@ -170,7 +180,7 @@ def _grid_potentials(cells: _Cells, at_cells: np.ndarray, evaluation: str,
     dens = dens.reshape((m,) + grid.shape)
     lap("density")
     if evaluation == "fft":
-        u = convolve_fft(grid, dens, out=scratch("potentials", dens.shape))
+        u = convolve_fft(grid, dens, out=scratch("potentials", dens.shape, host=True))
     else:
         u = np.stack([convolve_direct(grid, d) for d in dens])
     if cells.cut is not None:
@@ -216,7 +226,8 @@ def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap,
     coef = with_differences(grid, c, out=scratch("spline", padded + (m, 3))).reshape(
         padded + (3 * m,))
     sp = binned.points
-    at = spline_values(grid, coef, sp, dest=binned.order,       # in the input order
+    _, points, order = binned.kernel_arrays()
+    at = spline_values(grid, coef, points, dest=order,       # in the input order
                        out=scratch("at_points", (len(sp), 3 * m)))
     lap("interpolate")
     # the gradient within ONE_SIDED_CELLS of the boundary from the fit
@@ -225,8 +236,8 @@ def _at_points(cells: _Cells, u: np.ndarray, binned: "PointBins", near, lap,
         ok = np.isfinite(fitted).all(axis=(1, 2))
     else:
         weights, ok = one_sided
-        fitted = weights.gradients(u.reshape(m, -1).T,
-                                   out=scratch("one_sided", (weights.n_targets, m, 2)))
+        fitted = weights.gradients(u.reshape(m, -1).T, out=scratch(
+            "one_sided", (weights.n_targets, m, 2), host=True))
     at = at.reshape(len(sp), m, 3)
     if apart:
         lap("boundary_fit")
@@ -352,7 +363,7 @@ class NaturalSetup:
         lap("setup")
         self.fits = self.one_sided = None
         # a series' work arrays kept from batch to batch
-        self.scratch = _Scratch() if reuse_fits else _new
+        self.scratch = _Scratch() if reuse_fits else _work
         if reuse_fits and 24 * 45 * (len(live) + len(self.near)) <= FIT_WEIGHTS_BYTES:
             self.fits = {}
             for name in ("nodes", "near"):
@@ -385,13 +396,10 @@ class NaturalSetup:
                                                      (w.n_targets, np.shape(values)[1], 2)))
             return (g, w.counts) if counts else g
         targets, scale, edge = self._targets(which)
-        values = np.asarray(values, dtype=np.float64).reshape(len(values), -1)
-        # the fit kernel takes two columns at a time
-        parts = [fit_gradients(self.cells.grid, self.binned, values[:, c:c + 2], targets,
-                               counts=True, scale=scale, edge=edge)
-                 for c in range(0, values.shape[1], 2)]
-        g = parts[0][0] if len(parts) == 1 else np.concatenate([q[0] for q in parts], axis=1)
-        return (g, parts[0][1]) if counts else g
+        new = runtime.work if self.scratch is _work else None
+        g, count = fit_gradients(self.cells.grid, self.binned, values, targets, counts=True,
+                                 scale=scale, edge=edge, new=new)
+        return (g, count) if counts else g
 
     def harmonic_terms(self, hs) -> np.ndarray:
         """(T, k, 2) |div h| and |curl h| at the harmonic check's nodes of
@@ -402,7 +410,7 @@ class NaturalSetup:
             w = self.fits["check"]
             return w.gradients(hs, div_curl=True, out=self.scratch(
                 "check_terms", (w.n_targets, np.shape(hs)[1] // 2, 2)))
-        return abs_div_curl(self.gradients("check", hs))
+        return abs_div_curl(runtime.to_host(self.gradients("check", hs)))
 
     def split(self, vectors) -> "NaturalSplit":
         """The natural HHD of ``vectors`` (N, 2) at these points
@@ -432,7 +440,11 @@ class NaturalSetup:
             fit_of = None if self.one_sided is None else row_index(
                 n, binned.order[self.near[self.one_sided[1]]],
                 np.flatnonzero(self.one_sided[1]))
-            kept = self._rows = (row_index(grid.nx * grid.ny, live), pos, near_of, fit_of)
+            kept = (row_index(grid.nx * grid.ny, live), pos, near_of, fit_of)
+            if scratch is _work:    # read by kernels alone: on the device (runtime.resident)
+                kept = tuple(None if a is None else runtime.to_device(a, np.int32)
+                             for a in kept)
+            self._rows = kept
         live_of, pos, near_of, fit_of = kept
         vs = columns(snapshots, pos, out=scratch("columns", (len(pos), 2 * k)))
         g, count = self.gradients("nodes", vs, counts=True)            # (live, 2k, 2)
@@ -440,8 +452,7 @@ class NaturalSetup:
         # div v and curl v at the nodes, their charges on the grid, their grid
         # for the interpolation to the points, the harmonic check's scale
         nodes = node_densities(g, live_of, cells.frac, self.check_rows,
-                               with_values=cells.cut is not None,
-                               scratch=None if scratch is _new else scratch)
+                               with_values=cells.cut is not None, scratch=scratch)
         u = _grid_potentials(cells, None, self.evaluation, lap,
                              grids=(nodes["values"], nodes["dens"]), scratch=scratch)
         at, fitted, ok = _at_points(cells, u, binned, self.near, lap, self.one_sided,
@@ -449,8 +460,9 @@ class NaturalSetup:
         # div v and curl v at the points: the nodes' values inside, the fit at
         # the point near the boundary (the nodes around it partly outside)
         # (every field's two columns in one interpolation)
-        lag = lagrange_at(grid, nodes["dc"].reshape(grid.shape + (2 * k,)), binned.points,
-                          binned.order, out=scratch("lagrange", (len(binned.points), 2 * k)))
+        _, points, order = binned.kernel_arrays()
+        lag = lagrange_at(grid, nodes["dc"].reshape(grid.shape + (2 * k,)), points, order,
+                          out=scratch("lagrange", (len(binned.points), 2 * k)))
         gn = self.gradients("near", vs) if self.near.size else np.zeros((0, 2 * k, 2))
         lap("divergence")
         # every output of every field in one pass (natural_assemble): phi,
@@ -459,11 +471,11 @@ class NaturalSetup:
         if fit_of is None:                 # the one-sided fits made per call
             fit_of = row_index(len(pos), binned.order[self.near[ok]], np.flatnonzero(ok))
         out = assemble(at, vs, pos, fit_of, fitted, near_of, gn, lag, self.volume,
-                       scratch=None if scratch is _new else scratch)
+                       scratch=scratch)
         pot, grads, comps, dc = out["pot"], out["grads"], out["comps"], out["dc"]
         energies = out["energies"]                                       # (4, k)
         check_scale = nodes["check_scale"]                              # (k,)
-        mean_fit_points = float(count.mean()) if count.size else 0.0
+        mean_fit_points = float(runtime.to_host(count).mean()) if count.size else 0.0
         lap("gather")
         # the harmonic check's fits of h at the check nodes, every field in one gather
         terms = self.harmonic_terms(out["hs"])                   # (check nodes, k, 2)

@@ -114,31 +114,34 @@ def _columns(fields: ti.types.ndarray(), pos: ti.types.ndarray(), out: ti.types.
 def columns(fields, pos, out=None) -> np.ndarray:
     """(N, 2 k) the fields (k, N, 2) side by side, field s's components in
     columns 2 s and 2 s + 1, point i's in row ``pos[i]`` (its place in the
-    bins); ``out``: the array to write (a series' batches reuse one)."""
+    bins); ``out``: the array to write (a series' batches reuse one; a
+    :class:`~taichi_hh.runtime.Device` one stays on the device)."""
     runtime.ensure_init()
     f = np.ascontiguousarray(fields, dtype=np.float64)
     k, n = f.shape[0], f.shape[1]
-    if out is None or out.shape != (n, 2 * k) or not out.flags.c_contiguous:
+    if out is None or tuple(out.shape) != (n, 2 * k) or not (
+            isinstance(out, runtime.Device) or out.flags.c_contiguous):
         out = np.empty((n, 2 * k))
     if n and k:
-        _columns(f.reshape(-1), np.ascontiguousarray(pos, dtype=np.int32), out.reshape(-1), k)
+        _columns(f.reshape(-1), runtime.flat(pos, np.int32), runtime.flat(out), k)
     return out
 
 
 @ti.kernel
-def _node_densities(g: ti.types.ndarray(), live_of: ti.types.ndarray(),
+def _node_densities(g: ti.types.ndarray(), m: ti.i32, live_of: ti.types.ndarray(),
                     frac: ti.types.ndarray(), check_rows: ti.types.ndarray(),
                     values: ti.types.ndarray(), dens: ti.types.ndarray(),
                     dcg: ti.types.ndarray(), chk: ti.types.ndarray(),
                     with_values: ti.template()):
     """For each cell c (``live_of[c]`` its row of ``g``, the node fits'
-    (L, 2k, 2) gradients of the fields' components, or -1) and field s:
-    values[2 s|2 s + 1, c] div v, -curl v (0 off the live cells; only
-    ``with_values``), dens[...] those times the cell's inside fraction,
-    dcg[c, 2 s|2 s + 1] div v, curl v; for each check node j: chk[s, j]
-    sqrt(div v^2 + curl v^2)."""
-    k = g.shape[1] // 2
-    for c in range(live_of.shape[0]):
+    (L, m, 2) gradients of the fields' components, or -1) and field s (k =
+    m / 2 of them): values[2 s|2 s + 1, c] div v, -curl v (0 off the live
+    cells; only ``with_values``), dens[...] those times the cell's inside
+    fraction, dcg[c, 2 s|2 s + 1] div v, curl v; for each check node j:
+    chk[s, j] sqrt(div v^2 + curl v^2).  Every array flat."""
+    k = m // 2
+    cells = live_of.shape[0]
+    for c in range(cells):
         r = live_of[c]
         w = frac[c]
         for s in range(k):
@@ -146,21 +149,23 @@ def _node_densities(g: ti.types.ndarray(), live_of: ti.types.ndarray(),
             dv = ti.cast(0.0, ti.f64)
             cu = ti.cast(0.0, ti.f64)
             if r >= 0:
-                dv = g[r, a, 0] + g[r, b, 1]
-                cu = g[r, b, 0] - g[r, a, 1]
+                dv = g[(r * m + a) * 2] + g[(r * m + b) * 2 + 1]
+                cu = g[(r * m + b) * 2] - g[(r * m + a) * 2 + 1]
             if ti.static(with_values):
-                values[a, c] = dv
-                values[b, c] = -cu
-            dens[a, c] = dv * w
-            dens[b, c] = -cu * w
-            dcg[c, a] = dv
-            dcg[c, b] = cu
-    for j in range(check_rows.shape[0]):
+                values[a * cells + c] = dv
+                values[b * cells + c] = -cu
+            dens[a * cells + c] = dv * w
+            dens[b * cells + c] = -cu * w
+            dcg[c * m + a] = dv
+            dcg[c * m + b] = cu
+    n_check = check_rows.shape[0]
+    for j in range(n_check):
         r = check_rows[j]
         for s in range(k):
-            dv = g[r, 2 * s, 0] + g[r, 2 * s + 1, 1]
-            cu = g[r, 2 * s + 1, 0] - g[r, 2 * s, 1]
-            chk[s, j] = ti.sqrt(dv * dv + cu * cu)
+            a, b = 2 * s, 2 * s + 1
+            dv = g[(r * m + a) * 2] + g[(r * m + b) * 2 + 1]
+            cu = g[(r * m + b) * 2] - g[(r * m + a) * 2 + 1]
+            chk[s * n_check + j] = ti.sqrt(dv * dv + cu * cu)
 
 
 def node_densities(g, live_of, frac, check_rows, with_values: bool = True,
@@ -170,7 +175,10 @@ def node_densities(g, live_of, frac, check_rows, with_values: bool = True,
     cells read them), ``dens`` (2k, cells), ``dc`` (cells, 2k) and
     ``check_scale`` (k,), the mean of sqrt(div v^2 + curl v^2) over the
     nodes ``check_rows``.  ``scratch``: where the arrays come from
-    (``scratch(name, shape)``, a series' kept buffers; None: new ones)."""
+    (``scratch(name, shape)``, a series' kept buffers or
+    :class:`~taichi_hh.runtime.Device` ones; None: new numpy arrays);
+    ``values`` and ``dens`` come back in numpy (the host's FFT reads them),
+    ``dc`` as made (the interpolation's kernel reads it)."""
     runtime.ensure_init()
     new = scratch or (lambda name, shape: np.empty(shape))
     m, cells = g.shape[1], len(live_of)
@@ -178,13 +186,17 @@ def node_densities(g, live_of, frac, check_rows, with_values: bool = True,
            "dens": new("dens", (m, cells)), "dc": new("dc", (cells, m))}
     chk = new("check", (m // 2, len(check_rows)))
     if cells and m:
-        _node_densities(np.ascontiguousarray(g, dtype=np.float64), live_of,
-                        np.ascontiguousarray(frac, dtype=np.float64),
-                        np.ascontiguousarray(check_rows, dtype=np.int32) if len(check_rows)
+        _node_densities(runtime.flat(g), m, runtime.flat(live_of, np.int32),
+                        runtime.flat(frac),
+                        runtime.flat(check_rows, np.int32) if len(check_rows)
                         else np.zeros(0, dtype=np.int32),
-                        out["values"] if with_values else _NO_VALUES, out["dens"], out["dc"],
-                        chk, bool(with_values))
-    out["check_scale"] = chk.sum(axis=-1) / max(len(check_rows), 1)
+                        runtime.flat(out["values"]) if with_values else _NO_VALUES.reshape(-1),
+                        runtime.flat(out["dens"]), runtime.flat(out["dc"]), runtime.flat(chk),
+                        bool(with_values))
+    if with_values:
+        out["values"] = runtime.to_host(out["values"])
+    out["dens"] = runtime.to_host(out["dens"])
+    out["check_scale"] = runtime.to_host(chk).sum(axis=-1) / max(len(check_rows), 1)
     return out
 
 
@@ -209,22 +221,28 @@ def assemble(at, vs, pos, fit_of, fitted, near_of, near_grad, lag, vol, scratch=
     ``comps`` (k, 2, N, 2) r and h, ``dc`` (k, 2, N), ``hs`` (N, 2k) and
     ``energies`` (4, k): the volume-weighted sums of |v|^2, |d|^2, |r|^2,
     |h|^2 (each a sum over the rows in order, as numpy sums a 1-d array).
+    Any input may be a :class:`~taichi_hh.runtime.Device` array.
     ``scratch``: where ``hs`` and the energy terms come from (as
-    :func:`node_densities`); the outputs that results keep are new arrays."""
+    :func:`node_densities`; ``hs`` stays as made, for the harmonic check's
+    fits); the outputs that results keep are new numpy arrays (made on the
+    device and copied back where ``vs`` is there)."""
     runtime.ensure_init()
     k, n = vs.shape[1] // 2, vs.shape[0]
     new = scratch or (lambda name, shape: np.empty(shape))
-    out = {"pot": np.empty((k, 2, n)), "grads": np.empty((k, n, 2)),
-           "comps": np.empty((k, 2, n, 2)), "dc": np.empty((k, 2, n)),
+    made = runtime.work if isinstance(vs, runtime.Device) else np.empty
+    out = {"pot": made((k, 2, n)), "grads": made((k, n, 2)),
+           "comps": made((k, 2, n, 2)), "dc": made((k, 2, n)),
            "hs": new("hs", (n, 2 * k))}
     sq = new("energy_terms", (4, k, n))
     if n and k:
-        def flat(a, dtype=np.float64):
-            return np.ascontiguousarray(a, dtype=dtype).reshape(-1)
-        _assemble(flat(at), flat(vs), flat(pos, np.int32), fit_of,
-                  flat(fitted) if len(fitted) else _NONE_ROWS.reshape(-1), near_of,
+        flat = runtime.flat
+        _assemble(flat(at), flat(vs), flat(pos, np.int32), flat(fit_of, np.int32),
+                  flat(fitted) if len(fitted) else _NONE_ROWS.reshape(-1),
+                  flat(near_of, np.int32),
                   flat(near_grad) if len(near_grad) else _NONE_ROWS.reshape(-1), flat(lag),
-                  out["pot"].reshape(-1), out["grads"].reshape(-1), out["comps"].reshape(-1),
-                  out["dc"].reshape(-1), out["hs"].reshape(-1), flat(vol), sq.reshape(-1), k)
-    out["energies"] = sq.sum(axis=-1)
+                  flat(out["pot"]), flat(out["grads"]), flat(out["comps"]),
+                  flat(out["dc"]), flat(out["hs"]), flat(vol), flat(sq), k)
+    for name in ("pot", "grads", "comps", "dc"):
+        out[name] = runtime.to_host(out[name])
+    out["energies"] = runtime.to_host(sq).sum(axis=-1)
     return out

@@ -3,91 +3,16 @@ scattered data (:mod:`.natural`).  The points are binned by the grid's
 cells once (:class:`PointBins`, a stable counting sort); each target then
 gathers the points of the cells within its fit's radius, growing the radius
 where too few points answer (the boundary, sparse data).  Quadratic fits
-reconstruct values at the nodes (:func:`reconstruct_on_grid`); fits of
+reconstruct values at the nodes (:mod:`.mls_reconstruct`); fits of
 degree 1-3 give gradients (:func:`fit_gradients`, div v and curl v at the
-nodes); :func:`mls_at` is the k-nearest-neighbour form for few targets.
+nodes), or their weights (:class:`FitWeights`).
 """
 import numpy as np
 import taichi as ti
 
 from .. import runtime
 from ..sph.cell_sort import cells_of, counting_sort
-from ..sph.knn import KNearest
 from .free_space import Grid
-
-#: data points in each quadratic moving-least-squares fit at a grid node
-MLS_NEIGHBOURS = 20
-
-
-def mls_at(points, values, targets, k: int = MLS_NEIGHBOURS,
-           exclude_self: bool = False) -> np.ndarray:
-    """Quadratic moving least squares: each of ``values`` (N, m) reconstructed at
-    ``targets`` from its ``k`` nearest data points (Wendland weights on the
-    distance over 1.5 times the k-th distance; exact on quadratics).
-    exclude_self: the targets are the points themselves, each left out of its fit."""
-    points = np.asarray(points, dtype=np.float64)
-    targets = np.asarray(targets, dtype=np.float64)
-    values = np.asarray(values, dtype=np.float64)
-    values = values[:, None] if values.ndim == 1 else values
-    # leaving the target itself out takes one neighbour more: at most all points
-    k = min(k, len(points) - int(exclude_self))
-    out = np.zeros((len(targets), values.shape[1]))
-    if len(targets) == 0:
-        return out
-    search = KNearest(points)
-    for s in range(0, len(targets), 65536):
-        tg = targets[s:s + 65536]
-        dist, idx = search.query(tg, k + 1 if exclude_self else k)
-        if exclude_self:
-            dist, idx = dist[:, 1:], idx[:, 1:]
-        scale = 1.5 * dist[:, -1:] + 1e-300
-        q = dist / scale
-        w = (1 - q) ** 4 * (1 + 4 * q)
-        dx = (points[idx] - tg[:, None, :]) / scale[..., None]
-        B = np.stack([np.ones_like(q), dx[..., 0], dx[..., 1], dx[..., 0] ** 2,
-                      dx[..., 0] * dx[..., 1], dx[..., 1] ** 2], axis=-1)     # (t, k, 6)
-        BWt = (B * w[..., None]).transpose(0, 2, 1)                          # (t, 6, k)
-        M = BWt @ B
-        M += 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] * np.eye(6)
-        # only the constant coefficient is wanted: row 0 of M^-1 times BW^T values
-        e0 = np.linalg.solve(M, np.broadcast_to(np.eye(6)[:, :1], (len(tg), 6, 1)))[..., 0]
-        weights = np.einsum("ti,tik->tk", e0, BWt)                           # (t, k)
-        out[s:s + 65536] = np.einsum("tk,tkm->tm", weights, values[idx])
-    return out
-
-
-#: the reconstruction radius at a grid node, in cells: the first of these that
-#: holds ``MLS_MIN_POINTS`` data points (more near the boundary and corners)
-MLS_RADII = (2.5, 4.0, 6.0)
-MLS_MIN_POINTS = 15
-_N_RADII = len(MLS_RADII)
-
-
-@ti.func
-def _mls_weight(q):
-    return (1.0 - q) ** 4 * (1.0 + 4.0 * q) if q < 1.0 else 0.0
-
-
-@ti.func
-def _mls_reach(R, hx, hy):
-    """The cells (i and j offsets from a node's own) that can hold points
-    closer than ``R`` to the node at their centre: offset a holds none closer
-    than (|a| - 1/2) cells (a radius of 2.5 cells: 5 x 5 cells, not 7 x 7)."""
-    return (ti.cast(ti.ceil(R / hx + 0.5), ti.i32) - 1,
-            ti.cast(ti.ceil(R / hy + 0.5), ti.i32) - 1)
-
-
-@ti.func
-def _mls_add(M, rhs, d, v):
-    """One data point's terms of the normal equations: ``d`` its offset from the
-    node over the radius, ``v`` its two values."""
-    w = _mls_weight(d.norm())
-    if w > 0.0:
-        b = ti.Vector([1.0, d[0], d[1], d[0] * d[0], d[0] * d[1], d[1] * d[1]])
-        M += w * b.outer_product(b)
-        rhs += w * b.outer_product(v)
-    return M, rhs
-
 
 @ti.func
 def cholesky_factor(M, n: ti.template(), dt: ti.template(), floor: ti.template()):
@@ -152,49 +77,6 @@ def cholesky_solve(M, rhs, n: ti.template(), dt: ti.template(), floor: ti.templa
     return cholesky_substitute(L, rhs, n, dt)
 
 
-@ti.kernel
-def _mls_nodes(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, x0: float, y0: float,
-               hx: float, hy: float, start: ti.types.ndarray(), pos: ti.types.ndarray(),
-               vals: ti.types.ndarray(), out: ti.types.ndarray()):
-    """Quadratic moving least squares of the two columns of ``vals`` at the
-    centres of the ``targets`` cells, from the points (sorted by cell, ``start``
-    the offsets) within the first radius of MLS_RADII holding MLS_MIN_POINTS;
-    one gather per node, the 6 x 6 normal equations by Cholesky.  Each
-    radius is counted and summed in one pass (the sums kept when the count
-    suffices); the cells of one grid row are consecutive, their points one
-    slot range."""
-    h = ti.max(hx, hy)
-    for t in range(targets.shape[0]):
-        c = targets[t]
-        ci = c // ny
-        cj = c - ci * ny
-        X = ti.Vector([x0 + ci * hx, y0 + cj * hy])
-        M = ti.Matrix.zero(float, 6, 6)
-        rhs = ti.Matrix.zero(float, 6, 2)
-        done = False
-        for a in ti.static(range(_N_RADII)):
-            if not done:
-                R = MLS_RADII[a] * h
-                ri, rj = _mls_reach(R, hx, hy)
-                M = ti.Matrix.zero(float, 6, 6)
-                rhs = ti.Matrix.zero(float, 6, 2)
-                count = 0
-                for i in range(ti.max(ci - ri, 0), ti.min(ci + ri + 1, nx)):
-                    row = i * ny
-                    for k in range(start[row + ti.max(cj - rj, 0)],
-                                   start[row + ti.min(cj + rj + 1, ny)]):
-                        d = ti.Vector([pos[k, 0], pos[k, 1]]) - X
-                        if d.dot(d) < R * R:
-                            count += 1
-                            M, rhs = _mls_add(M, rhs, d / R,
-                                              ti.Vector([vals[k, 0], vals[k, 1]]))
-                if count >= MLS_MIN_POINTS or a == _N_RADII - 1:
-                    done = True
-        x = cholesky_solve(M, rhs, 6, float, 1e-30)
-        out[t, 0] = x[0, 0]
-        out[t, 1] = x[0, 1]
-
-
 class PointBins:
     """Points sorted by the grid's cells (a counting sort, stable):
     ``order`` (sorted -> input index), ``start`` (nx * ny + 1 offsets into the
@@ -208,35 +90,24 @@ class PointBins:
         order, self.start = counting_sort(cell, grid.nx * grid.ny)
         self.order = order.astype(np.int64)
         self.points = np.take(pts, self.order, axis=0)      # 10x fancy indexing's speed
+        self._kernel_arrays = None
 
+    def __getstate__(self):
+        # the device copies stay behind (Taichi's arrays do not pickle; made again)
+        return {**self.__dict__, "_kernel_arrays": None}
 
-def reconstruct_on_grid(grid: "Grid", points, values, live, *, binned=None) -> np.ndarray:
-    """(len(live), m) the columns of ``values`` (N, m) reconstructed at the centres
-    of the cells ``live`` (flat indices) by quadratic moving least squares
-    (:func:`_mls_nodes`, two columns per pass, on numpy arrays in the
-    runtime's precision).  ``binned``: the points already sorted by cell
-    (:class:`PointBins`)."""
-    runtime.ensure_init()
-    npr = runtime.np_real()
-    values = np.asarray(values, dtype=np.float64)
-    values = values[:, None] if values.ndim == 1 else values
-    if binned is None:
-        binned = PointBins(grid, points)
-    order = binned.order
-    live = np.asarray(live, dtype=np.int32)
-    out = np.zeros((len(live), values.shape[1]))
-    if len(live) == 0 or len(order) == 0:
-        return out
-    pos = np.ascontiguousarray(binned.points, dtype=npr)
-    res = np.empty((len(live), 2), dtype=npr)
-    for m in range(0, values.shape[1], 2):
-        pair = np.zeros((len(order), 2), dtype=npr)
-        cols = values[order, m:m + 2]
-        pair[:, :cols.shape[1]] = cols
-        _mls_nodes(live, grid.nx, grid.ny, float(grid.origin[0]), float(grid.origin[1]),
-                   grid.hx, grid.hy, binned.start, pos, pair, res)
-        out[:, m:m + cols.shape[1]] = res[:, : cols.shape[1]]
-    return out
+    def kernel_arrays(self) -> tuple:
+        """``(start, points, order)`` as the fit and gather kernels take them,
+        on the device where :func:`taichi_hh.runtime.resident` (copied once,
+        for every launch of the points' fits and interpolations; numpy
+        arrays otherwise)."""
+        kept = self._kernel_arrays
+        key = (runtime.generation(), runtime.resident())
+        if kept is None or kept[0] != key:
+            kept = self._kernel_arrays = (key, runtime.to_device(self.start, np.int32),
+                                          runtime.to_device(self.points),
+                                          runtime.to_device(self.order, np.int64))
+        return kept[1:]
 
 
 # --------------------------------------------------------------------------- v fitted at nodes
@@ -287,8 +158,8 @@ def _fit_powers(pos: ti.template(), k, X, inv, n: ti.template()):
     (``inv`` = 1 / radius), its Wendland weight w times the powers of its
     offset's x over the radius (px[e] = w dx^e) and the powers of its y
     (py[e] = dy^e), e = 0 .. n (a monomial's weighted value: px[a] py[b])."""
-    dx = (pos[k, 0] - X[0]) * inv
-    dy = (pos[k, 1] - X[1]) * inv
+    dx = (pos[2 * k] - X[0]) * inv
+    dy = (pos[2 * k + 1] - X[1]) * inv
     q2 = dx * dx + dy * dy
     w = 0.0
     if q2 < 1.0:
@@ -307,20 +178,25 @@ def _fit_powers(pos: ti.template(), k, X, inv, n: ti.template()):
 @ti.kernel
 def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f64,
                    ly: ti.f64, hx: ti.f64, hy: ti.f64, start: ti.types.ndarray(),
-                   pos: ti.types.ndarray(), vals: ti.types.ndarray(), p: ti.template(),
+                   pos: ti.types.ndarray(), vals: ti.types.ndarray(), stride: ti.i32,
+                   col0: ti.i32, p: ti.template(),
                    radii: ti.types.vector(3, ti.f64), min_points: ti.i32, edge_degree: ti.i32,
                    min_pivot: ti.f64,
                    scale: ti.types.ndarray(), edge: ti.types.ndarray(),
-                   out: ti.types.ndarray(), emit: ti.template(), count_only: ti.template(),
+                   grads: ti.types.ndarray(), counts: ti.types.ndarray(), emit: ti.template(),
+                   count_only: ti.template(),
                    wstart: ti.types.ndarray(),
                    widx: ti.types.ndarray(), wval: ti.types.ndarray(),
                    wref: ti.types.ndarray()):
-    """The gradients of the two columns of ``vals`` at each target (T, 2) from
+    """The gradients of the two columns ``col0``, ``col0 + 1`` of ``vals`` (the
+    points' rows of ``stride`` values, flat; ``pos`` their coordinates, flat)
+    at each target (T, 2) from
     their weighted least-squares polynomial of degree ``p`` over the points
     (sorted by cell, ``start`` the offsets; ``lx``, ``ly`` the grid's lower
     corner) within the first of ``radii`` (times the target's ``scale``)
-    holding ``min_points``: out[t] = (d0/dx, d0/dy, d1/dx, d1/dy, the points
-    in the fit); a radius beyond the first at a target flagged ``edge``: at
+    holding ``min_points``: ``grads`` (T, stride, 2, flat) rows t, columns
+    col0 and col0 + 1 the two gradients, ``counts[t]`` the points in the
+    fit; a radius beyond the first at a target flagged ``edge``: at
     most ``edge_degree``; fewer points than a degree's monomials and two,
     or normal equations whose smallest relative pivot is below ``min_pivot``
     (nearly singular: :data:`FIT_MIN_PIVOT`): the next lower degree.  One gather per
@@ -332,7 +208,7 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
     the inverse normal matrix times the point's weighted monomials), and
     ``wref[t]`` the point whose value the fit subtracts first.  With
     ``count_only`` the points in each fit alone (the radius depends on the
-    counts alone), out[t, :4] zero: the slots' pass of :class:`FitWeights`."""
+    counts alone), ``grads`` not written: the slots' pass of :class:`FitWeights`."""
     NB = ti.static(len(_MONO[p]))
     NM = ti.static(len(_MOMENTS[p]))
     for t in range(targets.shape[0]):
@@ -347,9 +223,9 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
         # the values less those of a point at or after the target's cell in
         # the sorted order: the same gradients, smaller rounding (the
         # constant need not cancel in the normal equations)
-        kref = ti.min(start[ci * ny + cj], pos.shape[0] - 1)
-        ref0 = vals[kref, 0]
-        ref1 = vals[kref, 1]
+        kref = ti.min(start[ci * ny + cj], pos.shape[0] // 2 - 1)
+        ref0 = vals[kref * stride + col0]
+        ref1 = vals[kref * stride + col0 + 1]
         mom = ti.Vector.zero(ti.f64, NM)
         r0 = ti.Vector.zero(ti.f64, NB)
         r1 = ti.Vector.zero(ti.f64, NB)
@@ -385,8 +261,8 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
                                 inc[m] = px[ti.static(_MOMENTS[p][m][0])] \
                                     * py[ti.static(_MOMENTS[p][m][1])]
                             mom += inc
-                            v0 = vals[k, 0] - ref0
-                            v1 = vals[k, 1] - ref1
+                            v0 = vals[k * stride + col0] - ref0
+                            v1 = vals[k * stride + col0 + 1] - ref1
                             for m in ti.static(range(NB)):
                                 r0[m] += inc[ti.static(_RHS[p][m])] * v0
                                 r1[m] += inc[ti.static(_RHS[p][m])] * v1
@@ -441,41 +317,58 @@ def _fit_gradients(targets: ti.types.ndarray(), nx: ti.i32, ny: ti.i32, lx: ti.f
                                     wval[slot, 0] = gx * inv
                                     wval[slot, 1] = gy * inv
                                     slot += 1
-        for c in ti.static(range(4)):
-            out[t, c] = g[c]
-        out[t, 4] = count
+        if ti.static(not count_only):
+            o = (t * stride + col0) * 2
+            for c in ti.static(range(4)):
+                grads[o + c] = g[c]
+        counts[t] = count
 
 
 def fit_gradients(grid: Grid, binned: "PointBins", values, targets, degree: int | None = None,
                   radii=None, min_points: int | None = None, *, counts: bool = False,
-                  edge_degree: int | None = None, scale=None, edge=None):
-    """(T, 2, 2) the gradients of the two columns of ``values`` (N, 2, in the
-    order of ``binned.points``) at ``targets`` (T, 2): out[t, c] = grad of
-    column c, from the moving-least-squares polynomial of ``degree`` (a
-    Taichi kernel, :func:`_fit_gradients`; None: :data:`FIT_DEGREE`,
-    :data:`FIT_RADII`, :data:`FIT_MIN_POINTS`, :data:`EDGE_DEGREE`); the
-    radii in units of ``scale`` (T,) (None: the grid's cell) and ``edge``
-    (T,) the targets next to the boundary (None: all); with ``counts`` also
-    (T,) the points in each fit."""
+                  edge_degree: int | None = None, scale=None, edge=None, new=None):
+    """(T, m, 2) the gradients of the columns of ``values`` (N, m, m even, in
+    the order of ``binned.points``; a numpy array or a
+    :class:`~taichi_hh.runtime.Device`) at ``targets`` (T, 2): out[t, c] =
+    grad of column c, from the moving-least-squares polynomial of ``degree``
+    (a Taichi kernel, :func:`_fit_gradients`, a launch per two columns;
+    None: :data:`FIT_DEGREE`, :data:`FIT_RADII`, :data:`FIT_MIN_POINTS`,
+    :data:`EDGE_DEGREE`); the radii in units of ``scale`` (T,) (None: the
+    grid's cell) and ``edge`` (T,) the targets next to the boundary (None:
+    all); with ``counts`` also (T,) the points in each fit.  ``new``: where
+    the answers' arrays come from (``new(shape)``, e.g.
+    :func:`taichi_hh.runtime.work`; None: new numpy arrays)."""
     runtime.ensure_init()
     tg = np.ascontiguousarray(targets, dtype=np.float64).reshape(-1, 2)
-    out = np.zeros((len(tg), 5))
-    if len(tg) and len(binned.points):
-        _fit_gradients(*_fit_arguments(grid, binned, values, tg, degree, radii, min_points,
-                                       edge_degree, scale, edge),
-                       out, False, False, _NO_SLOTS, _NO_INDEX, _NO_WEIGHTS, _NO_INDEX)
-    grads = out[:, :4].reshape(-1, 2, 2)
-    return (grads, out[:, 4]) if counts else grads
+    if not isinstance(values, runtime.Device):
+        values = np.asarray(values, dtype=np.float64)
+    m = 1 if len(values.shape) == 1 else int(np.prod(values.shape[1:]))
+    if m % 2:
+        raise ValueError(f"the fits take pairs of columns, got {m}")
+    if not (len(tg) and len(binned.points) and m):
+        grads, count = np.zeros((len(tg), m, 2)), np.zeros(len(tg))
+    else:
+        new = new or np.empty
+        grads, count = new((len(tg), m, 2)), new((len(tg),))
+        head, tail = _fit_arguments(grid, binned, tg, degree, radii, min_points, edge_degree,
+                                    scale, edge)
+        vals = runtime.flat(values)
+        for c in range(0, m, 2):
+            _fit_gradients(*head, vals, m, c, *tail, runtime.flat(grads), runtime.flat(count),
+                           False, False, _NO_SLOTS, _NO_INDEX, _NO_WEIGHTS, _NO_INDEX)
+    return (grads, count) if counts else grads
 
 
-def _fit_arguments(grid: Grid, binned: "PointBins", values, tg, degree=None, radii=None,
+def _fit_arguments(grid: Grid, binned: "PointBins", tg, degree=None, radii=None,
                    min_points=None, edge_degree=None, scale=None, edge=None) -> tuple:
-    """:func:`_fit_gradients`' arguments up to ``out``, the defaults of
-    :func:`fit_gradients` for the None ones."""
+    """:func:`_fit_gradients`' arguments before the values (``head``) and
+    after their columns (``tail``), the defaults of :func:`fit_gradients`
+    for the None ones."""
     lower = grid.origin - 0.5 * np.array([grid.hx, grid.hy])
-    return (tg, grid.nx, grid.ny, float(lower[0]), float(lower[1]), grid.hx, grid.hy,
-            binned.start, binned.points, np.ascontiguousarray(values, dtype=np.float64),
-            int(FIT_DEGREE if degree is None else degree),
+    start, points, _ = binned.kernel_arrays()
+    head = (tg, grid.nx, grid.ny, float(lower[0]), float(lower[1]), grid.hx, grid.hy,
+            runtime.flat(start, np.int32), runtime.flat(points))
+    tail = (int(FIT_DEGREE if degree is None else degree),
             ti.Vector([float(r) for r in (FIT_RADII if radii is None else radii)], dt=ti.f64),
             int(FIT_MIN_POINTS if min_points is None else min_points),
             int(EDGE_DEGREE if edge_degree is None else edge_degree), float(FIT_MIN_PIVOT),
@@ -483,6 +376,7 @@ def _fit_arguments(grid: Grid, binned: "PointBins", values, tg, degree=None, rad
                                                  else scale, len(tg)), dtype=np.float64),
             np.ascontiguousarray(np.broadcast_to(True if edge is None else edge, len(tg)),
                                  dtype=np.int32))
+    return head, tail
 
 
 _NO_SLOTS = np.zeros(1, dtype=np.int32)
@@ -601,20 +495,21 @@ class FitWeights:
         self.n_targets = len(tg)
         if not (len(tg) and len(binned.points)):
             return
-        args = _fit_arguments(grid, binned, zero, tg, scale=scale, edge=edge)
-        out = np.zeros((len(tg), 5))
+        head, tail = _fit_arguments(grid, binned, tg, scale=scale, edge=edge)
+        head, tail = head + (zero.reshape(-1), 2, 0), tail
+        grads = np.zeros(len(tg) * 4)
         # the first pass counts each fit's points (the slots: the radii's
         # search alone), the second writes their weights
-        _fit_gradients(*args, out, False, True, _NO_SLOTS, _NO_INDEX, _NO_WEIGHTS, _NO_INDEX)
-        self.counts = out[:, 4].copy()
+        _fit_gradients(*head, *tail, grads, self.counts, False, True, _NO_SLOTS, _NO_INDEX,
+                       _NO_WEIGHTS, _NO_INDEX)
         # 32-bit slots (the kernels' loop bounds): the weights stay far below
         # 2^31 of them (natural.FIT_WEIGHTS_BYTES)
         self.start[1:] = np.cumsum(self.counts.astype(np.int64))
         n = int(self.start[-1])
         self.index = np.zeros(max(n, 1), dtype=np.int32)
         self.weights = np.zeros((max(n, 1), 2))
-        _fit_gradients(*args, out, True, False, self.start, self.index, self.weights,
-                       self.reference)
+        _fit_gradients(*head, *tail, grads, self.counts, True, False, self.start, self.index,
+                       self.weights, self.reference)
 
     @classmethod
     def of_slots(cls, start, index, weights, reference) -> "FitWeights":
