@@ -85,6 +85,7 @@ BiCGSTAB/CG, a zero or non-finite diagonal entry under Jacobi) raises
 The kernels and their cost model: :mod:`taichi_hh.linalg.krylov_kernels`.
 """
 import math
+import os
 import time
 from collections import OrderedDict
 from typing import Callable, Optional, Protocol, runtime_checkable
@@ -102,6 +103,9 @@ from taichi_hh.linalg.stopping import (FAILURE_REASONS, STAGNATION_WINDOW, Colum
 __all__ = ["LinearOperator", "SolveResult", "Workspace", "get_workspace",
            "clear_workspace_cache", "bicgstab", "bicgstab_columns", "cg", "cgnr",
            "FAILURE_REASONS", "STAGNATION_WINDOW"]
+
+#: set to 1: :func:`bicgstab_columns` iterates the columns together on CUDA too
+JOINT_COLUMNS_VARIABLE = "TAICHI_HH_JOINT_COLUMNS"
 
 
 @runtime_checkable
@@ -382,6 +386,9 @@ class _BiCGSTAB(_Method):
                 ts, tt, self._arg(ss), self._arg(alpha), self._arg(self.rho),
                 self._arg(self.rhat2), self._arg(going), self.x, self.r, self.r_hat, self.p,
                 self.v, self.t, self.z, self.dinv, self.btol, self.n, self.beta_slot))
+            if self.k.bicg_direction is not None:     # the GPU's schedule: a kernel apart
+                self.k.bicg_direction(ts, tt, self._arg(going), self.r, self.p, self.v, self.z,
+                                      self.dinv, self.n, self.beta_slot)
             self.rr = np.where(going > 0.0, rr, self.rr)
             self.rho = np.where(going > 0.0, rho, self.rho)
             self._z_pending = self.M is not None     # z = M^-1 p: in the next step, if any
@@ -616,13 +623,15 @@ def bicgstab_columns(A, B, *, tol: float = 1e-6, max_iterations: Optional[int] =
                   raise_on_failure=raise_on_failure, stagnation_window=stagnation_window,
                   divergence_factor=divergence_factor, workspace=workspace)
     M = preconditioner if _is_preconditioner_object(preconditioner) else None
-    # Not on CUDA: Taichi 1.7.4's CUDA backend faults (misaligned address) in
-    # the several-column BiCGSTAB kernels, whose arguments and results are
-    # vectors of f64; one column at a time runs there (docs/arch.md)
+    # Not on CUDA: Taichi 1.7.4's CUDA backend faulted (misaligned address) in
+    # the several-column BiCGSTAB kernels; one column at a time runs there
+    # unless $TAICHI_HH_JOINT_COLUMNS=1 (to try it: benchmarks/
+    # bicg_columns_probe.py, docs/arch.md)
     joint = (cols > 1 and getattr(A, "accepts_columns", False)
              and callable(getattr(A, "apply_dot", None))
              and (M is None or getattr(M, "accepts_columns", False))
-             and runtime.state().arch != "cuda")
+             and (runtime.state().arch != "cuda"
+                  or os.environ.get(JOINT_COLUMNS_VARIABLE, "") == "1"))
     if not joint:
         return [bicgstab(A, B[:, c], **kwargs) for c in range(cols)]
     return _solve_square(_BiCGSTAB, A, B, None, preconditioner, raise_on_failure, workspace,

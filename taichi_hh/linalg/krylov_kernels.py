@@ -39,7 +39,8 @@ def solver_kernels(size: int, cols: int = 1) -> SimpleNamespace:
     """The kernel set for vectors of ``size`` entries and ``cols`` columns in the
     current precision.  Every set has the vector kernels (``fill``, ``copy``,
     ``norm2``, ``dot2``, ``invert_diagonal``) and BiCGSTAB's (``bicg_restart``,
-    ``bicg_half``, ``bicg_full``); the one-column set also CG's and CGNR's,
+    ``bicg_half``, ``bicg_full``, ``bicg_direction``: None but under the
+    GPU's schedule); the one-column set also CG's and CGNR's,
     which solve one right-hand side only."""
     runtime.ensure_init()
     return _build(runtime.state().precision, serial_below_threshold(size), cols, lanes.on())
@@ -67,13 +68,13 @@ def _half_alpha(rv, vv, rho, rhat2, active, btol):
 
 
 @ti.func
-def _omega(ts, tt, active):
+def bicg_omega(ts, tt, active):
     """BiCGSTAB's omega = <t, s> / <t, t> per column, 0 where frozen or t = 0."""
     return ti.select((tt > 0.0) & (active > 0.0), ts / tt, 0.0)
 
 
 @ti.func
-def _full_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol):
+def bicg_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol):
     """BiCGSTAB's breakdown flags per column: omega's (<t, s> rounding noise)
     and rho's (<r_hat, r> rounding noise).  Computed where they are used,
     not kept across the kernel's loops (docs/arch.md: CUDA)."""
@@ -202,7 +203,7 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -
     @ti.func
     def full_entry(i, ts, tt, active, x: ti.template(), r: ti.template(),
                    r_hat: ti.template(), t: ti.template(), z: ti.template()):
-        omega = _omega(ts, tt, active)
+        omega = bicg_omega(ts, tt, active)
         x[i] += omega * z[i]
         ri = r[i] - omega * t[i]
         r[i] = ri
@@ -233,6 +234,14 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -
         ok = active * (1.0 - indicator(negligible(rv, rhat2, vv, btol)))
         return ss, _half_alpha(rv, vv, rho, rhat2, active, btol), active - ok
 
+    @ti.func
+    def direction_entry(i, ts, tt, active, r: ti.template(), p: ti.template(),
+                        v: ti.template(), z: ti.template(), dinv: ti.template(),
+                        beta_slot: ti.template()):
+        pi = r[i] + beta_slot[0] * (p[i] - bicg_omega(ts, tt, active) * v[i])
+        p[i] = pi
+        z[i] = dinv[i] * pi
+
     @ti.kernel
     def bicg_full(ts: scal, tt: scal, ss: scal, alpha: scal, rho: scal, rhat2: scal,
                   active: scal, x: vec, r: vec, r_hat: vec, p: vec, v: vec, t: vec, z: vec,
@@ -240,25 +249,37 @@ def _bicgstab_kernels(precision: str, serial: bool, cols: int, in_lanes: bool) -
                   part: ti.types.ndarray()) -> (scal, scal, scal, scal):
         """Given t = A shat and its dots ts = <s, t>, tt = <t, t> (from the apply)
         and ss = ||s||^2: omega = ts / tt; x += omega shat; r = s - omega t;
-        then the next direction p = r + beta (p - omega v), z = phat = M^-1 p.
+        then the next direction p = r + beta (p - omega v), z = phat = M^-1 p
+        (with the sums in lanes, by :func:`bicg_direction` after it).
         Returns (||r||^2, rho_new, omega flag, rho flag).  ``beta_slot`` (one
-        entry) carries beta from the sums to the second loop."""
+        entry) carries beta from the sums to the direction's loop."""
         total = lanes.fold_entries(n, full_entry, (ts, tt, active, x, r, r_hat, t, z), 2, cols,
                                    lanes.ADD, in_lanes, serial, part)
         rr = lanes.unpack(cols, total, 0)
         rho_new = lanes.unpack(cols, total, 1)
-        omega_flag, rho_flag = _full_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol)
+        omega_flag, rho_flag = bicg_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol)
         go = active * (1.0 - omega_flag) * (1.0 - rho_flag)
-        beta_slot[0] = ti.select(go > 0.0, (rho_new / rho) * (alpha / _omega(ts, tt, active)), 0.0)
-        ti.loop_config(serialize=serial)
-        for i in range(n):
-            pi = r[i] + beta_slot[0] * (p[i] - _omega(ts, tt, active) * v[i])
-            p[i] = pi
-            z[i] = dinv[i] * pi
-        omega_end, rho_end = _full_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol)
+        beta_slot[0] = ti.select(go > 0.0, (rho_new / rho) * (alpha / bicg_omega(ts, tt, active)), 0.0)
+        if ti.static(not in_lanes):
+            ti.loop_config(serialize=serial)
+            for i in range(n):
+                direction_entry(i, ts, tt, active, r, p, v, z, dinv, beta_slot)
+        omega_end, rho_end = bicg_flags(ts, tt, ss, rr, rho_new, rhat2, active, btol)
         return rr, rho_new, omega_end, rho_end
 
-    return dict(bicg_restart=bicg_restart, bicg_half=bicg_half, bicg_full=bicg_full)
+    @ti.kernel
+    def bicg_direction(ts: scal, tt: scal, active: scal, r: vec, p: vec, v: vec, z: vec,
+                       dinv: rvec, n: ti.i32, beta_slot: vec):
+        """bicg_full's direction, p = r + beta (p - omega v), z = M^-1 p, as a
+        kernel of its own after it: with the sums in lanes, the fold and this
+        loop in one kernel gave p 1e13 off and z = 0 on two columns (Taichi
+        1.7's SPIR-V, lavapipe; tests/test_lanes.py), as if the loop read its
+        arrays wrongly."""
+        for i in range(n):
+            direction_entry(i, ts, tt, active, r, p, v, z, dinv, beta_slot)
+
+    return dict(bicg_restart=bicg_restart, bicg_half=bicg_half, bicg_full=bicg_full,
+                bicg_direction=bicg_direction if in_lanes else None)
 
 
 def _cg_kernels(precision: str, serial: bool, in_lanes: bool) -> dict:
