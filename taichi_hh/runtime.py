@@ -560,7 +560,7 @@ def resident() -> bool:
     memory (a call's work arrays would grow the process by every call), and
     where on lavapipe the two ways timed alike.  ``$TAICHI_HH_RESIDENT`` = 1
     or 0 forces it on or off whatever the arch (the tests of the device path
-    on the CPU and on lavapipe; an A/B on a GPU)."""
+    on the CPU; an A/B on a GPU)."""
     forced = os.environ.get(RESIDENT_VARIABLE, "")
     if forced in ("0", "1"):
         return forced == "1"
@@ -646,6 +646,14 @@ def to_device(a, dtype=np.float64):
 def to_host(a) -> np.ndarray:
     """``a`` as a numpy array: a :class:`Device` copied to the host, else as it is."""
     return a.to_numpy() if isinstance(a, Device) else a
+
+
+def writable(out, shape) -> bool:
+    """Whether ``out`` is an array of ``shape`` that a kernel can write flat:
+    a C-contiguous numpy array or a :class:`Device` one (a caller's ``out``,
+    else the caller makes one)."""
+    return out is not None and tuple(out.shape) == tuple(shape) and (
+        isinstance(out, Device) or out.flags.c_contiguous)
 
 
 def flat(a, dtype=np.float64):

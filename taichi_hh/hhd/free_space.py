@@ -636,7 +636,7 @@ def values_and_gradients(grid: Grid, u: np.ndarray, pad: int = 0, out=None) -> n
     u = _potentials(grid, u)
     nx, ny = grid.shape
     shape = (nx + 2 * pad, ny + 2 * pad, len(u), 3)
-    if not _writable(out, shape):
+    if not runtime.writable(out, shape):
         out = np.empty(shape)
     if len(u):
         _values_and_gradients(u.reshape(-1), nx, ny, grid.hx, grid.hy, int(pad),
@@ -652,18 +652,12 @@ def edge_padded(grid: Grid, u: np.ndarray, pad: int, out=None) -> np.ndarray:
     u = _potentials(grid, u)
     nx, ny = grid.shape
     shape = (nx + 2 * pad, ny + 2 * pad, len(u))
-    if not _writable(out, shape):
+    if not runtime.writable(out, shape):
         out = np.empty(shape)
     if len(u):
         _edge_padded(u.reshape(-1), nx, ny, int(pad), runtime.flat(out), len(u))
     return out
 
-
-def _writable(out, shape) -> bool:
-    """Whether ``out`` is an array of ``shape`` a kernel can write flat (a
-    C-contiguous numpy one, or a :class:`~taichi_hh.runtime.Device` one)."""
-    return out is not None and tuple(out.shape) == tuple(shape) and (
-        isinstance(out, runtime.Device) or out.flags.c_contiguous)
 
 
 def with_differences(grid: Grid, c: np.ndarray, out=None) -> np.ndarray:
@@ -676,7 +670,7 @@ def with_differences(grid: Grid, c: np.ndarray, out=None) -> np.ndarray:
     if min(NX, NY) < 3:
         raise ValueError(f"the grid's differences need 3 nodes a side, got {NX} x {NY}")
     shape = (NX, NY, m, 3)
-    if not _writable(out, shape):
+    if not runtime.writable(out, shape):
         out = runtime.work(shape) if isinstance(c, runtime.Device) else np.empty(shape)
     if m:
         _values_and_gradients(runtime.flat(c), NX, NY, grid.hx, grid.hy, 0, runtime.flat(out),

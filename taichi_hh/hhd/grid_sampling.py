@@ -238,8 +238,7 @@ def _tensor_at(grid: Grid, c3, points, pad, weights, dest, out=None):
     NX, NY, m = c3.shape
     n = len(points)
     on_device = any(isinstance(a, runtime.Device) for a in (c3, points, out))
-    if out is None or tuple(out.shape) != (n, m) or not (
-            isinstance(out, runtime.Device) or out.flags.c_contiguous):
+    if not runtime.writable(out, (n, m)):
         out = runtime.work((n, m)) if on_device else np.empty((n, m))
     if n:
         scatter = dest is not None

@@ -119,8 +119,7 @@ def columns(fields, pos, out=None) -> np.ndarray:
     runtime.ensure_init()
     f = np.ascontiguousarray(fields, dtype=np.float64)
     k, n = f.shape[0], f.shape[1]
-    if out is None or tuple(out.shape) != (n, 2 * k) or not (
-            isinstance(out, runtime.Device) or out.flags.c_contiguous):
+    if not runtime.writable(out, (n, 2 * k)):
         out = np.empty((n, 2 * k))
     if n and k:
         _columns(f.reshape(-1), runtime.flat(pos, np.int32), runtime.flat(out), k)
