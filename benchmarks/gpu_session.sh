@@ -5,6 +5,17 @@
 #
 #   bash benchmarks/gpu_session.sh            # logs and CSVs under $OUT (or outputs/gpu)
 #
+# The device image has Python 3.12 without Taichi: carry the wheels (56 MB
+# with the 4.7 MB tree, under the 64 MiB a call takes), made here once with
+#   echo /.whl/ >> .git/info/exclude
+#   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 \
+#     --implementation cp --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64 \
+#     -d .whl taichi==1.7.4 dill meshio
+# and start the device command with (carry: [".whl"])
+#   python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir \
+#     --target /tmp/site .whl/*.whl && export PYTHONPATH=/tmp/site:$PWD && \
+#   bash benchmarks/gpu_session.sh
+#
 # 1. which several-column BiCGSTAB kernel faults (benchmarks/bicg_columns_probe.py);
 # 2. the 1M window, work arrays on the device and in numpy alternating
 #    (target: <= 1 s warm; benchmarks/natural_scale.py --resident both);
@@ -18,6 +29,7 @@ cd "$(dirname "$0")/.."
 out="${OUT:-outputs/gpu}"
 mkdir -p "$out"
 export TAICHI_HH_ARCH=cuda
+python=$(command -v python3 || command -v python)
 step() {
   local name=$1 limit=$2
   shift 2
@@ -28,12 +40,12 @@ step() {
 }
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv > "$out/gpu.txt" 2>&1
 cat "$out/gpu.txt"
-step probe 150 python benchmarks/bicg_columns_probe.py --arch cuda --out-dir "$out"
-step natural_1m 150 python benchmarks/natural_scale.py --sizes 1000000 --repeats 5 \
+step probe 150 $python benchmarks/bicg_columns_probe.py --arch cuda --out-dir "$out"
+step natural_1m 150 $python benchmarks/natural_scale.py --sizes 1000000 --repeats 5 \
   --resident both --kernels --out-dir "$out"
-step arch 120 python benchmarks/arch.py --arches cpu,cuda --sizes 10000 --steps 3 --repeats 2 \
+step arch 120 $python benchmarks/arch.py --arches cpu,cuda --sizes 10000 --steps 3 --repeats 2 \
   --out-dir "$out"
-step droplet_160k 90 python benchmarks/flow_profile.py --particles 160000 --warmup 3 --steps 8 \
+step droplet_160k 90 $python benchmarks/flow_profile.py --particles 160000 --warmup 3 --steps 8 \
   --arch cuda --out-dir "$out"
-step tests 120 env TAICHI_HH_JOINT_COLUMNS=1 python -m pytest -q -p no:cacheprovider -x \
+step tests 120 env TAICHI_HH_JOINT_COLUMNS=1 $python -m pytest -q -p no:cacheprovider -x \
   tests/test_arch.py tests/test_resident.py tests/test_lanes.py tests/test_columns.py
