@@ -98,45 +98,11 @@ def subnormals_kept() -> bool:
 
 def _taichi():
     import taichi as ti  # imported lazily: importing taichi prints a banner
-    _free_vector_ndarrays()
+    from . import ndarray_release
+    ndarray_release.install()   # dropped ndarrays freed (vector ones, and on Vulkan)
     from .kernel_transform import install
     install()                # kernels' Python->IR transforms memoised (kernel_transform.py)
     return ti
-
-
-_vector_free_done = False
-
-
-def _free_vector_ndarrays() -> None:
-    """Make Taichi free vector and matrix ndarrays when Python collects them.
-
-    Taichi 1.7 frees the memory of a ``ScalarNdarray`` in its ``__del__`` but
-    ``VectorNdarray`` and ``MatrixNdarray`` have none, so every vector ndarray
-    made and dropped stays allocated (taichi-dev/taichi issue #8763; the fix,
-    PR #8764, moves ``__del__`` to the base class).  The flow keeps every
-    array it uses across steps and needs none of this (its memory is flat
-    without it: benchmarks/flow_memory.py); the one-shot calls
-    (``decompose``, ``project``, :class:`~taichi_hh.sph.pointset.PointSet`)
-    make vector ndarrays per call, which would otherwise never be freed
-    (docs/notes/flow.md).  Same deletion as the scalar class; done once (a
-    later removal, as the benchmark's ``--without-vector-free`` does,
-    sticks), and only where the class lacks its
-    own ``__del__``.
-    """
-    global _vector_free_done
-    if _vector_free_done:
-        return
-    _vector_free_done = True
-    try:
-        from taichi.lang import _ndarray, matrix
-    except ImportError:          # another Taichi layout: leave it alone
-        return
-    free = getattr(_ndarray.ScalarNdarray, "__del__", None)
-    if free is None:
-        return
-    for cls in (getattr(matrix, "VectorNdarray", None), getattr(matrix, "MatrixNdarray", None)):
-        if cls is not None and "__del__" not in vars(cls):
-            cls.__del__ = free
 
 
 def default_arch() -> str:
@@ -493,10 +459,13 @@ def release_launch_arguments(n_particles: int) -> None:
     collection after it finds nothing more) for 0.1 ms, where a full one
     walks every object of the process (Taichi's included: 30 ms).  What a
     first call's compilation leaves older waits for Python's own full
-    collections."""
+    collections.  On a SPIR-V arch the arrays so dropped are then freed
+    (:func:`~taichi_hh.ndarray_release.release_deferred`)."""
     if n_particles >= RELEASE_MIN_PARTICLES:
         import gc
         gc.collect(1)
+        from . import ndarray_release
+        ndarray_release.release_deferred()
 
 
 def array(dtype, shape, vector: int | None = None, *, zeroed: bool = True):

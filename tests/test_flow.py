@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from taichi_hh import ndarray_release
 from taichi_hh.errors import InputError
 from taichi_hh.flow import BlowUpError, FlowParams, TwoPhaseFlow
 
@@ -244,7 +245,7 @@ def test_dropped_vector_ndarrays_are_freed():
     """The library makes and drops vector ndarrays per call (the operators'
     gradient coefficients, every flow step: 1.2 MB a step at 2.5k particles);
     Taichi 1.7 never freed those (taichi-dev/taichi#8763).  taichi_hh.runtime
-    makes them free like scalar ndarrays."""
+    makes them free like scalar ndarrays (taichi_hh.ndarray_release)."""
     import gc
     import os
     import taichi as ti
@@ -256,13 +257,21 @@ def test_dropped_vector_ndarrays_are_freed():
         with open(status) as fh:
             return next(int(l.split()[1]) for l in fh if l.startswith("VmRSS")) / 1024
 
+    # Vulkan's allocator keeps freed memory for reuse, up to one block of
+    # 256 MB (lavapipe: a plateau at 200 MB over 150 arrays), so there the
+    # arrays are more, to leak beyond it
+    from taichi_hh import runtime
+    spirv = runtime.state().arch == "vulkan"
+    count, kept_mb = (100, 60.0 + 256.0) if spirv else (30, 60.0)
     before = rss_mb()
-    for _ in range(30):
+    for _ in range(count):
         a = ti.Vector.ndarray(2, ti.f64, shape=(500_000,))     # 8 MB each
         a.fill(1.0)
         del a
     gc.collect()
-    assert rss_mb() - before < 60.0                            # 240 MB if leaked
+    # on Vulkan, dropped arrays a launch used wait to be freed in a batch
+    ndarray_release.release_deferred()
+    assert rss_mb() - before < kept_mb                         # 8 MB an array if leaked
 
 
 def test_a_step_allocates_no_ndarrays_in_the_flow():
