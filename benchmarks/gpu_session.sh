@@ -23,7 +23,11 @@
 #    project included);
 # 4. the droplet at 160k particles (target >= 3e6 particle-steps/s);
 # 5. the device path's tests and the joint solve of two columns on CUDA
-#    ($TAICHI_HH_JOINT_COLUMNS=1, to be enabled where the probe's bicg_step runs).
+#    ($TAICHI_HH_JOINT_COLUMNS=1, to be enabled where the probe's bicg_step runs);
+# 6. where the image has a Vulkan driver for the GPU, the same cases on Vulkan
+#    (never yet run on a GPU's Vulkan; its work arrays on the device since the
+#    twelfth session).  The caps add up to more than a call's 600 s: the steps
+#    are in order of need, and a call cut short still returns what $OUT holds.
 set -u
 cd "$(dirname "$0")/.."
 out="${OUT:-outputs/gpu}"
@@ -49,3 +53,5 @@ step droplet_160k 90 $python benchmarks/flow_profile.py --particles 160000 --war
   --arch cuda --out-dir "$out"
 step tests 120 env TAICHI_HH_JOINT_COLUMNS=1 $python -m pytest -q -p no:cacheprovider -x \
   tests/test_arch.py tests/test_resident.py tests/test_lanes.py tests/test_columns.py
+step arch_vulkan 90 $python benchmarks/arch.py --arches cpu,vulkan --sizes 10000 --steps 3 \
+  --repeats 1 --out-dir "$out/vulkan"

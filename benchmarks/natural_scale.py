@@ -28,8 +28,8 @@ seconds across runs).  ``--kernels`` also times every Taichi kernel launch
 (wall and CPU), sums the bytes of the numpy arrays each launch takes (a GPU
 arch copies them to the device and back at every launch) and prints the
 largest.  ``--resident both`` times the work arrays on the device
-(:func:`taichi_hh.runtime.resident`, CUDA's default) and in numpy (every
-other arch's) in one process, their warm calls alternating: a row each.
+(:func:`taichi_hh.runtime.resident`, a GPU's default) and in numpy (the
+CPU's and lavapipe's) in one process, their warm calls alternating: a row each.
 
 Writes ``outputs/benchmarks/natural_scale.csv``.
 """

@@ -221,6 +221,8 @@ def _start(ti, arch, precision, offline_cache_dir, threads, debug, pin_threads) 
     _state.arch = actual
     _state.device = _device_name(actual)
     _state.software = actual == "vulkan" and _software_vulkan_only()
+    if _state.software:
+        check_mapping_limit()
     _state.requested_arch = arch
     _state.precision = precision
     _state.generation += 1
@@ -364,6 +366,33 @@ def _software_vulkan_only() -> bool:
     no GPU, and ``"gpu"``/``"auto"`` do not take it."""
     devices = vulkan_devices()
     return bool(devices) and all(kind == "cpu" for _, kind in devices)
+
+
+#: memory mappings a long run on lavapipe wants (:func:`check_mapping_limit`)
+LAVAPIPE_MAPPINGS = 1 << 20
+
+
+def check_mapping_limit(path: str = "/proc/sys/vm/max_map_count") -> int | None:
+    """Warn, on Mesa's lavapipe, where the kernel's limit on a process's
+    memory mappings is low: lavapipe keeps the descriptor set of every kernel
+    launch in a mapping of its own (it never reports a full pool, and Taichi
+    1.7 opens a new one only when told), and once the limit is reached its
+    next allocation segfaults (docs/arch.md).  Returns the limit read (None
+    where there is none to read)."""
+    try:
+        with open(path) as fh:
+            limit = int(fh.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    if limit < LAVAPIPE_MAPPINGS:
+        import warnings
+        warnings.warn(
+            f"Vulkan runs on Mesa's lavapipe here, which keeps a memory mapping for "
+            f"every kernel launch: this process will crash after about {limit} "
+            f"launches (vm.max_map_count = {limit}; a scene takes some 70 a step). "
+            f"Raise the limit as root (sysctl -w vm.max_map_count={LAVAPIPE_MAPPINGS}), "
+            f"or use arch='cpu'", RuntimeWarning, stacklevel=3)
+    return limit
 
 
 def _device_name(arch: str) -> str:
@@ -519,22 +548,24 @@ def array(dtype, shape, vector: int | None = None, *, zeroed: bool = True):
 
 def resident() -> bool:
     """Whether work arrays that only kernels read live on the device
-    (:class:`Device`, Taichi ndarrays) rather than in numpy: on CUDA.  There
-    Taichi 1.7 copies each numpy argument of a kernel to the device before
-    the launch and back after it, synchronously from pageable memory, so an
-    array written by one kernel and read by the next crossed the bus four
-    times (a 1M-point window passed 1 GB of numpy arguments; docs/arch.md).
-    Not on the CPU, where a numpy argument is not copied and is what the host
-    code reads cheapest; not on Vulkan, where Taichi 1.7 returns no ndarray's
-    memory (a call's work arrays would grow the process by every call), and
-    where on lavapipe the two ways timed alike.  ``$TAICHI_HH_RESIDENT`` = 1
-    or 0 forces it on or off whatever the arch (the tests of the device path
-    on the CPU; an A/B on a GPU)."""
+    (:class:`Device`, Taichi ndarrays) rather than in numpy: on a GPU (CUDA,
+    or Vulkan on a GPU).  There Taichi 1.7 copies each numpy argument of a
+    kernel to the device before the launch and back after it (on CUDA
+    synchronously from pageable memory), so an array written by one kernel
+    and read by the next crossed the bus four times (a 1M-point window passed
+    1 GB of numpy arguments; docs/arch.md).  Not on the CPU, where a numpy
+    argument is not copied and is what the host code reads cheapest; not on
+    a software Vulkan driver (lavapipe: the two ways timed alike there).
+    Vulkan returns the dropped arrays' memory through
+    :mod:`taichi_hh.ndarray_release` (Taichi 1.7 alone kept any array a
+    launch had used since the last synchronisation).  ``$TAICHI_HH_RESIDENT``
+    = 1 or 0 forces it on or off whatever the arch (the tests of the device
+    path on the CPU and lavapipe; an A/B on a GPU)."""
     forced = os.environ.get(RESIDENT_VARIABLE, "")
     if forced in ("0", "1"):
         return forced == "1"
     ensure_init()
-    return _state.arch == "cuda"
+    return _state.arch != "cpu" and not _state.software
 
 
 _NUMPY_TO_TAICHI = {np.dtype(np.float64): "f64", np.dtype(np.float32): "f32",

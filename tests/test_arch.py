@@ -164,3 +164,19 @@ def test_the_direct_sums_logarithm_from_the_bits_is_numpys():
     weight[near] = (grid.near_kernel() / (grid.hx * grid.hy))[i[near] + E, j[near] + E]
     want = weight @ q
     assert np.abs(bits - want).max() < 1e-13 * np.abs(want).max()
+
+
+def test_a_low_mapping_limit_is_named_before_lavapipe_crashes(tmp_path):
+    """lavapipe keeps a memory mapping per kernel launch and segfaults at the
+    kernel's limit (docs/arch.md): a low vm.max_map_count is named, with the
+    fix; a raised one, or none to read, says nothing."""
+    import warnings
+    low, high = tmp_path / "low", tmp_path / "high"
+    low.write_text("65530\n")
+    high.write_text(f"{runtime.LAVAPIPE_MAPPINGS}\n")
+    with pytest.warns(RuntimeWarning, match=r"vm\.max_map_count = 65530.*sysctl"):
+        assert runtime.check_mapping_limit(str(low)) == 65530
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert runtime.check_mapping_limit(str(high)) == runtime.LAVAPIPE_MAPPINGS
+        assert runtime.check_mapping_limit(str(tmp_path / "absent")) is None

@@ -1,4 +1,4 @@
-"""Work arrays on the device (taichi_hh.runtime.resident, on CUDA by default):
+"""Work arrays on the device (taichi_hh.runtime.resident, on a GPU by default):
 the natural split's kernels chained through Device arrays give the numpy
 path's answer bit for bit, on whatever arch the session runs (the CPU here,
 lavapipe in .ci/vulkan), and pass the kernels far fewer numpy arrays (each
