@@ -1,7 +1,7 @@
 """The command line (taichi-hh decompose / project), its readers, writers and figures.
 
 Runs ``cli.main([...])`` in-process on a small analytic field (~1500 points),
-always with ``--arch cpu --precision f64`` so that the session's Taichi runtime
+always with the session's arch and ``--precision f64`` so that the session's Taichi runtime
 (conftest) is reused rather than re-initialised.
 """
 import contextlib
@@ -21,7 +21,8 @@ from taichi_hh.app import cli
 from taichi_hh.validation import fields
 from taichi_hh.app import figures
 from taichi_hh.app import io as thio
-RUNTIME = ["--arch", "cpu", "--precision", "f64"]
+from conftest import ARCH
+RUNTIME = ["--arch", ARCH, "--precision", "f64"]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 

@@ -96,6 +96,7 @@ import taichi_hh as thh  # noqa: E402
 from taichi_hh.errors import AccuracyWarning, InputError, TaichiHHError  # noqa: E402
 from taichi_hh.hhd.options import (METHODS, MULTILEVEL_OPTION_SPECS,  # noqa: E402
                                    OPTION_SPECS)
+from conftest import ARCH  # noqa: E402  (the session's arch: the CLI cases run on it)
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 
@@ -1523,11 +1524,11 @@ def _run_cli_case(prop, case, directory):
     path, pts, vec, readable = write_cli_field(case, directory)
     check_reader(prop, case, path, pts, vec, readable, directory)
     out = os.path.join(directory, "out")
-    # always f64 on the CPU: another precision would re-initialise the session's
+    # always f64 on the session's arch: another would re-initialise the session's
     # Taichi runtime (tests/test_cli.py); --precision f16 in the options is a
     # usage error that argparse refuses before that
     argv = [case["command"], path, "-o", out, *_cli_domain(case, pts, directory),
-            "--arch", "cpu", "--precision", "f64", "--quiet",
+            "--arch", ARCH, "--precision", "f64", "--quiet",
             *[a for o in case["options"] for a in o]]
     if not case["figures"]:
         argv.append("--no-figures")

@@ -11,6 +11,7 @@ import signal
 import numpy as np
 import pytest
 
+from taichi_hh import runtime
 from taichi_hh.errors import SolverError
 from taichi_hh.errors import BlowUp
 from taichi_hh.app.runloop import (Checkpoint, DiagnosticsWriter, ProgressBar,
@@ -283,8 +284,9 @@ def test_progress_bar_on_a_tty_redraws_in_place_at_most_5_times_a_second():
 def test_common_arguments():
     ap = add_common_arguments(argparse.ArgumentParser(), {"particles": 5000, "out": "outputs/x"})
     args = ap.parse_args([])
+    # the arch's default: $TAICHI_HH_ARCH where set (vulkan in CI's Vulkan run), else cpu
     assert (args.particles, args.out, args.arch, args.movie, args.color, args.precision) == \
-        (5000, "outputs/x", "cpu", "none", "phase", "f64")
+        (5000, "outputs/x", runtime.default_arch(), "none", "phase", "f64")
     assert args.resume is False and args.quiet is False
     args = ap.parse_args("--particles 100 --end-time 0.5 --resume --movie gif --fps 12 "
                          "--frame-width 640 --color speed --precision f32 --quiet --arch gpu".split())
