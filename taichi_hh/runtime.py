@@ -451,9 +451,9 @@ def on_gpu() -> bool:
     work) run in parallel, and sums go through lanes
     (:mod:`taichi_hh.linalg.lanes`).  Not on the CPU, nor on a software
     Vulkan driver (Mesa's lavapipe runs on CPU threads: the CPU's schedule
-    fits it, and its long processes crash sooner under the GPU's;
-    docs/arch.md).  ``$TAICHI_HH_GPU_SCHEDULE`` = 1 or 0 forces it on or off
-    whatever the device (the tests of the GPU's code paths on the CPU)."""
+    fits it; docs/arch.md).  ``$TAICHI_HH_GPU_SCHEDULE`` = 1 or 0 forces it
+    on or off whatever the device (the tests of the GPU's code paths on the
+    CPU and on lavapipe, as ``.ci/vulkan`` runs them)."""
     forced = os.environ.get(GPU_SCHEDULE_VARIABLE, "")
     if forced in ("0", "1"):
         return forced == "1"
