@@ -391,7 +391,7 @@ def check_mapping_limit(path: str = "/proc/sys/vm/max_map_count") -> int | None:
             f"every kernel launch: this process will crash after about {limit} "
             f"launches (vm.max_map_count = {limit}; a scene takes some 70 a step). "
             f"Raise the limit as root (sysctl -w vm.max_map_count={LAVAPIPE_MAPPINGS}), "
-            f"or use arch='cpu'", RuntimeWarning, stacklevel=3)
+            f"or use arch='cpu'", RuntimeWarning, stacklevel=4)
     return limit
 
 
