@@ -41,11 +41,18 @@ def _impl():
     return impl
 
 
-def _spirv_arch(impl) -> bool:
-    import taichi as ti
-    arch = impl.current_cfg().arch
-    return any(arch == getattr(ti, name, None) for name in ("vulkan", "metal", "opengl",
-                                                              "gles", "dx11"))
+_arch_of: list = [None, False]   # (the Program last asked about, whether it is SPIR-V)
+
+
+def _spirv_arch(impl, prog) -> bool:
+    """Whether ``prog`` runs a SPIR-V arch (asked once a Program: a drop
+    costs Taichi's own deletion and little more)."""
+    if _arch_of[0] is not prog:
+        import taichi as ti
+        arch = impl.current_cfg().arch
+        _arch_of[:] = [prog, any(arch == getattr(ti, name, None)
+                                 for name in ("vulkan", "metal", "opengl", "gles", "dx11"))]
+    return _arch_of[1]
 
 
 def _release(self) -> None:
@@ -58,7 +65,7 @@ def _release(self) -> None:
         arr = getattr(self, "arr", None)
         if prog is None or arr is None:
             return
-        if not _spirv_arch(impl):
+        if not _spirv_arch(impl, prog):
             prog.delete_ndarray(arr)
             return
         with _lock:
